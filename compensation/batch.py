@@ -34,7 +34,7 @@ import numpy as np
 
 from errormap.threads import limit_threads
 
-from .solvers import GA_METHODS, SolveResult, solve, solve_function, solver_spec  # GA_METHODS: for the workflows
+from .solvers import GA_METHODS, SolveResult, get_solver, solve, solver_spec  # GA_METHODS: for the workflows
 from .solvers._converge import merge_stats
 
 CHUNK_POINTS = 65_536
@@ -113,7 +113,7 @@ def solve_chunk(method: str, contexts, task: ChunkTask, options: dict | None = N
     shows one for the batch).
     """
     field_, machine = contexts[task.context]
-    takes = inspect.signature(solve_function(method, machine)).parameters
+    takes = inspect.signature(get_solver(method)).parameters
     opts = dict(options or {})
     opts.pop("seed", None)
     spec = solver_spec(method)

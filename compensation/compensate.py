@@ -75,15 +75,15 @@ def compensate_points(field, machine, axes, method: str = "exact", seed: int = 0
                       rotary_limit_deg: float | None = None) -> Compensation:
     """Compensate the points a program commands at ``axes`` (n, k) on a machine-tool chain (or the grinder
     file, as its chain) with the error ``field`` (``Identification.field_``, ``load_model``): targets are the
-    nominal tool points there, the solver ``method`` (:data:`compensation.solvers.CHAIN_METHODS`; ``seed``
+    nominal tool points there, the solver ``method`` (:data:`compensation.solvers.METHODS`; ``seed``
     for the seeded ones) finds the commands, and every guard runs (``allow``: guard names overridden, as
     ``--allow``). Returns a :class:`Compensation`."""
     from . import guards
-    from .solvers import CHAIN_METHODS, solve, solver_spec
+    from .solvers import METHODS, solve, solver_spec
     from .solvers.chain_exact import check_rotary_limit, nominal_and_jacobian
     machine = _chain(machine, "compensate_points(machine=...)")
-    if method not in CHAIN_METHODS:
-        raise ValueError(f"Expected method in {list(CHAIN_METHODS)}, got {method!r}")
+    if method not in METHODS:
+        raise ValueError(f"Expected method in {list(METHODS)}, got {method!r}")
     axes = np.atleast_2d(np.asarray(axes, dtype=float))
     if axes.ndim != 2 or axes.shape[1] != len(machine.axes):
         raise ValueError(f"Expected axes of shape (n, {len(machine.axes)}) in columns {list(machine.axis_columns)}, "

@@ -96,26 +96,6 @@ def path_conditions(tp, needs, constants: dict, units: str = UNITS_CHECK, units_
     return out
 
 
-def replanned_conditions(conditions, toolpath):
-    """``conditions`` ({name: (n,)} from :func:`path_conditions`, or None) for ``toolpath`` after
-    :func:`compensation.pathio.replan`: a CSV path comes back unchanged (its rows and their
-    conditions too); a G-code path's vertices may be placed again, and its conditions are the
-    options' constants (a G-code file has no condition columns), so each is the same value at
-    every new vertex."""
-    if conditions is None:
-        return None
-    n = len(toolpath)
-    out = {}
-    for name, v in conditions.items():
-        if len(v) == n:
-            out[name] = v
-            continue
-        if toolpath.kind != "gcode" or v.size == 0 or np.any(v != v[0]):  # pragma: no cover - replan keeps CSV rows
-            raise AssertionError(f"{toolpath.path}: condition '{name}' cannot follow the replanned vertices")
-        out[name] = np.full(n, v[0])
-    return out
-
-
 def solve_with_conditions(method, field, targets_mm, machine, conditions: dict, **kw):
     """Compensate ``targets_mm`` (n, 3) with a diagnosed model whose terms take per-point
     ``conditions`` {name: (n,)} (see module doc); ``field``: :class:`ConditionedField`.

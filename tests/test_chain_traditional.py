@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from compensation.app.cli import main
-from compensation.solvers import CHAIN_METHODS, solve
+from compensation.solvers import METHODS, solve
 from compensation.solvers.chain_exact import nominal_and_jacobian, solved_and_kept
 from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
@@ -91,7 +91,7 @@ def test_traditional_is_a_chain_method_and_its_command_is_target_minus_error():
     f = field_of(mt, 31)
     ax = np.random.default_rng(32).uniform(mt.stroke_lo, mt.stroke_hi, (500, 3))
     targets = mt.nominal(ax)
-    assert "traditional" in CHAIN_METHODS
+    assert "traditional" in METHODS
     r = solve("traditional", f, targets, mt, progress=False)  # no target axes: the nominal inverse
     # linear axes: the command is exactly p_d − 1e-3·E(q_d) (the map is affine), up to round-off
     assert np.abs(r.commands_mm - (targets - 1e-3 * f.predict(ax))).max() < 1e-9

@@ -10,7 +10,7 @@ import torch
 
 from compensation.app.cli import main
 from compensation.fields import resolve_model
-from compensation.solvers import CHAIN_METHODS, solve
+from compensation.solvers import METHODS, solve
 from compensation.solvers.ga import DEFAULT_TOL_UM
 from errormap.io import InputError
 from errormap.machine import load_machine
@@ -109,7 +109,7 @@ def test_batched_ga_on_a_chain_model_residual(name, n):
 
 
 def test_chain_methods_registry():
-    assert set(CHAIN_METHODS) == {"traditional", "exact", "batched-ga", "ga"}  # every solver has a chain entry
+    assert set(METHODS) == {"traditional", "exact", "batched-ga", "ga"}  # every solver has a chain entry
     mt = load_machine("mill-xyz")
     r = solve("traditional", ChainField(mt, chain_elements(mt, 1)), mt.nominal(np.full((1, 3), 50.0)), mt)
     assert r.method == "traditional" and r.info["compensated_axes"] == ["x_mm", "y_mm", "z_mm"]

@@ -1,27 +1,15 @@
 """The learned residual stage of an arm calibration: the project's :class:`training.residual.ResidualRegressor`
 on the inputs the physics of a serial chain suggests.
 
-Inputs (derived from the chain, nothing machine-specific), ``inputs``:
-
-``"physics"``
-    each revolute joint as sin/cos (prismatic joints: value / stroke), and per joint the gravity
-    moment about its axis of unit masses at the downstream joint origins and the tool point, from
-    the NOMINAL chain, in m (:func:`errormap.arm_simulate.gravity_moment_mm`) — what a
-    joint-stiffness sag or a gear's load-dependent deflection follows;
-``"sincos"``
-    the joints alone (sin/cos): the plain learner an engineer tries first;
-``"physics+h2"``
-    ``"physics"`` and each revolute joint's second harmonic (sin 2q, cos 2q: a twice-per-turn gear or
-    encoder error);
-``"physics+wrist"``
-    ``"physics"`` and the products of the last three revolute joints' sin/cos in pairs (s_i s_j, s_i c_j,
-    c_i s_j, c_i c_j for i < j: a wrist error that depends on two joints together).
-
-Output: the 3-D position residual (measured − geometric model), mm. Everything else — the GP,
-its hyper-parameters by marginal likelihood, the choice against predicting zero by CV inside the fit
-set (blocked when ``groups`` are given), the band calibrated on that CV, the closed-form Jacobian,
-JSON — is :class:`~training.residual.ResidualRegressor`'s. ``chosen_ == "none"``: the learner did not
-beat the geometric stage in CV; nothing is added.
+Inputs (``inputs``, derived from the chain, nothing machine-specific): ``"physics"`` — each revolute joint as
+sin/cos (prismatic: value / stroke) and per joint the gravity moment about its axis of unit masses at the
+downstream joint origins and the tool point, from the NOMINAL chain, in m
+(:func:`errormap.arm_simulate.gravity_moment_mm`); ``"sincos"`` — the joints alone (the plain learner);
+``"physics+h2"`` — adds each revolute joint's sin 2q, cos 2q; ``"physics+wrist"`` — adds the pairwise products of
+the last three revolute joints' sin/cos. Output: the 3-D position residual (measured − geometric model), mm.
+The GP, its choice against predicting zero by CV inside the fit set, the band and the Jacobian are
+:class:`~training.residual.ResidualRegressor`'s; ``chosen_ == "none"``: nothing is added.
+docs/reference/arm-calibration.md.
 """
 from __future__ import annotations
 

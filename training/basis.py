@@ -1,28 +1,16 @@
 """A Bayesian regression on a tensor-product basis: a learned-residual family of few effective parameters.
 
-:class:`BasisRegression` is the ``"basis"`` family of :class:`training.residual.ResidualRegressor`
-(same interface as its Gaussian process: ``fit(Xs, Ys)`` on standardised inputs and scaled
-outputs, ``predict(Xs, return_std, jacobian)``, ``noise_var()``):
-
-* the basis: per input GROUP (``groups``, as the regressor's ``input_groups``) a one-dimensional
-  family — Legendre polynomials of a single input, mapped to [−1, 1] over the training data's range,
-  or, for a group of two inputs (the cos and sin of a rotary axis), the Fourier harmonics
-  ``cos kθ, sin kθ`` of the pair's angle ``θ = atan2(s, c)`` about the origin of the standardised
-  pair (a smooth one-to-one re-parametrisation of the rotary axis: the standardised pair lies on
-  an ellipse around the origin); the columns are the products over the groups with TOTAL degree
-  (Legendre degree + harmonic order) at most :data:`DEGREE`;
-* the prior: independent zero-mean Gaussian coefficients with variance ``σ² · q^degree`` (higher
-  orders a priori smaller, ``0 < q ≤ 1``); ``σ²``, ``q`` and the noise variance by maximum marginal
-  likelihood (empirical Bayes) per output; the posterior mean is the prediction, its standard
-  deviation the band (calibrated by the regressor on the cross-validation's held-out folds);
-* outside the training data's range in a linear input the basis is multiplied by a C¹ envelope
-  that falls from 1 to 0 over :data:`ENVELOPE_FRAC` of the range (the learned part never
-  extrapolates a polynomial), and the band there rises to the prior's;
-* the Jacobian d(mean)/d(input) is closed form (Legendre derivatives by their recurrence, the
-  harmonics' derivative through the angle, the envelope's).
-
-Numpy/scipy only; a fit factorises the smaller of the p × p coefficient and the n × n data-space matrix,
-milliseconds per marginal-likelihood evaluation.
+:class:`BasisRegression` is the ``"basis"`` family of :class:`training.residual.ResidualRegressor` (the GP's
+interface: ``fit(Xs, Ys)`` on standardised inputs and scaled outputs, ``predict(Xs, return_std, jacobian)``,
+``noise_var()``). Per input GROUP (``groups``, as the regressor's ``input_groups``) a one-dimensional family —
+Legendre polynomials of one input mapped to [−1, 1] over the training range, or the Fourier harmonics
+``cos kθ, sin kθ`` of a two-input group's angle ``θ = atan2(s, c)`` (a rotary axis' cos and sin) — and the
+columns are the products over the groups with TOTAL degree at most :data:`DEGREE`. Prior: independent
+zero-mean Gaussian coefficients of variance ``σ² · q^degree``; ``σ²``, ``q`` and the noise by maximum marginal
+likelihood per output; posterior mean and standard deviation are prediction and band. Outside the training
+range of a linear input the basis is multiplied by a C¹ envelope falling to 0 over :data:`ENVELOPE_FRAC` of the
+range (never an extrapolated polynomial). Closed-form Jacobian. Numpy/scipy only.
+docs/reference/learned-stage.md.
 """
 from __future__ import annotations
 

@@ -1,26 +1,15 @@
 """The error-field network over a machine-tool chain's own axes, and its training.
 
-:class:`ChainMLPField` is the grinder's :class:`training.model.MLPField` (same layers, activations,
-functional ``forward``/``param_jacobian``, trainers, output scaling, file set) with the inputs
-taken from a machine-tool chain (``kind = "machine-tool"``, ``docs/how-to/machine-file.md``): one input per
-axis column in the machine's canonical order (``x_mm, y_mm, z_mm`` on ``mill-xyz``; ``x_mm, y_mm,
-z_mm, a_deg, c_deg`` on ``five-axis-ac``), each mapped linearly from its training range to
-``[-1, 1]``, except a **full-turn rotary axis**, which enters as ``(cos q, sin q)`` — the grinder's
-``periodic`` encoding, so the field is exactly periodic in it and needs no seam closure. Output:
-``(dx_um, dy_um, dz_um)``, the tool point's spatial error in the workpiece frame.
-
-Inference (``predict``, ``predict_and_jacobian``, ``jacobian``): float64 torch on rows in blocks of
-``chunk`` points, the input Jacobian by forward-mode tangents written out (one tangent per axis,
-``dh' = σ'(z) ⊙ (W dh)``), shape (n, 3, k) μm per mm / per deg. Declares ``jacobian`` and
-``predict_and_jacobian`` (the exact chain solver needs them), not the grinder network's float32,
-column and fused-fitness paths.
-
-Files: the grinder's set (``config.json``, ``scalers.json``, ``weights.npy``, SHA-256 recorded)
-with ``format = "volcomp-chain-mlpfield/1"``; ``config.json`` records the axis columns, which of
-them are periodic and the machine's name and SHA-256, and :func:`check_machine` refuses the model
-on a machine with other axes or another name. :func:`fit_chain_field` trains it on a chain's
-feature points (validation and selection points: random points of the element set the feature
-points name, from children of the seed), like :func:`training.trainers.fit_field`.
+:class:`ChainMLPField` is the grinder's :class:`training.model.MLPField` (layers, activations, functional
+``forward``/``param_jacobian``, trainers, output scaling, file set) with one input per axis column of the chain
+in its canonical order, each scaled from its training range to ``[-1, 1]``, a full-turn rotary axis as
+``(cos q, sin q)`` (exactly periodic, no seam closure). Output ``(dx_um, dy_um, dz_um)``, the tool point's
+error in the workpiece frame. ``predict``/``jacobian``/``predict_and_jacobian``: float64 torch on rows in blocks
+of ``chunk`` points, the input Jacobian (n, 3, k) μm per mm / per deg by forward-mode tangents. Files: the
+grinder's set with ``format = "volcomp-chain-mlpfield/1"``, the axis columns, periodic inputs and machine
+(name, SHA-256) in ``config.json``; :func:`check_machine` refuses it on another machine.
+:func:`fit_chain_field` trains it like :func:`training.trainers.fit_field`. docs/reference/learned-stage.md
+("The network over a chain").
 """
 from __future__ import annotations
 
@@ -34,7 +23,7 @@ import numpy as np
 import torch
 
 from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN, CalibratedVolume
-from errormap.io import InputError, load_array, read_document_text
+from errormap.io import InputError, read_document_text
 
 from .model import A_ENCODINGS, MODEL_FILES, PAPER_HIDDEN, MLPField, check_model_files, check_model_format
 from .physics import PHYSICS_FILES, PhysicsPart
@@ -251,12 +240,7 @@ class ChainMLPField(MLPField):
         if m.in_lo_.shape != (m.n_axes,) or m.in_hi_.shape != (m.n_axes,) or m.out_mean_.shape != (3,):
             raise InputError(f"{d / 'scalers.json'}: keys 'in_lo'/'in_hi': expected {m.n_axes} values "
                              f"({', '.join(m.axis_columns)}) and 'out_mean_um' 3")
-        theta = load_array(d / "weights.npy", "weights file")
-        if theta.shape != (m.n_params,):
-            raise InputError(f"{d / 'weights.npy'}: expected {m.n_params} parameters, got shape {theta.shape}")
-        m.theta_ = torch.from_numpy(theta.astype(np.float64))
-        m._read_extra_files(d)
-        return m
+        return m._read_weights(d)
 
 
 class ChainPhysicsMLPField(PhysicsPart, ChainMLPField):

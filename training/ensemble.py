@@ -1,22 +1,13 @@
 """A deep ensemble of small multilayer perceptrons: a learned-residual family beside the GP.
 
-:class:`MLPEnsemble` is the ``"ensemble"`` family of :class:`training.residual.ResidualRegressor`
-(same interface as its Gaussian process: ``fit(Xs, Ys)`` on standardised inputs and scaled
-outputs, ``predict(Xs, return_std, jacobian)``, ``noise_var()``):
-
-* :data:`N_MEMBERS` networks ``d → H → H → 3`` (tanh, :data:`HIDDEN` units), each from its own
-  child of ``SeedSequence.spawn`` (different initial weights), trained by L-BFGS on the mean
-  squared error plus a weight decay (:data:`WEIGHT_DECAY`: the L2 penalty pulls every weight,
-  hence the output, toward zero where the data do not ask for more);
-* the prediction is the members' mean, its band their spread (standard deviation) — calibrated,
-  like the GP's, on the blocked cross-validation's held-out folds by the regressor
-  (``band_scale_``); the noise is the mean's residual variance on the training points;
-* the Jacobian d(mean)/d(input) is closed form through the networks (analytic back-propagation
-  of the tanh layers), so the solvers that need it (``exact``, ``batched-ga``) solve with it.
-
-Numpy only (no torch): at 800 checks a fit is a few CPU seconds. Outside the data an MLP does
-not decay to zero by itself: :class:`compensation.hybrid.LearnedResidual` tapers every family
-to zero outside the checks' box, and the guards refuse there.
+:class:`MLPEnsemble` is the ``"ensemble"`` family of :class:`training.residual.ResidualRegressor` (the GP's
+interface: ``fit(Xs, Ys)`` on standardised inputs and scaled outputs, ``predict(Xs, return_std, jacobian)``,
+``noise_var()``): :data:`N_MEMBERS` networks ``d → H → H → 3`` (tanh, :data:`HIDDEN` units), each from its own
+child of ``SeedSequence.spawn``, trained by L-BFGS on the MSE plus a weight decay toward zero
+(:data:`WEIGHT_DECAY`); prediction the members' mean, band their spread (calibrated by the regressor on the
+held-out folds), noise the mean's training residual variance; closed-form Jacobian through the tanh layers.
+Numpy only. An MLP does not decay to zero outside its data by itself: :class:`compensation.hybrid.LearnedResidual`
+tapers every family there. docs/reference/learned-stage.md.
 """
 from __future__ import annotations
 

@@ -84,6 +84,16 @@ class TrainHistory:
     seconds: float = 0.0
     max_abs: list = field(default_factory=list)   # max |scaled residual| after each iteration
 
+    def record(self, mse: float, t0: float, callback=None, rate: float = 0.0) -> None:
+        """One iteration done: its loss and elapsed seconds (since ``t0``), then
+        ``callback(iteration, mse, elapsed_s, rate)`` (``rate``: LM's μ, Adam's learning rate)."""
+        self.iterations += 1
+        el = time.perf_counter() - t0
+        self.loss.append(mse)
+        self.elapsed_s.append(el)
+        if callback is not None:
+            callback(self.iterations, mse, el, rate)
+
 
 def residual_fn(model, u: torch.Tensor, y: torch.Tensor, jacobian: str = "analytic"):
     """``theta -> r`` (shape (3n,)) and ``theta -> J`` (shape (3n, P)) for a model and scaled data."""
@@ -106,11 +116,12 @@ def residual_fn(model, u: torch.Tensor, y: torch.Tensor, jacobian: str = "analyt
     return res, jac
 
 
-def _stop_reason(s: LMSettings, h: TrainHistory, mse: float, r: torch.Tensor, t0: float) -> str:
-    """Why training stops before the next iteration ("" to go on): goals, iteration cap, budget."""
+def stop_reason(s: LMSettings, h: TrainHistory, mse: float, t0: float, r: torch.Tensor | None = None) -> str:
+    """Why training stops before the next iteration ("" to go on): goals (the max |residual| goal where ``r``,
+    the scaled residuals, is given), iteration cap, budget."""
     if mse <= s.mse_goal:
         return f"mse goal {s.mse_goal:g} reached"
-    if s.max_abs_goal > 0 and float(r.abs().max()) <= s.max_abs_goal:
+    if r is not None and s.max_abs_goal > 0 and float(r.abs().max()) <= s.max_abs_goal:
         return f"max |residual| goal {s.max_abs_goal:g} reached"
     if h.iterations >= s.max_iter:
         return f"max iterations {s.max_iter}"
@@ -202,7 +213,7 @@ def train_lm(model, theta0: torch.Tensor, u: torch.Tensor, y: torch.Tensor,
     D = torch.zeros(P, dtype=theta.dtype)
     with torch.no_grad():
         while True:
-            h.stop_reason = _stop_reason(s, h, sse / m, r, t0)
+            h.stop_reason = stop_reason(s, h, sse / m, t0, r)
             if h.stop_reason:
                 break
             J = jac(theta)
@@ -222,13 +233,8 @@ def train_lm(model, theta0: torch.Tensor, u: torch.Tensor, y: torch.Tensor,
                 h.stop_reason = f"mu above {s.mu_max:g}"
                 break
             theta, r, sse = stepped
-            h.iterations += 1
-            el = time.perf_counter() - t0
-            h.loss.append(sse / m)
-            h.elapsed_s.append(el)
             h.max_abs.append(float(r.abs().max()))
-            if callback is not None:
-                callback(h.iterations, sse / m, el, damping.mu)
+            h.record(sse / m, t0, callback, damping.mu)
             if monitor is not None:
                 stop = monitor(h.iterations, theta)
                 if stop:

@@ -1,50 +1,25 @@
 """The paper's BP network as an error field: axes (x_mm, z_mm, a_deg) -> (dx_um, dy_um, dz_um).
 
-The network is a plain multilayer perceptron (default: hidden layers 10, 15, 25, 15, 10 with
-sigmoid activations, the grinder paper's architecture), float64 throughout. It is written in
-functional form, ``forward(theta, features)`` with all weights in one flat parameter vector
-``theta``, so that the trainers (Levenberg–Marquardt above all) can take per-sample
-Jacobians with :mod:`torch.func`.
+A float64 multilayer perceptron (default hidden layers 10, 15, 25, 15, 10, sigmoid: the grinder paper's), in
+functional form ``forward(theta, features)`` with all weights in one flat vector ``theta`` so the trainers
+(Levenberg–Marquardt) take per-sample Jacobians with :mod:`torch.func`. Scaling lives inside the model and its
+saved files: inputs mapped from their training range to ``[-1, 1]`` (``a_encoding="periodic"``: A as
+``(cos a, sin a)``); outputs minus their per-axis mean, divided by ONE common scale (the largest per-axis
+half-range), so the loss weighs every axis alike in μm (the paper's MSE goal 2.5e-10 ≈ RMS 1.6e-5 × scale μm).
 
-Scaling lives inside the model (and inside its saved files), so a loaded model takes raw
-axes and returns μm:
-
-* inputs: each axis mapped linearly from its training range to ``[-1, 1]``. With
-  ``a_encoding="periodic"`` the A input is replaced by ``(cos a, sin a)``.
-* outputs: per-axis mean removed, then divided by ONE common scale (the largest per-axis
-  half-range of the training errors), so that the training loss is proportional to the
-  squared error in μm on every axis alike. The paper's MSE goal (2.5e-10) is on these
-  scaled outputs: RMS ≈ 1.6e-5 × scale μm.
-
-A is periodic (errors repeat every 360°). Commands may run past one turn (multi-turn
-paths): ``predict`` and ``jacobian`` fold any A outside the training turn
-``[a0, a0 + 360]`` (``a0`` = the smallest training A) back into it before the network.
-Points inside the turn, both ends included, pass unchanged.
-
-**Seam closure (raw A input).** A network N fed raw A is not periodic: N(x, z, a0) and
-N(x, z, a0 + 360) differ by about its fit error, so the folded field jumps at A = a0 + 360°·k
-and no exact root exists across the jump. At inference the raw-A field is therefore
+``predict``/``jacobian`` fold A outside the training turn ``[a0, a0 + 360]`` back into it. **Seam closure**
+(raw A input, which is not periodic): at inference
 
     E(x, z, a) = N(x, z, a) + (N(x, z, a0) − N(x, z, a0 + 360))·r(t),
     t = (a − (a0 + 360 − w))/w,   r = 0 for t ≤ 0, r = t²(3 − 2t) for 0 < t ≤ 1,
 
-with ``w = SEAM_WINDOW_DEG`` (30°): E(a0 + 360) = N(a0) = E(a0), so E is periodic and
-continuous (C¹ inside the turn, the ramp's slope ≤ 1.5·|mismatch|/w). The correction's
-size is the seam mismatch, i.e. about the network's fit error, and only points in the last
-w degrees of the turn pay two extra network evaluations (N at both ends). It is included
-in ``jacobian``. The periodic encoding needs none (it is exactly periodic). ``forward``,
-``param_jacobian`` (training) and the training metrics' raw network are unchanged.
-
-**Fast inference.** ``predict``/``predict_and_jacobian`` run the network with cached
-weights on points as *columns* (``torch.addmm(b, W, h)`` per layer, W (out, in): faster than
-rows on these narrow layers; ``torch.inference_mode``), in blocks of ``BLOCK`` points, with
-the input Jacobian computed alongside by forward-mode tangents (``dh' = σ'(z) ⊙ (W dh)``,
-the three tangents as one (units, 3·points) matrix product); calls smaller than
-``SMALL_BATCH`` points run on one torch thread (restored after). ``predict(axes,
-dtype=np.float32)`` is a float32 path (a few nm from float64). ``predict_columns`` is the
-solvers' inner loop: torch columns in and out, no validation, A folded into the turn, the
-input and output scalings folded into the first and last layers (raw A). ``jacobian_reference``
-keeps the ``torch.func.jvp`` reference the tests compare against.
+``w = SEAM_WINDOW_DEG`` (30°), so E is periodic and continuous (included in ``jacobian``; ``forward``,
+``param_jacobian`` and the training metrics use the raw network). **Fast inference**: ``predict`` /
+``predict_and_jacobian`` run cached weights on points as columns in blocks of ``BLOCK``, the input Jacobian by
+forward-mode tangents; calls under ``SMALL_BATCH`` points on one torch thread; ``dtype=np.float32`` a float32
+path; ``predict_columns`` the solvers' inner loop (columns in and out, no validation, scalings folded into the
+first and last layers); ``jacobian_reference`` the ``torch.func.jvp`` reference. docs/explanation/solvers.md
+("Known limits", "Speed").
 """
 from __future__ import annotations
 
@@ -644,12 +619,16 @@ class MLPField:
         m.a0_deg_ = float(sc["a0_deg"])
         m.out_mean_ = np.asarray(sc["out_mean_um"], dtype=float)
         m.out_scale_ = float(sc["out_scale_um"])
+        return m._read_weights(d)
+
+    def _read_weights(self, d: Path):
+        """The weights (``weights.npy``, ``n_params`` values) and extra files of a saved folder ``d``; returns self."""
         theta = load_array(d / "weights.npy", "weights file")
-        if theta.shape != (m.n_params,):
-            raise InputError(f"{d / 'weights.npy'}: expected {m.n_params} parameters, got shape {theta.shape}")
-        m.theta_ = torch.from_numpy(theta.astype(np.float64))
-        m._read_extra_files(d)
-        return m
+        if theta.shape != (self.n_params,):
+            raise InputError(f"{d / 'weights.npy'}: expected {self.n_params} parameters, got shape {theta.shape}")
+        self.theta_ = torch.from_numpy(theta.astype(np.float64))
+        self._read_extra_files(d)
+        return self
 
     @staticmethod
     def _extra_file_names() -> tuple:

@@ -1,28 +1,18 @@
 """The physical part of the residual-on-physics surrogate: an element set fitted to feature points.
 
-``volcomp train --physics first-order`` trains the network on what a cheap physical model leaves:
-on the grinder the 23-element HTM model whose elements are fitted, by ONE linear least-squares solve, to the
-same feature points the network sees (never to the element set the points were computed from):
+``volcomp train --physics first-order`` trains the network on what a cheap physical model leaves: the machine's
+element set fitted by ONE minimum-norm linear least-squares solve to the same feature points (never to the set
+the points were computed from)::
 
-    E(x, z, a) ≈ J(x, z, a) · v(x, z, a)       (first-order error transfer, errormap.chain_kernel.error_jacobian)
+    E(axes) ≈ J(axes) · v(axes)       (first-order error transfer, errormap.chain_kernel.error_jacobian)
 
-with each of the 18 axis-motion elements a cubic interpolating B-spline through ``n_stations``
-equally spaced stations of its axis (periodic in A; zero at the first station, the axes'
-reference) and the 5 constants. The unknowns are the station values (18·(n−1) − 6 + 5; the A
-profiles close) and the solve is minimum-norm, so the gauge combinations the grid cannot see
-(e.g. a constant X offset carried by two elements) take no value. The fitted set is evaluated
-with the EXACT HTM model (:class:`errormap.chain_field.ChainField`), so the network learns the second-order
-terms the linear fit cannot carry plus whatever the element model does not represent.
-
-What this part knows of the machine: its kinematic chain (the machine file) and the feature
-points; the stations are the feature-point grid's own nodes by default (``n_stations = None``:
-the number of distinct values per axis, at most :data:`MAX_STATIONS`).
-
-A machine-tool chain (``kind = "machine-tool"``, :mod:`errormap.machine_tool`) goes through the same
-solve (:func:`solve_station_values`) with its own slots and error-transfer matrix
-(:func:`fit_chain_physics_elements`): its element set is evaluated with the exact chain
-(:class:`errormap.chain_field.ChainField`). :class:`PhysicsPart` is the physical part of both fields
-(:class:`training.model.PhysicsMLPField`, :class:`training.chain_model.ChainPhysicsMLPField`).
+each axis-motion element a cubic interpolating B-spline through ``n_stations`` equally spaced stations of its
+axis (periodic on a full turn; zero at the first station), plus the constants; the unknowns are the station
+values, and gauge combinations the grid cannot see take no value. The fitted set is evaluated with the EXACT
+chain (:class:`errormap.chain_field.ChainField`). Stations default to the grid's own nodes (at most
+:data:`MAX_STATIONS`). :func:`solve_station_values` is the solve, :func:`fit_chain_physics_elements` a chain's
+slots, :class:`PhysicsPart` the physical part of :class:`training.model.PhysicsMLPField` and
+:class:`training.chain_model.ChainPhysicsMLPField`. docs/reference/learned-stage.md ("Physics first").
 """
 from __future__ import annotations
 
@@ -35,7 +25,6 @@ from errormap.chain_kernel import error_jacobian
 PHYSICS = ("none", "first-order")
 """``--physics`` choices: no physical part (the paper's network alone), or the fitted element set."""
 MIN_STATIONS, MAX_STATIONS = 4, 61
-_AXIS_COL = {"x_mm": 0, "z_mm": 1, "a_deg": 2}
 RCOND = 1e-10  # relative singular-value cut of the minimum-norm solve: drops the grid's gauge directions only
 
 

@@ -169,9 +169,7 @@ def train_ridge_lm(model: PoseMLP, theta0: torch.Tensor, u: torch.Tensor, y: tor
             if not accepted:
                 h.stop_reason = "mu above 1e10"
                 break
-            h.iterations += 1
-            h.loss.append(f / y.numel())
-            h.elapsed_s.append(time.perf_counter() - t0)
+            h.record(f / y.numel(), t0)
     h.seconds = time.perf_counter() - t0
     return theta, h
 

@@ -1,42 +1,15 @@
 """A learned residual: what a physical model leaves at measured points, learned, or declined.
 
-:class:`ResidualRegressor` learns a smooth field ``Y(X)`` (``X`` (n, d) inputs, ``Y`` (n, 3) the
-measured residual of a physical model, e.g. μm) and is built to be safe as an *addition* to that
-model:
-
-* **zero-mean** — every family predicts zero where it has no data (a Gaussian process with a
-  zero mean and a squared-exponential kernel decays to zero a few length scales away from the
-  training points, and its band grows to the prior's there), so it never extrapolates a fit;
-* **chosen by cross-validation against zero** — each family in ``families`` is cross-validated
-  (hyper-parameters re-estimated on the fit folds only); the held-out squared error is compared
-  per point with predicting zero (the physical model alone). A family is eligible only if its
-  mean paired gain exceeds ``margin_se`` of its standard errors; of those, the lowest CV error
-  wins. Otherwise ``chosen_ = "none"`` and :meth:`ResidualRegressor.predict` returns zeros.
-  With ``groups`` (block labels: a region of the workspace, a time block), the folds are whole
-  blocks (BLOCKED CV); without them, shuffled k-fold;
-* **closed-form Jacobian** — :meth:`ResidualRegressor.predict_and_jacobian` gives dY/dX in one
-  pass, for solvers that need it.
-
-Families (:data:`FAMILIES`):
-
-``gp``
-    Gaussian process per output column, zero mean, ARD squared-exponential kernel plus white
-    noise, inputs standardised (training mean/std), outputs scaled by their overall RMS;
-    hyper-parameters (one length scale per input, signal and noise variance) by maximum
-    marginal likelihood (L-BFGS-B with the analytic gradient, ``n_restarts`` starts from the
-    seed). Its band is the posterior standard deviation of the latent field
-    (``predict(..., return_std=True)``), calibrated on the cross-validation's held-out folds
-    (``band_scale_``); ``noise_std_`` is the fitted measurement noise (calibrated alike).
-``ensemble``
-    A deep ensemble of small MLPs (:class:`training.ensemble.MLPEnsemble`: 5 members from
-    ``SeedSequence.spawn``, weight decay toward zero); the members' mean is the prediction, their
-    spread the band (calibrated on the same held-out folds), the mean's training residual the
-    noise; Jacobian closed form through the networks. It is cross-validated on the SAME blocked
-    folds as the GP, and the stated rule picks between them.
-
-The object is JSON-able (:meth:`ResidualRegressor.to_dict` / :meth:`ResidualRegressor.from_dict`,
-format :data:`FORMAT`): the standardisation, hyper-parameters, training inputs and weights, so
-a saved regressor predicts bit-for-bit like the fitted one.
+:class:`ResidualRegressor` learns a smooth field ``Y(X)`` (``X`` (n, d) inputs, ``Y`` (n, 3) the measured
+residual of a physical model, e.g. μm), safe as an *addition* to that model: every family is zero-mean (it
+predicts zero away from its data, never extrapolating a fit); each is cross-validated against predicting zero
+(blocked folds with ``groups``, else shuffled k-fold) and one is kept only if its mean paired gain exceeds
+``margin_se`` standard errors (else ``chosen_ = "none"`` and :meth:`ResidualRegressor.predict` returns zeros);
+:meth:`ResidualRegressor.predict_and_jacobian` gives dY/dX in closed form. Families: :data:`FAMILIES`, each
+described in :data:`FAMILY_NAMES` (Gaussian processes of several kernels, :class:`training.ensemble.MLPEnsemble`,
+a basis); their bands are calibrated on the held-out folds (``band_scale_``). JSON-able (:meth:`ResidualRegressor.to_dict` /
+:meth:`ResidualRegressor.from_dict`, :data:`FORMAT`): a saved regressor predicts bit-for-bit like the fitted one.
+The rule and its options: docs/reference/learned-stage.md ("The learned residual").
 """
 from __future__ import annotations
 

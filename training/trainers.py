@@ -35,24 +35,14 @@ from errormap.seeds import spawn_seeds
 from errormap.stats import residual_stats
 from errormap.threads import limit_threads
 
-from . import DEFAULT_MAX_ITER, QUICK_MAX_ITER  # noqa: F401  (QUICK_MAX_ITER re-exported)
-from .lm import LMSettings, TrainHistory, train_lm
+from . import DEFAULT_MAX_ITER
+from .lm import LMSettings, TrainHistory, stop_reason, train_lm
 from .model import A_ENCODINGS, ACTIVATIONS, PAPER_HIDDEN, MLPField, PhysicsMLPField
 from .physics import MAX_STATIONS, MIN_STATIONS, PHYSICS
 
 TRAINERS = ("lm", "adam", "lbfgs")
 VALIDATION_STREAM, SELECTION_STREAM = 0, 1  # children of SeedSequence(seed): validation, selection points
 AXES = ("dx", "dy", "dz")
-
-
-def _stop_check(s: LMSettings, h: TrainHistory, mse: float, t0: float) -> str:
-    if mse <= s.mse_goal:
-        return f"mse goal {s.mse_goal:g} reached"
-    if h.iterations >= s.max_iter:
-        return f"max iterations {s.max_iter}"
-    if time.perf_counter() - t0 >= s.max_time_s:
-        return f"time budget {s.max_time_s:g} s"
-    return ""
 
 
 def train_adam(model, theta0, u, y, settings: LMSettings | None = None, callback=None, lr: float = 3e-3):
@@ -70,19 +60,14 @@ def train_adam(model, theta0, u, y, settings: LMSettings | None = None, callback
         mse = float(loss)
         if mse < best:
             best, best_theta = mse, theta.detach().clone()
-        reason = _stop_check(s, h, mse, t0)
+        reason = stop_reason(s, h, mse, t0)
         if reason:
             h.stop_reason = reason
             break
         loss.backward()
         opt.step()
         sched.step(mse)
-        h.iterations += 1
-        el = time.perf_counter() - t0
-        h.loss.append(mse)
-        h.elapsed_s.append(el)
-        if callback is not None:
-            callback(h.iterations, mse, el, opt.param_groups[0]["lr"])
+        h.record(mse, t0, callback, opt.param_groups[0]["lr"])
     h.seconds = time.perf_counter() - t0
     return best_theta, h
 
@@ -105,19 +90,14 @@ def train_lbfgs(model, theta0, u, y, settings: LMSettings | None = None, callbac
     with torch.no_grad():
         mse = float(torch.mean((model.forward(theta, u) - y) ** 2))
     while True:
-        reason = _stop_check(s, h, mse, t0)
+        reason = stop_reason(s, h, mse, t0)
         if reason:
             h.stop_reason = reason
             break
         opt.step(closure)
         with torch.no_grad():
             new = float(torch.mean((model.forward(theta, u) - y) ** 2))
-        h.iterations += 1
-        el = time.perf_counter() - t0
-        h.loss.append(new)
-        h.elapsed_s.append(el)
-        if callback is not None:
-            callback(h.iterations, new, el, 0.0)
+        h.record(new, t0, callback)
         if not math.isfinite(new) or new >= mse:
             mse = min(mse, new)
             h.stop_reason = "no further decrease"

@@ -122,13 +122,10 @@ class Family:
                              f"({self.kind} {self.machine_name!r}): {g.word}: {g.reason}")
         return self.targets[command]
 
-    def refusals_of(self, command: str) -> list:
-        return [r for r in self.refusals if r.command == command and (not r.kinds or self.kind in r.kinds)]
-
     def refuse_unsupported(self, command: str, args) -> None:
         """Raise :class:`UsageError` for the first refusal of ``command`` whose options ``args`` gives (never an
         option silently ignored); the message is the registry's, with the given options named."""
-        for r in self.refusals_of(command):
+        for r in (r for r in self.refusals if r.command == command and (not r.kinds or self.kind in r.kinds)):
             given = [g for g in (o.given(args) for o in r.options) if g]
             if given:
                 one = len(given) == 1

@@ -1,27 +1,13 @@
 """One run owns an output folder or file: a lock while it works, and nothing left behind by Ctrl-C.
 
-Every command that writes a folder (``--out DIR``: the ``OUT_DIR`` rules of
-:mod:`compensation.app.validate`) runs inside :func:`owned_folder`, and every command whose
-``--out`` is one file (``OUT_FILE``: ``predict --out f.csv``, ``featurepoints``, ``sweeps``,
-``identify``, ``interpolate``, ``drift-predict``) inside :func:`owned_file` — as are the other
-one-file outputs (``identify --report``, ``interpolate --report`` / ``--sensitivity-plot``); all are entered by
-:func:`owned_output` in :func:`compensation.app.cli.main` after the options are checked and
-before the command's work. A file's lock lies beside it, ``f.csv.volcomp.lock``, with the same
-rules as a folder's (below); on Ctrl-C a file that was not there when the run started is removed (and so is
-a CSV's provenance sidecar, ``f.meta.json``: :func:`errormap.io.sidecar_path`).
-
-* **Lock.** ``DIR/.volcomp.lock`` is created with ``O_EXCL`` and holds the owner's pid, host,
-  command and start time (JSON). A second run into the same folder finds it and is refused
-  (one line, exit 2) naming the holder. A lock whose pid is dead on this host (a run killed
-  with SIGKILL, a power cut) is stale: it is taken over, and the run says so on stderr. A lock
-  from another host (a shared file system) is never taken over: its message says to remove it
-  once that run is known to be gone. The lock is removed when the run ends, however it ends.
-* **Ctrl-C.** Files are written whole (:func:`errormap.io.atomic_write`), but a command that
-  writes several (a benchmark's ``chains/MACHINE/CONDITION/`` folders, a diagnosis's model and
-  report) can be interrupted between two of them. On ``KeyboardInterrupt`` every file and
-  folder that was not in ``DIR`` when the run started is removed, and ``DIR`` itself (with the
-  folders above it) when the run created it: what stays is what was there before. A file
-  that was there before and was already replaced by this run stays replaced (whole).
+A command that writes a folder (``--out DIR``: the ``OUT_DIR`` rules of :mod:`compensation.app.validate`) runs
+inside :func:`owned_folder`, one whose ``--out`` is one file (``OUT_FILE``), and the other one-file outputs,
+inside :func:`owned_file`; :func:`owned_output` picks one and is entered in :func:`compensation.app.cli.main`
+after the options are checked. The lock (``DIR/.volcomp.lock``, or ``f.csv.volcomp.lock`` beside a file) is
+created with ``O_EXCL`` and holds pid, host, command and start time (JSON); a second run is refused (one
+line, exit 2), a dead local holder's lock is taken over (said on stderr), another host's never. On
+``KeyboardInterrupt`` everything that was not there when the run started is removed (a CSV's provenance
+sidecar ``f.meta.json`` too, and ``DIR`` when the run created it). docs/reference/file-formats.md.
 """
 from __future__ import annotations
 
@@ -192,16 +178,12 @@ def _is_interrupt(exc: BaseException, interrupted) -> bool:
     return bool(interrupted and interrupted())
 
 
-@contextlib.contextmanager
-def owned_folder(folder, command: str, interrupted=None, flag: str = "--out"):
-    """Own ``folder`` for one run of ``command``: create it if absent, hold its lock, and on
-    Ctrl-C remove what the run added (module docstring). ``interrupted``: a callable that says
-    whether a Ctrl-C is pending (an error raised then is its consequence); ``flag``: the option or
-    argument that named the folder (in refusals). Yields the folder's :class:`Path`."""
+def _prepare(path: Path, kind: str, flag: str, folder: Path):
+    """Check ``path`` as an output of ``kind`` (one UsageError line) and create ``folder`` with the folders above
+    it where absent; returns the topmost folder created (None: it existed)."""
     from errormap.io import InputError, check_output_target
-    folder = Path(folder)
     try:
-        check_output_target(folder, "dir")
+        check_output_target(path, kind)
     except InputError as exc:
         raise UsageError(f"{flag} {exc}") from None
     created = None
@@ -210,6 +192,17 @@ def owned_folder(folder, command: str, interrupted=None, flag: str = "--out"):
         while not created.parent.exists():
             created = created.parent
         folder.mkdir(parents=True, exist_ok=True)
+    return created
+
+
+@contextlib.contextmanager
+def owned_folder(folder, command: str, interrupted=None, flag: str = "--out"):
+    """Own ``folder`` for one run of ``command``: create it if absent, hold its lock, and on
+    Ctrl-C remove what the run added (module docstring). ``interrupted``: a callable that says
+    whether a Ctrl-C is pending (an error raised then is its consequence); ``flag``: the option or
+    argument that named the folder (in refusals). Yields the folder's :class:`Path`."""
+    folder = Path(folder)
+    created = _prepare(folder, "dir", flag, folder)
     lock = FolderLock(folder, command, flag=flag)
     try:
         lock.acquire()
@@ -236,18 +229,10 @@ def owned_file(path, command: str, interrupted=None, flag: str = "--out"):
     (:func:`file_lock_path`, the folder lock's rules) while the run works, the folders above it
     created if absent (and removed again if left empty), and on Ctrl-C the file removed when it was
     not there before the run. Yields the file's :class:`Path`."""
-    from errormap.io import InputError, check_output_target, sidecar_path
+    from errormap.io import sidecar_path
     path = Path(path)
-    try:
-        check_output_target(path, "file")
-    except InputError as exc:
-        raise UsageError(f"{flag} {exc}") from None
-    parent, created = path.parent, None
-    if not parent.exists():
-        created = parent
-        while not created.parent.exists():
-            created = created.parent
-        parent.mkdir(parents=True, exist_ok=True)
+    parent = path.parent
+    created = _prepare(path, "file", flag, parent)
     lock = FolderLock(path, command, lock_path=file_lock_path(path), flag=flag)
     files = (path, sidecar_path(path))   # a CSV's provenance sidecar goes with it
     try:

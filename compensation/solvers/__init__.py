@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 from .base import BALL_RADIUS_UM, SolveResult
 
-COMMON_ARGUMENTS = ("field", "targets_mm", "machine", "target_axes", "a_start_deg")
+COMMON_ARGUMENTS = ("field", "targets_mm", "machine", "target_axes")
 """What every solve function takes; the rest of its keywords are its options (:meth:`Solver.options`)."""
 
 
@@ -70,8 +70,6 @@ SOLVERS = {s.name: s for s in (
 METHODS = tuple(SOLVERS)
 """The solver names, in the order reports list them."""
 GA_METHODS = tuple(n for n, s in SOLVERS.items() if s.seeded)
-CHAIN_METHODS = METHODS
-"""The solvers available on a machine-tool chain: every one."""
 
 
 def solver_spec(method: str) -> Solver:
@@ -90,13 +88,8 @@ def get_solver(method: str):
 def solve(method: str, field, targets_mm, machine, **options) -> SolveResult:
     """Run solver ``method`` on WCS targets, shape (n, 3) mm, on the machine tool ``machine`` (a grinder
     file on its chain); ValueError for an unknown method."""
-    return solve_function(method, machine)(field, targets_mm, machine, **options)
+    return get_solver(method)(field, targets_mm, machine, **options)
 
 
-def solve_function(method: str, machine=None):
-    """The function :func:`solve` runs for ``method``; ValueError for an unknown method."""
-    return solver_spec(method).function()
-
-
-__all__ = ["BALL_RADIUS_UM", "CHAIN_METHODS", "GA_METHODS", "METHODS", "SOLVERS", "SolveResult", "Solver", "get_solver", "solve",
-           "solve_function", "solver_spec"]
+__all__ = ["BALL_RADIUS_UM", "GA_METHODS", "METHODS", "SOLVERS", "SolveResult", "Solver", "get_solver", "solve",
+           "solver_spec"]

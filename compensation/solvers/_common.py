@@ -24,7 +24,7 @@ import time
 
 import numpy as np
 
-from errormap.field import FLOAT32, PREDICT_COLUMNS
+from errormap.field import PREDICT_COLUMNS
 from errormap.chain_kernel import NominalChain
 from errormap.threads import limit_threads
 
@@ -72,35 +72,21 @@ def field_threads(field):
         yield
 
 
-def field_error_um(field, axes, machine, chunk: int = FIELD_CHUNK, fast: bool = False) -> np.ndarray:
-    """:func:`_field_error_um` on :func:`field_threads`."""
-    with field_threads(field):
-        return _field_error_um(field, axes, machine, chunk, fast)
+def field_error_um(field, axes, machine, chunk: int = FIELD_CHUNK) -> np.ndarray:
+    """``E(axes)`` μm with A folded into the calibrated turn, in chunks, on :func:`field_threads`; (n, 3) -> (n, 3).
 
-
-def _field_error_um(field, axes, machine, chunk: int = FIELD_CHUNK, fast: bool = False) -> np.ndarray:
-    """``E(axes)`` μm with A folded into the calibrated turn, in chunks; (n, 3) -> (n, 3).
-
-    Fields declaring ``predict_columns`` (the learned MLP) are evaluated through it, in
-    float64: the same field without ``predict``'s validation and conversions (the solvers
-    validate their input once). ``fast=True`` (GA fitness only) uses the field's float32 path
-    when it declares ``float32`` (a few nm from float64, below the GA's ~0.01 μm resolution);
-    the result is float64 either way. Capabilities: :mod:`errormap.field`.
+    Fields declaring ``predict_columns`` (the learned MLP) are evaluated through it, in float64: the same field
+    without ``predict``'s validation and conversions. Capabilities: :mod:`errormap.field`.
     """
     axes = fold_a(axes, machine)
     n = axes.shape[0]
-    caps = field.capabilities
-    if PREDICT_COLUMNS in caps and not fast:
-        out = np.empty((n, 3))
-        for s in range(0, n, chunk):
-            out[s:s + chunk] = field.predict_columns(np.ascontiguousarray(axes[s:s + chunk].T)).T
-        return out
-    kw = {"dtype": np.float32} if fast and FLOAT32 in caps else {}
-    if n <= chunk:
-        return np.asarray(field.predict(axes, **kw), dtype=float).reshape(n, 3)
     out = np.empty((n, 3))
-    for s in range(0, n, chunk):
-        out[s:s + chunk] = np.asarray(field.predict(axes[s:s + chunk], **kw), dtype=float).reshape(-1, 3)
+    with field_threads(field):
+        for s in range(0, n, chunk):
+            a = axes[s:s + chunk]
+            out[s:s + chunk] = (field.predict_columns(np.ascontiguousarray(a.T)).T
+                                if PREDICT_COLUMNS in field.capabilities
+                                else np.asarray(field.predict(a), dtype=float).reshape(-1, 3))
     return out
 
 

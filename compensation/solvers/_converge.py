@@ -1,24 +1,12 @@
 """No GA point handed over unconverged: retries after the paper's generations, then a Newton polish.
 
-The paper's GA (400 generations of 40) reaches the 0.265 μm tolerance on nearly every point,
-but not on all: on the demo's flute one point of 2,800 was left at 6.26 μm model residual
-. A GA solver (:func:`compensation.solvers.chain_ga`'s retry and polish) after its generations
-
-1. measures every point's float64 model residual ``|p_r + 1e-3·E(axes(p_r)) − p_d|``;
-2. re-runs the GA (``rerun``) on the points above ``tol_um``, up to :data:`RETRY_ROUNDS`
-   times, each from a fresh population around the point's best so far (the best itself in
-   slot 0, so the elite never gets worse): uniform in a ball of radius
-   ``max(RETRY_MIN_RADIUS_UM, RETRY_RADIUS_FACTOR·|residual|)`` on the first retry, times
-   :data:`RETRY_RADIUS_GROWTH` per further round (clipped to the search ball);
-3. polishes the points still above the tolerance with the exact solver's Newton iteration
-   (the field's Jacobian, or forward differences where the field declares none), starting
-   from the GA's best;
-4. keeps, per point, whichever candidate has the smaller float64 residual.
-
-A point still above the tolerance keeps ``success = False``: the ``convergence`` guard
-(:mod:`compensation.guards`) refuses the file. ``stats``: how many points were retried and
-polished, how many stayed unconverged, the worst residual before and after, and the seconds
-spent (the retry's cost). This module holds the retry radii and the stats' sum over chunks.
+After its generations a GA solver (:mod:`compensation.solvers.chain_ga`) re-runs the points whose float64
+model residual ``|p_r + 1e-3·E(axes(p_r)) − p_d|`` (μm) is above ``tol_um``, up to :data:`RETRY_ROUNDS`
+times, from a population around the point's best (radius :func:`retry_radius_um`), then polishes the rest
+with the exact solver's Newton iteration and keeps per point the candidate with the smaller residual; a
+point still above the tolerance keeps ``success = False`` (the ``convergence`` guard refuses the file).
+This module holds the retry radii and the stats' sum over chunks. The procedure and its measurements:
+docs/explanation/solvers.md ("No point handed over unconverged").
 """
 from __future__ import annotations
 

@@ -1,46 +1,16 @@
 """The paper's GA with PyGAD's operators, evolving every point's population at once: the engine of the
 ``batched-ga`` solver (:func:`compensation.solvers.chain_ga.solve_batched_ga_chain`).
 
-The paper's parameters (:mod:`compensation.solvers.ga`); the populations are
-one float32 array of shape (n_points, 40, 3) (genes in μm) and one generation is one
-compiled pass over all points (:func:`._ga_kernels.breed`: selection, crossover, mutation,
-ball repair, fitness inheritance) plus one field evaluation over all new offspring of all
-points.
-
-Operators, as PyGAD 3.9 runs them with the ``ga`` solver's configuration (one generation):
-
-1. **Steady-state selection** (``sss``): the 28 fittest of 40 are the mating parents.
-2. **Elitism** (``keep_elitism=1``): the fittest individual goes to slot 0 of the next
-   population unchanged; the other 39 slots are offspring.
-3. **Single-point crossover with crossover_probability p** (PyGAD's semantics): for each
-   offspring a point ``c`` is drawn uniformly from {0, 1, 2}; each of the 28 parents joins
-   a candidate pool with probability p; with ≥ 2 candidates two distinct ones are drawn at
-   random (first, second), with one candidate it mates with itself, with none the child is
-   parent ``k mod 28``. The child takes genes ``[:c]`` from the first, ``[c:]`` from the
-   second. Here the pool is not materialised: its size K ~ Binomial(28, p) decides the
-   case, and for K ≥ 2 the ordered pair is uniform over distinct parents, which is exactly
-   the marginal law of PyGAD's draw (by symmetry). Same distribution, two draws instead
-   of 28.
-4. **Random mutation**, ``mutation_probability`` per gene, additive U(-s, s) μm
-   (``mutation_by_replacement=False``, ``s = mutation_step_um``, PyGAD's default ±1). One
-   uniform u per gene decides and sizes it: the gene mutates when u < p, by
-   ``(2u/p - 1)·s`` (given u < p, u/p is uniform on [0, 1)).
-5. **Ball repair**: offspring projected radially onto the 250 μm ball (the ``ga`` solver's
-   ``on_mutation``).
-6. **Fitness** minus the squared model residual of the genes; an offspring identical to one of its
-   parents (not crossed, not mutated) inherits the parent's fitness, as PyGAD's fitness
-   cache does, so ``nfev`` counts the same kind of evaluations.
-
+The paper's parameters (:mod:`compensation.solvers.ga`); the populations are one float32 array of shape
+(n_points, 40, 3) (genes in μm) and one generation is one compiled pass over all points
+(:func:`._ga_kernels.breed`: steady-state selection of the 28 fittest, elitism 1, PyGAD's single-point
+crossover, additive U(-s, s) μm mutation, projection onto the 250 μm ball, fitness inherited by an
+offspring identical to a parent) plus one field evaluation over all new offspring of all points.
 Fitness: the caller's (``fitness(points (k,) int64, genes (3, k) float32) -> (k,) float32``;
 :func:`compensation.solvers.chain_ga.chain_fitness`), evaluated in blocks of :data:`FITNESS_BLOCK`.
-
-Differences from PyGAD: the random streams differ (one numpy Generator per chunk of
-points, its raw 32-bit words feeding the compiled step, instead of one RandomState/Random
-pair per point), so single runs differ point by point while their distributions are the
-same; ties in fitness are broken by index, not PyGAD's reversed stable sort (tied
-individuals are almost always identical copies, so the choice is immaterial); PyGAD's
-fitness cache also matches offspring against all 28 parents, this one against the
-offspring's own two (≈ 2 % more evaluations late in a run, docs/explanation/solvers.md).
+How each operator matches PyGAD 3.9's, and the documented differences (random streams, tie-breaking,
+the fitness cache's reach): docs/explanation/solvers.md ("The GA: the paper's parameters, PyGAD's and
+batched-ga's").
 """
 from __future__ import annotations
 

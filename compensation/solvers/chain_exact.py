@@ -1,52 +1,22 @@
 """Exact compensation on a machine-tool chain (``kind = "machine-tool"``): Newton in axis space.
 
-For each target ``p_d`` (WCS mm, the nominal tool point of the program's axes ``q_d``) find the
-axis command ``q`` such that the machine, driven to ``q``, puts the tool point on ``p_d``::
+For each target ``p_d`` (WCS mm, the nominal tool point of the program's axes ``q_d``) find the axis
+command ``q`` that puts the tool point on ``p_d``::
 
     F(q) = fwd(q) + 1e-3·E(q) − p_d = 0          (mm)
     J(q) = dfwd/dq_s + 1e-3·dE/dq_s               (mm per mm or per deg; q_s the three solved axes)
 
-with ``fwd`` the machine's nominal forward kinematics (:meth:`errormap.machine_tool.MachineTool.nominal`)
-and ``E`` the field (``predict_and_jacobian``, μm). Then ``p_r = fwd(q)`` and the model residual
-``(p_r − p_d)·1e3 + E(q)`` equals ``F(q)·1e3``.
-
-**Which axes move** (:func:`solved_and_kept`, the exact solver's rule
-:func:`compensation.solvers.exact.solved_axes`, read from the chain, never from the name). The
-tool-tip POSITION is compensated with three axes: the machine's three linear axes when it has
-three, rotary axes (the tool's orientation relative to the workpiece on a 5-axis machine) kept as
-the program commands them, and the result says so (``info["kept_axes"]``); else every axis of a
-three-axis machine (a lathe's X, Z and C: the rotary axis solved, and put on the commanded turn by
-:func:`compensation.solvers.exact.keep_turn`). Any other machine is refused (ValueError).
-
-**One Newton core.** The iteration is the exact solver's own (:func:`compensation.solvers.exact.newton`:
-the chain's nominal tool point and geometric axis Jacobian in compiled kernels over its op arrays,
-the field's compiled ``predict`` on the trial points, its ``predict_and_jacobian`` at the start
-and where a step fails, Broyden updates between), on the solved axes.
-
-Robustness (as the exact solver's): a step is halved until ``|F|`` decreases (Armijo); iteration
-stops at ``|F| ≤ xtol_um`` or at round-off (``ROUNDOFF_ULPS`` ulps of the target's largest
-coordinate), at stagnation or ``max_iter``.
-The 250 μm ball is a hard limit: a root outside it is projected onto the ball's surface and
-reported with its residual and ``success = False`` (the guards then refuse it unless overridden).
-``success``: ``|residual| ≤ tol_um``, inside the ball and within the rotary bound below. Shapes:
-targets (n, 3) mm, axes (n, k) in ``machine.axis_columns`` order.
-
-**Rotary continuity guard** (a solved rotary axis, the lathe's C). The compensated command ``p_r``
-lies in the ball of radius ``b`` (``ball_um``) around the target ``p_d``; seen from the rotary
-axis' line, a point at distance ``r`` from it subtends at most ``asin(b / r)`` of the ball, and
-for ``r ≤ b`` (the ball holds the axis) every point of the ball is reached by turning at most 90°
-(the linear axis crossing the axis line for the rest). So a compensated rotary command may differ
-from the programmed one by at most::
-
-    Δθ_max = min( degrees(asin(min(1, b / r))), rotary_limit_deg )
-
-with ``r = |∂p/∂θ|·180/π`` (mm) the target's distance from that axis (the chain's own axis
-Jacobian at the programmed axes: a turn dθ moves the point by r·dθ) and ``rotary_limit_deg`` the
-caller's limit (``compensate --max-rotary-correction-deg``; None: no limit beyond the ball's).
-A point whose solved rotary command differs by more (Newton near the spindle axis can swing the
-lathe's C by ~130° between nearby points) is **refused**: ``success`` False, the programmed
-axes kept (correction 0, the residual is the field's error there: never silently swung), and
-``info["rotary_refused"]`` / ``info["rotary_reasons"]`` say which and why.
+``fwd`` the nominal forward kinematics, ``E`` the field (μm); ``p_r = fwd(q)`` and the model residual
+``(p_r − p_d)·1e3 + E(q) = F(q)·1e3``. The iteration is :func:`compensation.solvers.exact.newton` (Armijo
+line search, Broyden updates, stops at ``xtol_um``, round-off or stagnation). Which axes move:
+:func:`solved_and_kept` (three linear axes, rotary axes kept; else all three axes of a three-axis machine,
+a lathe's X, Z, C). The 250 μm ball is a hard limit (a root outside is projected onto it, ``success``
+False). Rotary continuity guard (:func:`rotary_guard`): a solved rotary command may differ from the
+programmed one by at most ``Δθ_max = min(degrees(asin(min(1, b/r))), rotary_limit_deg)`` (``b`` the ball,
+``r`` the target's distance from the axis, mm); beyond it the point is refused with the programmed axes
+kept (``info["rotary_refused"]``, ``info["rotary_reasons"]``). Shapes: targets (n, 3) mm, axes (n, k) in
+``machine.axis_columns`` order. Derivations and measurements: docs/explanation/solvers.md ("The exact
+solver on a chain").
 """
 from __future__ import annotations
 
@@ -184,6 +154,37 @@ def rotary_guard(compiled, machine, axes_d, q, sol, ball_um, rotary_limit_deg):
     return refused, reasons
 
 
+def check_chain_call(field, targets_mm, machine, ball_um):
+    """The chain solvers' shared checks (ValueError): the field over ``machine.axis_columns``, a machine
+    the chain solvers can place the tool point on, the targets, the ball. Returns ``(compiled, solved (3,),
+    kept, targets (n, 3) mm)``."""
+    check_field(field, machine.axis_columns)
+    compiled = NominalChain(machine)
+    sol, kept = solved_and_kept(machine, compiled)
+    targets = check_points(targets_mm, "WCS targets (px_mm, py_mm, pz_mm)")
+    if not (np.isfinite(ball_um) and ball_um > 0):
+        raise ValueError(f"Expected a positive ball radius in μm, got {ball_um!r}")
+    return compiled, sol, kept, targets
+
+
+def axes_info(info, compiled, machine, sol, kept, refused, reasons, rotary_limit_deg) -> dict:
+    """``info`` with the exact and traditional chain solvers' common keys: ``compensated_axes``, ``kept_axes``,
+    the rotary guard's ``rotary_refused`` / ``rotary_reasons`` / ``rotary_limit_deg`` where a rotary axis is
+    solved, ``note``."""
+    names = machine.axis_columns
+    info.update(compensated_axes=[names[j] for j in sol], kept_axes=[names[j] for j in kept])
+    rot_sol = [names[j] for j in sol if compiled.kinds[j] != "linear"]
+    if rot_sol:
+        info["rotary_refused"] = np.flatnonzero(refused)
+        info["rotary_reasons"] = [reasons[i] for i in np.flatnonzero(refused).tolist()]
+        info["rotary_limit_deg"] = None if rotary_limit_deg is None else float(rotary_limit_deg)
+    if len(kept):
+        info["note"] = KEPT_NOTE.format(lin=", ".join(info["compensated_axes"]), rot=", ".join(info["kept_axes"]))
+    elif rot_sol:
+        info["note"] = SOLVED_NOTE.format(sol=", ".join(info["compensated_axes"]), rot=", ".join(rot_sol))
+    return info
+
+
 def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: float = BALL_RADIUS_UM,
                       tol_um: float = 1e-4, xtol_um: float = 1e-9, max_iter: int = 50, chunk: int = 250_000,
                       rotary_limit_deg=None, progress: bool = True, roundoff_ulps: float = ROUNDOFF_ULPS):
@@ -202,12 +203,7 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
     (indices), ``rotary_reasons`` (one text per refused index).
     """
     t0 = time.perf_counter()
-    check_field(field, machine.axis_columns)
-    compiled = NominalChain(machine)
-    sol, kept = solved_and_kept(machine, compiled)
-    targets = check_points(targets_mm, "WCS targets (px_mm, py_mm, pz_mm)")
-    if not (np.isfinite(ball_um) and ball_um > 0):
-        raise ValueError(f"Expected a positive ball radius in μm, got {ball_um!r}")
+    compiled, sol, kept, targets = check_chain_call(field, targets_mm, machine, ball_um)
     if not (tol_um > 0 and xtol_um > 0 and max_iter >= 1 and chunk >= 1):
         raise ValueError(f"Expected tol_um > 0, xtol_um > 0, max_iter ≥ 1, chunk ≥ 1, got "
                          f"{tol_um}, {xtol_um}, {max_iter}, {chunk}")
@@ -246,18 +242,8 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
         nfev += int(refused.sum())
     res = (commands - targets) * UM_PER_MM + E
     converged = (np.linalg.norm(res, axis=1) <= tol_um) & ~outside & ~refused
-    names = machine.axis_columns
-    info = {"iterations": iters, "jacobians": n_jac, "tol_um": tol_um, "outside_ball": np.flatnonzero(outside),
-            "compensated_axes": [names[j] for j in sol], "kept_axes": [names[j] for j in kept]}
-    if any(compiled.kinds[j] != "linear" for j in sol):
-        info["rotary_refused"] = np.flatnonzero(refused)
-        info["rotary_reasons"] = [reasons[i] for i in np.flatnonzero(refused).tolist()]
-        info["rotary_limit_deg"] = None if rotary_limit_deg is None else float(rotary_limit_deg)
-    if len(kept):
-        info["note"] = KEPT_NOTE.format(lin=", ".join(info["compensated_axes"]), rot=", ".join(info["kept_axes"]))
-    elif any(compiled.kinds[j] != "linear" for j in sol):
-        info["note"] = SOLVED_NOTE.format(sol=", ".join(info["compensated_axes"]),
-                                          rot=", ".join(names[j] for j in sol if compiled.kinds[j] != "linear"))
+    info = axes_info({"iterations": iters, "jacobians": n_jac, "tol_um": tol_um, "outside_ball": np.flatnonzero(outside)},
+                     compiled, machine, sol, kept, refused, reasons, rotary_limit_deg)
     return make_result("exact", targets, commands, q, res, converged, nfev, t0, ball_um, info=info)
 
 

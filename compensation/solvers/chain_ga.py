@@ -1,52 +1,23 @@
 """The GA on a machine-tool chain (``kind = "machine-tool"``): the generic chain fitness.
 
-Same GA as :mod:`compensation.solvers.batched_ga` (the paper's population, generations and
-PyGAD operators, :class:`~compensation.solvers.batched_ga._BatchGA`) for ``batched-ga``, and PyGAD
-itself one point at a time (as :mod:`compensation.solvers.ga`) for ``ga``. The genes are three
-numbers in the 250 μm ball; what they move is the axes the exact chain solver moves
-(:func:`compensation.solvers.chain_exact.solved_and_kept`, read from the chain):
+The GA of :mod:`compensation.solvers.batched_ga` (``batched-ga``) and PyGAD one point at a time
+(``ga``), on three genes in the 250 μm ball that move the axes the exact chain solver moves
+(:func:`compensation.solvers.chain_exact.solved_and_kept`):
 
-**Three linear axes** (mill, five-axis): the genes are offsets ``d`` (μm) of the commanded tool
-point around each target ``p_d``::
+* **three linear axes** (:class:`ChainOffsetFitness`): genes the tool-point offsets ``d`` (μm),
+  ``q(d) = q_d`` with ``q_lin = q_d,lin + A⁻¹·(1e-3·d)`` (``A`` the nominal axis Jacobian of the linear
+  axes at the program's axes ``q_d``; rotary axes kept), fitness ``−|d + E(q(d))|²`` (μm²);
+* **a solved rotary axis** (the lathe; :class:`ChainAxisFitness`): genes ``g`` the solved axes' offsets
+  scaled by ``s`` (1e-3 mm/μm linear, ``Δθ_max/b`` deg rotary, ``Δθ_max`` the exact solver's rotary
+  bound), ``r(g) = (fwd(q(g)) − p_d)·1e3 + E(q(g))``, fitness ``−(|r(g)| + max(0, |p(g) − p_d|·1e3 − b))²``;
+* **the network's fused fitness** (:class:`FusedChainFitness`, a field offering ``offset_fitness`` on the
+  grinder's form of chain, no rotary limit): the offsets' fitness as one float32 pipeline; retries, polish
+  and result in float64.
 
-    q(d) = q_d  with the linear axes  q_lin = q_d,lin + A⁻¹·(1e-3·d)
-    fitness(d) = −|d + E(q(d))|²          (μm²)
-
-with ``q_d`` the program's axes of the target, ``A = dfwd/dq_lin`` the machine's nominal axis
-Jacobian at ``q_d`` (:func:`compensation.solvers.chain_exact.nominal_and_jacobian`); the rotary
-axes are **kept as programmed**. With them fixed the nominal tool point is affine in the linear
-axes, so ``q(d)`` is the exact nominal inverse of ``p_d + 1e-3·d`` (one 3×3 inverse per point,
-computed once).
-
-**A solved rotary axis** (the lathe: X, Z and C all solved): the genes ``g`` are the solved axes'
-offsets from the programmed command, scaled so that the gene ball is the search region::
-
-    q(g) = q_d  with  q_s = q_d,s + s·g          s = 1e-3 mm/μm (linear), Δθ_max/b deg (rotary)
-    p(g) = fwd(q(g)),   r(g) = (p(g) − p_d)·1e3 + E(q(g))                  (μm)
-    fitness(g) = −(|r(g)| + max(0, |p(g) − p_d|·1e3 − b))²                 (μm²)
-
-``b`` the ball radius and ``Δθ_max = min(asin(min(1, b/r)), limit)`` the exact solver's rotary
-continuity bound at the target's distance ``r`` from the axis
-(:func:`compensation.solvers.chain_exact.rotary_bound_deg`): a rotary gene of ``b`` turns by
-``Δθ_max``, so (for ``r ≫ b``) one gene unit moves the tool point by about 1 μm along every gene,
-and no gene can swing the rotary axis past its bound. The tool point's own 250 μm ball is the
-second term (zero inside it).
-
-``E`` is the field's ``predict`` over ``machine.axis_columns`` (float64 numpy; any chain field:
-the element set's :class:`errormap.chain_field.ChainField` or a trained network).
-
-**The network's fused fitness** (a field with the ``offset_fitness`` capability on a chain of two linear axes
-and a rotary one in the closed form it inverts, the grinder's; no rotary limit asked): the genes are the
-tool-point offsets ``d`` of the three-linear-axes case, ``q(d)`` the closed-form nominal inverse of
-``p_d + 1e-3·d`` (the rotary axis on the program's turn), and the generations evaluate
-``−|d + E(q(d))|²`` as one float32 pipeline (:class:`FusedChainFitness`; 2.4× faster than the float64
-axis-gene fitness on the flute, results within 0.03 μm, docs/decisions/020-benchmark-notebook.md); retries, polish and result in float64.
-
-After the generations, points above ``tol_um`` are retried (GA re-runs from a fresh population
-around their best, radii as :mod:`._converge`) and then polished by the exact chain solver's
-Newton iteration (:func:`compensation.solvers.chain_exact.solve_exact_chain`'s loop); per
-point the candidate with the smaller float64 model residual is kept. ``success``: |model
-residual| ≤ ``tol_um`` and inside the ball. Shapes: targets (n, 3) mm, axes (n, k).
+``E`` the field's ``predict`` over ``machine.axis_columns`` (μm). After the generations, points above
+``tol_um`` are retried and Newton-polished (:mod:`._converge`). ``success``: |model residual| ≤ ``tol_um``
+and inside the ball. Shapes: targets (n, 3) mm, axes (n, k). Derivation and measurements:
+docs/explanation/solvers.md ("The GA on a chain").
 """
 from __future__ import annotations
 
@@ -54,15 +25,11 @@ import time
 
 import numpy as np
 
-from errormap.field import check_field
-from errormap.chain_kernel import NominalChain
-from errormap.transforms import check_points
-
 from ._common import MM_PER_UM, UM_PER_MM, make_result, project_to_ball
 from ._converge import RETRY_ROUNDS, retry_radius_um
 from .base import BALL_RADIUS_UM
 from .batched_ga import _BatchGA, _LockedProgress
-from .chain_exact import (KEPT_NOTE, SOLVED_NOTE, _newton, check_rotary_limit, linear_axes, nominal_and_jacobian,
+from .chain_exact import (KEPT_NOTE, SOLVED_NOTE, _newton, check_chain_call, check_rotary_limit, linear_axes, nominal_and_jacobian,
                           rotary_bound_deg, rotary_guard, rotary_radius_mm, solved_and_kept, target_axes_of)
 from .ga import DEFAULT_TOL_UM, PAPER_GA, check_ga_options, uniform_in_ball
 
@@ -219,20 +186,21 @@ def chain_fitness(field, machine, compiled, targets, axes_d, ball_um, rotary_lim
     return ChainAxisFitness(field, compiled, targets, axes_d, sol, scale, ball_um), sol, kept, note
 
 
-def _check(field, targets_mm, machine, ball_um, population, generations, selection_probability,
-           crossover_probability, mutation_probability, mutation_step_um, tol_um, retries, rotary_limit_deg):
-    """Shared validation of the chain GAs; returns (targets (n, 3), mating parents)."""
-    check_field(field, machine.axis_columns)
-    solved_and_kept(machine)  # ValueError for a machine the chain solvers cannot place the tool point on
-    targets = check_points(targets_mm, "WCS targets (px_mm, py_mm, pz_mm)")
-    if not (np.isfinite(ball_um) and ball_um > 0):
-        raise ValueError(f"Expected a positive ball radius in μm, got {ball_um!r}")
+def _setup(field, targets_mm, machine, target_axes, ball_um, population, generations, selection_probability,
+           crossover_probability, mutation_probability, mutation_step_um, tol_um, retries, rotary_limit_deg, chunk=1):
+    """Shared validation and set-up of the chain GAs: ``(compiled chain, targets (n, 3) mm, mating parents,
+    program axes (n, k), fitness, moved axes, kept axes, note)`` (:func:`chain_fitness`)."""
+    compiled, _, _, targets = check_chain_call(field, targets_mm, machine, ball_um)
     n_parents = check_ga_options(population, generations, selection_probability, crossover_probability,
                                  mutation_probability, mutation_step_um, tol_um)
     if not (isinstance(retries, (int, np.integer)) and 0 <= retries <= 10):
         raise ValueError(f"Expected retries in 0..10, got {retries!r}")
     check_rotary_limit(rotary_limit_deg)
-    return targets, n_parents
+    if not (isinstance(chunk, (int, np.integer)) and chunk >= 1):
+        raise ValueError(f"Expected chunk ≥ 1, got {chunk!r}")
+    axes_d = target_axes_of(machine, targets, target_axes, compiled)
+    fit, moved, kept, note = chain_fitness(field, machine, compiled, targets, axes_d, ball_um, rotary_limit_deg)
+    return compiled, targets, n_parents, axes_d, fit, moved, kept, note
 
 
 def _retry_and_polish(fit, field, compiled, targets, axes_d, moved, idx, b, tol_um, ball_um, retries, polish,
@@ -322,15 +290,10 @@ def solve_batched_ga_chain(field, targets_mm, machine, *, target_axes=None, ball
     unconverged), ``rotary_refused`` where a rotary axis is solved.
     """
     t0 = time.perf_counter()
-    targets, n_parents = _check(field, targets_mm, machine, ball_um, population, generations, selection_probability,
-                                crossover_probability, mutation_probability, mutation_step_um, tol_um, retries,
-                                rotary_limit_deg)
-    if not (isinstance(chunk, (int, np.integer)) and chunk >= 1):
-        raise ValueError(f"Expected chunk ≥ 1, got {chunk!r}")
-    compiled = NominalChain(machine)
-    axes_d = target_axes_of(machine, targets, target_axes, compiled)
+    compiled, targets, n_parents, axes_d, fit, moved, kept, note = _setup(
+        field, targets_mm, machine, target_axes, ball_um, population, generations, selection_probability,
+        crossover_probability, mutation_probability, mutation_step_um, tol_um, retries, rotary_limit_deg, chunk)
     n = len(targets)
-    fit, moved, kept, note = chain_fitness(field, machine, compiled, targets, axes_d, ball_um, rotary_limit_deg)
     ga = _BatchGA(ball_um, population, n_parents, crossover_probability, mutation_probability, mutation_step_um)
     n_chunks = max(1, -(-n // chunk))
     bounds = np.linspace(0, n, n_chunks + 1).round().astype(int)
@@ -383,13 +346,10 @@ def solve_ga_chain(field, targets_mm, machine, *, target_axes=None, ball_um: flo
     import pygad
 
     t0 = time.perf_counter()
-    targets, n_parents = _check(field, targets_mm, machine, ball_um, population, generations, selection_probability,
-                                crossover_probability, mutation_probability, mutation_step_um, tol_um, retries,
-                                rotary_limit_deg)
-    compiled = NominalChain(machine)
-    axes_d = target_axes_of(machine, targets, target_axes, compiled)
+    compiled, targets, n_parents, axes_d, fit, moved, kept, note = _setup(
+        field, targets_mm, machine, target_axes, ball_um, population, generations, selection_probability,
+        crossover_probability, mutation_probability, mutation_step_um, tol_um, retries, rotary_limit_deg)
     n = len(targets)
-    fit, moved, kept, note = chain_fitness(field, machine, compiled, targets, axes_d, ball_um, rotary_limit_deg)
     point_rngs = np.random.default_rng(seed).spawn(n)
     counter = [0]
 

@@ -1,26 +1,15 @@
 """Traditional compensation on a machine-tool chain (``kind = "machine-tool"``): one first-order step.
 
-The correction an engineer tries first: command the target minus the error predicted at the
-programmed axes ``q_d``, mapped onto the compensated axes through the chain's nominal axis Jacobian
-at ``q_d``::
+Command the target minus the error predicted at the programmed axes ``q_d``, mapped onto the compensated
+axes through the chain's nominal axis Jacobian ``J_s = dfwd/dq_s`` (mm per mm or per deg) at ``q_d``::
 
     Δq_s = −1e-3 · J_s(q_d)⁻¹ · E(q_d)        (mm or deg; q_s the three compensated axes)
     q    = q_d + Δq_s  (the other axes kept as programmed)
 
-with ``J_s = dfwd/dq_s`` (mm per mm or per deg) and ``E`` the field (μm). The command reached is
-``p_r = fwd(q)`` and the model residual ``(p_r − p_d)·1e3 + E(q)`` is what the single step leaves:
-the error at the compensated axes differs from the error at the programmed ones (the field's
-gradient times the correction), which :mod:`compensation.solvers.chain_exact` removes. No iteration,
-two field evaluations per point.
-
-The compensated axes are the exact chain solver's (:func:`~compensation.solvers.chain_exact.solved_and_kept`:
-a mill's or a 5-axis machine's three linear axes, rotary axes kept as commanded; a lathe's X, Z and
-C). On linear axes the map is affine (for fixed rotary axes), so ``p_r`` is exactly ``p_d − 1e-3·E(q_d)``;
-on a solved rotary axis it is first order. The same limits as the exact solver hold: the 250 μm ball
-(a command outside it is projected onto its surface, ``success = False``) and the rotary continuity
-guard (:func:`~compensation.solvers.chain_exact.rotary_guard`: a solved rotary axis that would swing
-beyond its bound is refused and the programmed axes kept). ``success``: finite, inside the ball and not
-refused (nothing to converge).
+The model residual ``(fwd(q) − p_d)·1e3 + E(q)`` (μm) is what the single step leaves (the field's gradient
+times the correction). The compensated axes, the 250 μm ball and the rotary continuity guard are the exact
+chain solver's; ``success``: finite, inside the ball and not refused. Two field evaluations per point.
+docs/explanation/solvers.md ("The traditional baseline on a chain").
 """
 from __future__ import annotations
 
@@ -28,14 +17,10 @@ import time
 
 import numpy as np
 
-from errormap.field import check_field
-from errormap.chain_kernel import NominalChain
-from errormap.transforms import check_points
-
 from ._common import MM_PER_UM, UM_PER_MM, make_result, project_to_ball, wrap180
 from .base import BALL_RADIUS_UM
-from .chain_exact import (KEPT_NOTE, SOLVED_NOTE, check_rotary_limit, nominal_and_jacobian, rotary_guard,
-                          solved_and_kept, target_axes_of)
+from .chain_exact import (axes_info, check_chain_call, check_rotary_limit, nominal_and_jacobian, rotary_guard,
+                          target_axes_of)
 from .exact import keep_turn, solve3
 
 
@@ -75,12 +60,7 @@ def solve_traditional_chain(field, targets_mm, machine, *, target_axes=None, bal
     ``rotary_refused`` / ``rotary_reasons`` where a rotary axis is solved.
     """
     t0 = time.perf_counter()
-    check_field(field, machine.axis_columns)
-    compiled = NominalChain(machine)
-    sol, kept = solved_and_kept(machine, compiled)
-    targets = check_points(targets_mm, "WCS targets (px_mm, py_mm, pz_mm)")
-    if not (np.isfinite(ball_um) and ball_um > 0):
-        raise ValueError(f"Expected a positive ball radius in μm, got {ball_um!r}")
+    compiled, sol, kept, targets = check_chain_call(field, targets_mm, machine, ball_um)
     check_rotary_limit(rotary_limit_deg)
     axes_d = target_axes_of(machine, targets, target_axes, compiled)
     E_d = field_values(field, machine, axes_d)
@@ -109,17 +89,7 @@ def solve_traditional_chain(field, targets_mm, machine, *, target_axes=None, bal
         q[refused] = axes_d[refused]
         commands[refused] = compiled.forward(axes_d[refused])
     res = (commands - targets) * UM_PER_MM + field_values(field, machine, q)
-    names = machine.axis_columns
-    info = {"outside_ball": np.flatnonzero(outside), "compensated_axes": [names[j] for j in sol],
-            "kept_axes": [names[j] for j in kept]}
-    rot_sol = [names[j] for j in sol if compiled.kinds[j] != "linear"]
-    if rot_sol:
-        info["rotary_refused"] = np.flatnonzero(refused)
-        info["rotary_reasons"] = [reasons[i] for i in np.flatnonzero(refused).tolist()]
-        info["rotary_limit_deg"] = None if rotary_limit_deg is None else float(rotary_limit_deg)
-    if len(kept):
-        info["note"] = KEPT_NOTE.format(lin=", ".join(info["compensated_axes"]), rot=", ".join(info["kept_axes"]))
-    elif rot_sol:
-        info["note"] = SOLVED_NOTE.format(sol=", ".join(info["compensated_axes"]), rot=", ".join(rot_sol))
+    info = axes_info({"outside_ball": np.flatnonzero(outside)}, compiled, machine, sol, kept, refused, reasons,
+                     rotary_limit_deg)
     return make_result("traditional", targets, commands, q, res, ~outside & ~refused, 2 * len(targets), t0, ball_um,
                        info=info)

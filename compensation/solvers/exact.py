@@ -1,51 +1,19 @@
 """The Newton core of exact compensation: Newton's method with a backtracking line search, in axis space.
 
-The solver itself is :func:`compensation.solvers.chain_exact.solve_exact_chain` (every machine tool on its
-chain, the grinder included). It solves for the axis command ``q`` (for the grinder x_mm, z_mm, a_deg) of
-each target ``p_d``::
+The solver itself is :func:`compensation.solvers.chain_exact.solve_exact_chain`. For each target ``p_d``
+it solves for the axis command ``q``::
 
     F(q) = fwd(q) + 1e-3·E(q) - p_d = 0          (mm)
     J(q) = dfwd/dq + 1e-3·dE/dq                   (mm per mm, mm, deg)
 
-then ``p_r = fwd(q)``. ``fwd`` and ``dfwd/dq`` are the machine's chain
-(:class:`errormap.chain_kernel.NominalChain`: for the grinder its chain file, the one source of the
-kinematics; no hand-written copy here). Why axis space and not WCS: in the WCS the field ``E(IK(p))`` is
-steep near the A axis (its tangential slope grows like ``|E|/ρ``, and ρ is 0.1 mm at
-z = 0 on the default grinder), so the WCS map ``p ↦ p + E(IK(p))`` can fold and a WCS
-fixed-point or Newton iteration diverges there. In axis space both ``fwd`` and ``E`` are
-smooth; the solution is the same point (``IK(fwd(q)) = q``, A modulo 360°), and the model
-residual ``p_r + 1e-3·E(axes(p_r)) - p_d`` equals ``F(q)``.
-
-Robustness:
-
-* Backtracking (Armijo) line search on ``|F|``: a step is halved (up to 20 times) until
-  ``|F|`` decreases by at least ``1e-4·α``; a point where no step decreases ``|F|`` by
-  more than 1 %, even with a fresh Jacobian, stops (stagnation).
-* Steps are limited to ``max_step`` (1 mm per linear, 90° per rotary axis) before the line search.
-* Jacobian: the kinematic part ``dfwd/dq`` is geometric and exact (the chain's op columns,
-  :func:`errormap.chain_kernel.nominal_columns`) and recomputed every iteration;
-  the field part ``dE/dq`` comes from ``field.jacobian(axes)`` when the field has it, else
-  from forward differences in axis space, once per point, then is updated along every
-  accepted step by Broyden's secant rule (no extra evaluations); it is recomputed only
-  where the line search fails or stalls. (The first step's modest reduction near the A
-  axis is the kinematics' curvature — a 130 μm correction on a 0.4 mm radius turns A by
-  ~20° — which the fresh kinematic Jacobian handles in the next steps.)
-* The ball is a hard limit: a root outside the 250 μm ball is projected onto the ball
-  surface, reported with its (non-zero) residual and ``success = False``.
-* ``success``: ``|residual| ≤ tol_um`` (default 1e-4 μm) and inside the ball. Iteration
-  goes on to float precision (``|F| ≤ xtol_um``, default 1e-9 μm, or within
-  :data:`ROUNDOFF_ULPS` ulps of the target's coordinates, where halving a step cannot beat
-  round-off) or until stagnation.
-
-Which axes move is read from the chain (:func:`solved_axes`): a machine with three linear axes
-is solved on them and keeps its rotary axes as commanded; a three-axis machine with a rotary axis
-(the X-Z-A grinder, a lathe's X-Z-C) is solved on all three, its full-turn axis kept on the target's
-turn. The field's evaluation is the caller's (``ev`` of :func:`newton`).
-
-Speed: the per-point arithmetic of an iteration (residual, kinematic Jacobian,
-Cramer step, Armijo test, Broyden update) runs in compiled kernels over the chain's op arrays
-for the points still iterating; the field is called once per line-search round on all trial points together, so
-any field works, and a field's own compiled kernel (the HTM field's) releases the GIL.
+then ``p_r = fwd(q)``; ``fwd`` and the geometric ``dfwd/dq`` come from the machine's chain
+(:class:`errormap.chain_kernel.NominalChain`), ``dE/dq`` from the field's Jacobian or forward differences,
+once per point, then Broyden updates. Steps are limited to ``max_step`` (1 mm / 90°) and halved (Armijo, up to
+20 times) until ``|F|`` decreases; iteration stops at ``|F| ≤ xtol_um``, within :data:`ROUNDOFF_ULPS` ulps of
+the target's coordinates, or at stagnation. Which axes move: :func:`solved_axes`; the field's evaluation is the
+caller's (``ev`` of :func:`newton`). The per-point arithmetic runs in compiled kernels over the chain's op
+arrays; the field is called once per line-search round on all trial points. Why axis space, and the
+measurements: docs/explanation/solvers.md ("exact").
 """
 from __future__ import annotations
 

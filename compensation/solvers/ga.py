@@ -2,28 +2,11 @@
 through PyGAD itself, and the ``batched-ga`` solver's compiled generations,
 :func:`compensation.solvers.chain_ga.solve_ga_chain` / :func:`~compensation.solvers.chain_ga.solve_batched_ga_chain`).
 
-PyGAD evolves three genes per target ``p_d`` in the 250 μm ball (the offsets ``d`` of the commanded
-target, or the solved axes' scaled offsets where a rotary axis is solved); the fitness is minus the
-squared model residual (μm², PyGAD maximises), the paper's objective.
-
-The paper's parameters and how they map onto PyGAD (docs/explanation/solvers.md has the full table):
-
-================================  =========================================================
-paper                             PyGAD
-================================  =========================================================
-population 40                     ``sol_per_pop=40``
-400 generations                   ``num_generations=400``
-3 variables                       ``num_genes=3`` (the offset d_x, d_y, d_z in μm)
-selection probability 0.7         ``num_parents_mating=28`` (0.7·40) with PyGAD's default
-                                  steady-state selection (``parent_selection_type="sss"``)
-crossover probability 0.7         ``crossover_probability=0.7``, ``crossover_type="single_point"``
-mutation probability 0.2          ``mutation_probability=0.2`` per gene, ``mutation_type="random"``
-                                  (PyGAD default: adds U(-1, 1) gene units, here μm)
-search region: the 250 μm ball    initial population uniform in the ball; offspring projected
-                                  radially onto the ball after mutation (``on_mutation``)
-(not in the paper)                ``keep_elitism=1`` (PyGAD default), ``fitness_batch_size=40``
-================================  =========================================================
-
+Three genes per target ``p_d`` in the 250 μm ball (the offsets ``d`` μm of the commanded target, or the solved
+axes' scaled offsets where a rotary axis is solved); fitness minus the squared model residual (μm², PyGAD
+maximises). :data:`PAPER_GA`: population 40, 400 generations, 28 mating parents (selection probability 0.7 as
+steady-state selection), single-point crossover 0.7, random additive mutation 0.2 per gene of U(-1, 1) μm,
+elitism 1, offspring projected onto the ball. The paper-to-PyGAD table: docs/explanation/solvers.md.
 """
 from __future__ import annotations
 

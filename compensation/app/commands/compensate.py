@@ -1,43 +1,14 @@
 """``volcomp compensate``: rewrite tool-path files so the tool lands where the program meant.
 
-Each input (CSV axis commands, CSV WCS targets, or G-code; see :mod:`compensation.pathio`
-and :mod:`compensation.gcode`) is solved with the chosen method and written to
-``DIR/<same name>`` (the input is never touched; an output that would overwrite an input
-is refused before any work).
-
-Order of work (:mod:`compensation.app.workflows.compensate`), so that DIR only ever holds whole
-files of one run:
-
-1. every input is parsed and validated (a bad one fails the batch with exit 2, naming
-   file, line, column and word) before the field is loaded or anything is written;
-2. a DIR that already holds files is refused (exit 2) unless ``--force``; with
-   ``--force`` the files a previous run listed in its ``compensate_summary.json`` and any
-   file at the output path of an input this run refuses are removed;
-3. every file is solved — in chunks of ``--chunk-points`` with a seed each
-   (:mod:`compensation.batch`), in ``--workers`` threads or on Ray (``--cluster ray``,
-   :mod:`compensation.app.workflows.cluster`), the same bytes either way — then guarded and
-   rendered in memory; a cluster that cannot finish fails the batch (exit 4) before any write;
-4. the accepted files are written as one set (each in full to a temporary file, then all
-   renamed into place); ``compensate_summary.json`` last.
-
-Guards (docs/explanation/kinematics.md; :mod:`compensation.guards`), the same for every method: a file whose compensated
-commands — or the nominal axes of their targets — leave the strokes (``stroke``) or the
-field's calibrated volume (``volume``), whose corrections leave the 250 μm ball
-(``ball``), or whose solver did not converge (``convergence``) is refused — not written —
-and the command exits with status 3 listing the offending points (first ``--show`` of
-them, with file line and reasons). Rapids kept as written are checked against the
-strokes too. ``--allow GUARDS`` (comma-separated; bare ``--allow`` = all) overrides those
-guards explicitly: the file is written, the override is recorded in the file itself
-(a header comment in G-code, a line of a CSV's sidecar ``NAME.meta.json``) and in the summary.
-The residual reported per file is the MODEL residual (the solver's own field).
-
-Every machine tool goes this one way (the built-in grinder and any ``kind = "grinder"`` file as
-its chain, ``mill-xyz``, ``five-axis-ac``, ``lathe-xzc`` ...): its own axis words and CSV columns,
-every ``--method`` on the chain (exact: Newton on the chain, the tool-tip position with three axes),
-every model kind, ``--cluster``/``--workers``/``--chunk-points``/``--max-segment-mm`` through one chunk
-plan (:mod:`compensation.batch`), and with ``--truth ELEMENTS`` the TRUE residual as well, at the
-vertices and along the moves as the controller interpolates them. A serial arm compensates joint
-programs (:mod:`compensation.app.workflows.arm_compensate`).
+Each input (CSV axis commands, CSV WCS targets, or G-code; :mod:`compensation.pathio`,
+:mod:`compensation.gcode`) is solved with the chosen method on the machine's chain and written to
+``DIR/<same name>``; the work is :mod:`compensation.app.workflows.compensate` (parse and validate every
+input first, exit 2; solve in chunks, in threads or on Ray, exit 4 if a cluster cannot finish; guard;
+write the accepted files as one set, ``compensate_summary.json`` last). A file the guards
+(:mod:`compensation.guards`) refuse is not written and the command exits 3 (unless ``--allow``). The
+residual reported is the MODEL residual (with ``--truth`` the TRUE one beside it). A serial arm
+compensates joint programs (:mod:`compensation.app.workflows.arm_compensate`). The options and the order
+of work: docs/reference/tool-paths.md ("volcomp compensate").
 """
 from __future__ import annotations
 

@@ -1,20 +1,8 @@
 """``volcomp demo``: the whole pipeline on the built-in default machine (:mod:`compensation.app.workflows.demo`).
 
-simulate a truth grinder (``DIR/sim``) → its feature points (errormap.featurepoints.DEFAULT_GRID per axis) →
-train the BP network on what an element set fitted to them leaves (training.DEFAULT_PHYSICS; Levenberg–Marquardt,
-tracked in MLflow) → compensate the variable-helix flute path with every
-method (the per-point ``ga`` on an evenly spaced subset when the whole path would take too
-long, and the report says so) → ``DIR/report.html``, ``DIR/metrics.json``, ``DIR/residuals.csv``
-showing the MODEL residual (the trained network's own view) and the TRUE residual (the
-simulated machine; the ``ga`` subset's rows in ``DIR/residuals_ga.csv``), and the flute as an NC program
-``DIR/flute.nc`` with its compensated form ``DIR/compensated/flute.nc``. The report files are also logged to
-the training's MLflow run.
-
-Defaults aim at 90 s on 2 quiet CPU cores (measured: docs/decisions/020-benchmark-notebook.md): training stops
-when the error on the off-grid selection points has not improved for ``--train-patience`` LM
-iterations, or after ``--train-iter`` (counts, so the model is the same on any machine;
-``--train-s`` adds a wall-clock limit), the per-point GA after ``--ga-budget-s``. The report
-states the budget it used.
+Options only: the pipeline, its outputs and its budget (``--train-patience``, ``--train-iter``, ``--train-s``,
+``--ga-budget-s``; defaults aim at 90 s on 2 quiet CPU cores) are the workflow's; docs/reference/tool-paths.md
+("volcomp demo").
 """
 from __future__ import annotations
 

@@ -53,6 +53,14 @@ def run(args) -> int:
     return RUNNERS[family.target("simulate")](machine, args)
 
 
+def _print_written(info, out, note: str) -> int:
+    """The files a simulation wrote, the truth last (``note`` after its path); exit status 0."""
+    for k, v in info["files"].items():
+        print(f"wrote {k}: {v}")
+    print(f"wrote truth: {Path(out) / 'truth.json'}{note}")
+    return 0
+
+
 def _run_arm(machine, args) -> int:
     from ..workflows.simulate_serial import DEFAULT_ARM_NOISE_UM, simulate_serial
     noise = DEFAULT_ARM_NOISE_UM if args.noise_um is None else args.noise_um
@@ -62,10 +70,7 @@ def _run_arm(machine, args) -> int:
                            checks=100 if args.checks is None else args.checks,
                            check_noise_seed=args.seed_check_noise)
     print(f"tool point error of the truth at the fitting poses: {info['uncompensated_rms_mm']:.3f} mm RMS")
-    for k, v in info["files"].items():
-        print(f"wrote {k}: {v}")
-    print(f"wrote truth: {Path(args.out) / 'truth.json'} (the judge's; never an input of calibrate)")
-    return 0
+    return _print_written(info, args.out, " (the judge's; never an input of calibrate)")
 
 
 def _run_parallel(machine, args) -> int:
@@ -75,10 +80,7 @@ def _run_parallel(machine, args) -> int:
                         noise_um=DEFAULT_PKM_NOISE_UM if args.noise_um is None else args.noise_um,
                         poses=DEFAULT_PKM_POSES if args.poses is None else args.poses,
                         checks=100 if args.checks is None else args.checks, check_noise_seed=args.seed_check_noise)
-    for k, v in info["files"].items():
-        print(f"wrote {k}: {v}")
-    print(f"wrote truth: {Path(args.out) / 'truth.json'} (the judge's; never an input of calibrate)")
-    return 0
+    return _print_written(info, args.out, " (the judge's; never an input of calibrate)")
 
 
 def _machine_tool_defaults(args) -> None:
@@ -98,10 +100,7 @@ def _run_chain(machine, args) -> int:
                           checks=args.checks, family=args.family, check_noise_seed=args.seed_check_noise)
     print(f"max spatial error {info['max_spatial_error_um']:.1f} μm over the volume (reference temperature, "
           "positive approach)")
-    for k, v in info["files"].items():
-        print(f"wrote {k}: {v}")
-    print(f"wrote truth: {Path(args.out) / 'truth.json'}")
-    return 0
+    return _print_written(info, args.out, "")
 
 
 def _run_grinder(machine, args) -> int:

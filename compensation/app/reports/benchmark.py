@@ -18,9 +18,6 @@ PLOT_FLOOR_UM = 0.01
 """Line plots draw values below this (noise-free exact compensation, ~1e-9 μm) at this floor."""
 
 
-_plt = pyplot
-
-
 def _stop(s: dict, prefix: str) -> str:
     """How training stopped, from the settings: ``{prefix}_iter`` iterations, an optional
     ``{prefix}_s`` wall-clock limit (older benchmark.json files have only the time budget)."""
@@ -57,7 +54,7 @@ def _rows(doc, kinds=None, group=None, path=None, available=True):
 
 def _line_plot(doc, kinds, select, xkey, xlabel, title, alt) -> Figure | None:
     """True RMS and max against ``xkey`` for the rows of ``kinds`` that ``select(row)`` keeps."""
-    plt = _plt()
+    plt = pyplot()
     rows = [r for r in _rows(doc, kinds) if select(r)]
     if not rows:
         return None
@@ -79,7 +76,7 @@ def _line_plot(doc, kinds, select, xkey, xlabel, title, alt) -> Figure | None:
 
 
 def _effects_plot(doc) -> Figure | None:
-    plt = _plt()
+    plt = pyplot()
     rows = _rows(doc, GRINDER.kinds, "effect")
     effects = list(dict.fromkeys(r["effect"] for r in rows))
     if not effects:
@@ -104,7 +101,7 @@ def _effects_plot(doc) -> Figure | None:
 
 
 def _cost_plot(doc) -> Figure | None:
-    plt = _plt()
+    plt = pyplot()
     rows = [r for r in _rows(doc) if r.get("fit_seconds") is not None]
     if not rows:
         return None

@@ -9,12 +9,11 @@ from .figures import pyplot
 from .toolkit import Table, figure, render_page
 
 FIG_DPI = 90
-_plt = pyplot
 
 
 def drift_report(log, sel, channels, log_path) -> str:
     """The ``drift.html`` page of a drift-log diagnosis: ``sel`` a fitted DriftSelector, ``channels`` its report."""
-    plt = _plt()
+    plt = pyplot()
     _, hold = sel.split(log)
     notes = log.notes or {}
     repaired = [f"{c}: dropped — {w}" for c, w in notes.get("dropped", {}).items()]

@@ -8,7 +8,6 @@ from .figures import pyplot
 from .toolkit import Figure, Table, figure
 
 FIG_DPI = 90
-_plt = pyplot
 
 
 FRAME_WORDS = {"work": "learned in the work frame, as measured",
@@ -72,7 +71,7 @@ def learned_map_figure(m: dict) -> Figure:
     axis names come from the map's keys (:func:`map_axes`)."""
     c1, c2, rot = map_axes(m)
     s1, s2 = c1.rsplit("_", 1)[0], c2.rsplit("_", 1)[0]
-    fig, axs = _plt().subplots(1, 2, figsize=(9, 3.6))
+    fig, axs = pyplot().subplots(1, 2, figsize=(9, 3.6))
     ext = [m[c1][0], m[c1][-1], m[c2][0], m[c2][-1]]
     band_key, band_title = (("band95_total_um", "the hybrid's total 95 % band (μm)") if "band95_total_um" in m
                             else ("band95_um", "its 95 % band (μm)"))

@@ -1,19 +1,11 @@
 """The method-comparison report: a :class:`~compensation.app.workflows.compare.Comparison` on disk.
 
-:func:`write_report` writes, atomically:
-
-* ``report.html`` — the ``compare.html`` page of the report toolkit (:mod:`.toolkit`): the
-  residual per interpolation point for every method, as ``|r|`` and as ``|r|²`` (the
-  grinder paper's Fig. 18 kind: the traditional residual repeats once per turn of a rotary axis), a
-  table of max and mean per method, and the solver times. Every plot and table names its
-  residual: **model** (the solver's own field) or **true** (the simulated truth machine).
-* ``metrics.json`` — ``methods``: method name → ``model_max_um``, ``model_mean_um``,
-  ``model_max_sq_um2``, ``model_mean_sq_um2``, ``true_max_um`` … (when a truth exists),
-  ``seconds``, ``points``, ``nfev``, ``failures``, ``max_correction_um``, ``subset``;
-  ``uncompensated`` (the same for the nominal commands); ``residuals`` (the definitions).
-* ``residuals.csv`` — per point: the nominal axes and each method's ``|r|`` (model/true), for the methods
-  that ran on every point; a method run on a subset (the per-point ``ga`` in a time budget) has its own
-  ``residuals_<method>.csv`` with only the rows it ran on (``point``: the row's number in ``residuals.csv``).
+:func:`write_report` writes, atomically, ``report.html`` (the toolkit's ``compare.html`` page: each method's
+residual per point as ``|r|`` and ``|r|²`` μm, max and mean, solver times; every plot and table names its
+residual, **model** or **true**), ``metrics.json`` (per method ``model_max_um`` …, ``true_*`` with a truth,
+``seconds``, ``points``, ``nfev``, ``failures``; ``uncompensated``; ``residuals``: the definitions) and
+``residuals.csv`` (per point, the methods that ran on every point; a method run on a subset has its own
+``residuals_<method>.csv``). Keys and columns: docs/reference/tool-paths.md ("volcomp report").
 """
 from __future__ import annotations
 

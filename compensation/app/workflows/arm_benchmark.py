@@ -1,22 +1,13 @@
 """The benchmark's serial-arm rows (``volcomp benchmark --machine ur5``): the user's path, judged by the truth.
 
-Per condition (the arm effects of :data:`compensation.app.workflows.simulate_serial.ARM_EFFECTS`, or none)
-a seeded truth arm is measured by a simulated tracker (``simulate_serial``: fitting poses, held-out poses
-and a well-conditioned joint program), calibrated exactly as ``volcomp calibrate --check`` does
-(:func:`compensation.app.workflows.arm_calibration.calibrate_arm`: every decision by CV inside the fitting
-poses), and the joint program is compensated as ``volcomp compensate`` does (Newton on the calibrated chain,
-tool orientation kept). The hidden truth then drives the compensated joints; the TRUE residual is the truth's
-tool point minus the program's target (the nominal tool point at the programmed joints), both in the robot's base
-frame. Three rows per
-condition, all from the same measurements:
-
-- ``plain LSQ``: the plain baseline (scipy least squares on every DH slot + base + tool), compensated;
-- ``parametric``: volcomp's geometric stage (its slot set chosen by CV), no learned residual;
-- ``hybrid``: the stage ``calibrate`` keeps (the geometric stage plus the learned residual where the CV
-  inside the fitting poses keeps it; else the same as ``parametric``; or a plain pipeline where it won).
-
-Each row also carries the held-out MEASURED RMS of its model on the held-out poses and the noise floor
-(√3 σ: a perfect model's RMS 3-D error against the noisy measurements).
+Per condition (:data:`compensation.app.workflows.simulate_serial.ARM_EFFECTS`, or none) a seeded truth arm is
+measured by a simulated tracker, calibrated as ``volcomp calibrate --check`` does
+(:func:`compensation.app.workflows.arm_calibration.calibrate_arm`), and the joint program compensated as
+``volcomp compensate`` does; the TRUE residual is the truth's tool point at the compensated joints minus the
+program's target (μm, the robot's base frame). Three rows per condition from the same measurements:
+``plain LSQ`` (the plain baseline: every DH slot + base + tool), ``parametric`` (the CV-chosen geometric stage)
+and ``hybrid`` (the stage ``calibrate`` keeps), each with the held-out MEASURED RMS and the noise floor √3 σ.
+docs/reference/benchmark.md ("Serial arms").
 """
 from __future__ import annotations
 
@@ -27,10 +18,6 @@ from pathlib import Path
 import numpy as np
 
 ARM_SOLVER = "Newton on the calibrated chain, tool orientation kept (volcomp compensate)"
-
-
-def condition_name(effects) -> str:
-    return "+".join(effects) if effects else "none"
 
 
 def _landing_um(chain, truth, geo, learner, q_prog, target):
@@ -56,7 +43,7 @@ def run_arm(machine, s, log, out_dir, row, note) -> None:
     base = Path(out_dir) / "arms" / machine.name
     floor_um = float(np.sqrt(3) * s.arm_noise_um)
     for k, effects in enumerate(s.arm_effects):
-        cname = condition_name(effects)
+        cname = "+".join(effects) if effects else "none"
         d = base / cname
         note(f"{machine.name}: {cname}: simulate → calibrate → compensate")
         common = {"noise_um": s.arm_noise_um, "noise_floor_um": floor_um, "effect": cname,

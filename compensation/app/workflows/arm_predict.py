@@ -1,19 +1,12 @@
 """``volcomp predict program.csv --machine ur5 --model DIR/calibration.json --out pred.csv``: an arm's
 calibrated tool-point error at joint configurations.
 
-Input: a CSV with the chain's joint columns (``q1_deg …``; other columns are ignored), or a measured-pose
-file in the laser-tracker grid layout (``joint_1 …`` in degrees, ``x_t…``, ``x_dif…``; recognised by its
-columns), checked for radians and the joint limits like every arm file. For a tracker-grid file the
-output also holds the MEASURED residual per pose, ``ex_mm, ey_mm, ez_mm`` = measured − calibrated tool
-point in the calibration's (or its registration's) instrument frame, and its mean / RMS /
-max are printed: a check of the calibration on poses it did not see. Output: the joint columns, the calibrated model's
-tool point ``x_mm, y_mm, z_mm`` in the ROBOT'S BASE FRAME (kept stage: geometric slots [+ joint slots] [+ the learned
-residual], turned out of the instrument's frame by the calibration's base transform, :mod:`errormap.arm_frames`)
-and its error against the nominal chain in that frame, ``dx_mm, dy_mm, dz_mm`` — what the arm does where the program
-meant the nominal point (the negative of what ``compensate`` corrects). With ``--band 95`` (or ``1sigma``) also
-``dx_band95_mm, dy_band95_mm, dz_band95_mm``: the half-width per component of the band of a new measurement about
-the kept stage (:data:`BAND_RULES`; its 95 % coverage is checked by CV and on the held-out poses in
-``calibration.json``). Written whole.
+Input: a CSV with the chain's joint columns (``q1_deg …``), or a measured-pose file in the tracker grid layout
+(then the output also holds the MEASURED residual per pose, ``ex_mm, ey_mm, ez_mm``, in the calibration's
+instrument frame, and its mean / RMS / max are printed). Output: the joint columns, the kept stage's tool point
+``x_mm, y_mm, z_mm`` in the ROBOT'S BASE FRAME (:mod:`errormap.arm_frames`) and its error against the nominal
+chain there, ``dx_mm, dy_mm, dz_mm``; with ``--band`` (:data:`BAND_RULES`) the half-widths
+``dx_band95_mm …``. Written whole. docs/reference/arm-calibration.md.
 """
 from __future__ import annotations
 

@@ -1,57 +1,16 @@
 """Learned vs parametric, side by side, on the same machines and the same measurements.
 
-``run_benchmark(machines, out_dir, settings)`` runs both compensation paths on each machine
-under a set of measurement conditions, evaluates the TRUE residual (residual 2 of docs/explanation/kinematics.md: the
-simulated truth machine driven with the compensated commands, minus the target) along the
-test paths, records every run in MLflow under one parent run, and writes
-``DIR/benchmark.json`` and ``DIR/report.html`` (:mod:`compensation.app.reports.benchmark`).
+``run_benchmark(machines, out_dir, settings)`` runs both compensation paths on each machine under a set of
+measurement conditions, judges them by the TRUE residual (residual 2 of docs/explanation/kinematics.md: the
+simulated truth machine driven with the compensated commands, minus the target; μm) along the test paths,
+records every run in MLflow under one parent run, and writes ``DIR/benchmark.json`` and ``DIR/report.html``
+(:mod:`compensation.app.reports.benchmark`). The paths, conditions, settings and rows per machine family are
+described in docs/reference/benchmark.md.
 
-**Grinder** (one simulated truth machine, seed ``truth_seed``):
-
-* measurements: laser-tracker sweeps (``errormap.sweeps.simulate_sweeps``) with ``stations``
-  stations per axis and tracker noise ``noise_um``; ``n_measurements = stations × 3 balls × 3 axes``
-  (ball-centre measurements); the closed loop adds ``n_checks`` check measurements;
-* parametric: identified 23 elements → :class:`errormap.chain_field.ChainField` → ``exact`` solver;
-* learned: the same identified elements → 11×11×11 feature points → the BP network
-  (``training.fit_field``, LM, ``train_iter`` iterations) → ``batched-ga`` (the paper's GA,
-  vectorised) on ``ga_points`` evenly spaced flute points and ``exact`` on the whole flute;
-  the row's headline numbers are the ``exact`` ones (whole path), the GA subset is beside them;
-* test path: the variable-helix flute (``compensation.toolpath.flute_path``), under the path
-  condition :data:`PATH_CONDITIONS` (a warm machine at 24 °C, X and A approached from below as
-  the path moves, Z from above because the wheel plunges to the flute-bottom radius);
-* conditions: sweep density (stations), tracker noise, and each undeclared effect of the
-  simulator in the truth, before and after the closed loop (check measurements → the effect search
-  on the identified element set, :func:`errormap.diagnosis.chain_loop.closed_loop_chain` without its
-  element update → the elements plus the found terms → compensate with it). The learned path has no
-  element set: its row after the loop says so;
-* out-of-catalogue conditions (``ooc_effects`` × ``ooc_checks``, and the same machine without an
-  effect): after the loop the parametric path runs the user's path instead — the sweeps identified as
-  ``volcomp identify`` does (smoothing, element covariance), then ``volcomp diagnose``'s closed loop on
-  the checks (:func:`compensation.app.workflows.measurement.diagnose_chain`: element update, effects,
-  the learned residual backfitted with the update, all re-estimated on all checks); its loop alone is
-  the parametric row, its kept model (``model.json``) the hybrid row. Each row says which loop ran
-  (``loop_method``: :data:`USER_LOOP` or :data:`EFFECTS_LOOP`).
-
-**Hexapod** (and the tripod): simulated pose measurements (``simulate_poses``, known instrument
-frame), ``n_poses`` poses with noise ``noise_um``;
-
-* parametric: ``PKMCalibrator`` (Tikhonov + Morozov) → corrected inverse kinematics in the
-  interpolation (``true_path_residual``);
-* learned: :func:`training.pose_field.fit_pose_field` (commanded pose → pose error) →
-  compensation by iterating the commanded pose (:func:`learned_pkm_commands`);
-* test paths: the paper's sphere and hyperboloid passes (tripod: random workspace points).
-
-**Machine-tool chain files** (``kind = "machine-tool"``: mill-xyz, five-axis-ac, a user's file):
-per condition (no effect, each undeclared effect the chain has axes for) the user's path —
-simulate a hidden truth → sweeps → identify → diagnose → exact compensation of the four body
-diagonals with the identified set and with the loop's model — judged by the TRUE residual
-(:mod:`compensation.app.workflows.chain_benchmark`).
-
-The rows are in :mod:`.benchmark_flute` (the built-in machine's flute), :mod:`.benchmark_parallel`,
-:mod:`.chain_benchmark` and :mod:`.arm_benchmark`; what they share in :mod:`.benchmark_common`.
-
-Every figure is measured in this run; a part that cannot run is reported as not available
-with the reason, never filled in.
+The rows are in :mod:`.benchmark_flute` (the built-in machine's flute; ``loop_method``: :data:`.benchmark_common.USER_LOOP`
+or :data:`.benchmark_common.EFFECTS_LOOP`), :mod:`.benchmark_parallel`, :mod:`.chain_benchmark` and :mod:`.arm_benchmark`; what they
+share in :mod:`.benchmark_common`. Every figure is measured in this run; a part that cannot run is reported as not
+available with the reason, never filled in.
 """
 from __future__ import annotations
 

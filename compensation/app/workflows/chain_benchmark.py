@@ -1,30 +1,15 @@
 """The benchmark's rows on a machine-tool chain file (``volcomp benchmark --machine mill-xyz``).
 
-Per condition (no effect, then each of the settings' undeclared effects the machine has axes for),
-the user's path as the CLI runs it, through the same workflow functions (:mod:`.measurement`), the files
-left in ``DIR/chains/MACHINE/CONDITION/``:
-
-1. a hidden truth of seed ``truth_seed`` (``simulate --machine``: truth elements + the effect);
-2. tracker sweeps of it (``sweeps --machine``, tracker noise ``base_noise_um``, seeded unknown
-   tracker pose) → ``identify`` (elements + covariance);
-3. ``n_checks`` check measurements (noise ``check_noise_um``; ``--checks N``, repeatable: once per count,
-   ``chain_checks``) → ``diagnose`` (update with the identification's covariance, effect search; ``model.json``);
-4. the test path: the four body diagonals of the linear axes' volume (ISO 230-6), inset
-   :data:`INSET` of each stroke, rotary axes at 0 (or their stroke middle); on a machine with two
-   linear axes and one full-turn rotary axis (a turning centre with a C axis), which has no body
-   diagonals, the turning path of :func:`turning_path` (a line along each linear axis, ISO 230-2-like,
-   and a face/diameter set of points at :data:`TURNING_C_POSITIONS` positions of the rotary axis);
-   compensated by the
-   ``exact`` chain solver with the identified element set (row *before closed loop*) and with the
-   loop's ``model.json`` (row *after closed loop*), and with the chain network trained on the identified set's
-   feature points (the learned row, :func:`learned_chain_row`); beside it ``volume_points`` uniform random points
-   over every axis (rotary axes kept as programmed).
-
-Residual: TRUE — the truth machine (its effects at the path's conditions :data:`PATH_TEMP_C` and the
-approach direction of each axis along the diagonal) driven with the compensated axes, minus the
-target. The uncompensated path (the program run as written) is the baseline on every row; the
-diagnosis's held-out MEASURED residual is beside the loop row with its plain baselines (OLS of the
-residual on the axes, the unregularised least-squares update) and the noise floor.
+Per condition (no effect, then each of the settings' undeclared effects the machine has axes for), the
+user's path through the CLI's workflow functions (:mod:`.measurement`), files left in
+``DIR/chains/MACHINE/CONDITION/``: hidden truth → tracker sweeps → ``identify`` → ``n_checks`` check
+measurements → ``diagnose``; then the test path (the four body diagonals of the linear axes' volume, inset
+:data:`INSET`; a turning centre: :func:`turning_path` at :data:`TURNING_C_POSITIONS`) compensated by the
+``exact`` chain solver with the identified set, with the loop's ``model.json`` and with the chain network
+(:func:`learned_chain_row`), beside ``volume_points`` random points. Residual: TRUE (the truth at
+:data:`PATH_TEMP_C` and each axis' approach direction, driven with the compensated axes, minus the target,
+μm), beside the uncompensated baseline; the diagnosis's held-out MEASURED residual beside the loop row with
+its plain baselines and the noise floor. docs/reference/benchmark.md ("Machine-tool chain files").
 """
 from __future__ import annotations
 

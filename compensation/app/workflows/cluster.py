@@ -1,23 +1,13 @@
 """Ray scale-out: batch compensation on a cluster, and the fleet (identify → train → diagnose).
 
-Ray is imported here only, and lazily (``pip install 'volcomp[cluster]'``): nothing in the
-library imports it, and ``volcomp --help`` does not load it.
-
-**Batch compensation** (:class:`RayExecutor`, used by ``volcomp compensate --cluster ray`` on
-every machine with a G-code or CSV tool path): the chunks of :mod:`compensation.batch` (fixed
-boundaries, per-chunk seeds) are solved by Ray actors, one per worker CPU. Each actor receives the
-batch's contexts once (the loaded fields and machines, serialised into the actor's creation and
-deserialised in its constructor) and runs
-torch on one thread; the driver hands out chunks as actors finish, keeps every result in memory, and
-the command then guards, renders and writes atomically on the driver — so a batch leaves
-whole files or none, and its bytes equal the in-process run's. An actor that dies is
-restarted and its chunk retried (:data:`MAX_RETRIES` times); after that the batch fails
-with one :class:`ClusterError` line and nothing is written.
-
-Without ``address`` a new local Ray instance is started with ``workers`` CPUs (default: this
-machine's cores) and shut down afterwards; with ``address`` (``HOST:PORT``, or ``auto``: the one
-``RAY_ADDRESS`` or ``ray start`` names) an existing cluster is joined and left running. An already initialised Ray session is used
-as it is.
+Ray is imported here only, and lazily (``pip install 'volcomp[cluster]'``). :class:`RayExecutor` (``volcomp
+compensate --cluster ray``) solves the chunks of :mod:`compensation.batch` (fixed boundaries, per-chunk seeds)
+on Ray actors, one per worker CPU, each holding the batch's fields and machines and running torch on one thread;
+the driver keeps every result and then guards, renders and writes, so the bytes equal the in-process run's. A
+dead actor is restarted and its chunk retried (:data:`MAX_RETRIES`), then the batch fails with one
+:class:`ClusterError` line and nothing written. Without ``address`` a local instance of ``workers`` CPUs is
+started and shut down; with it (``HOST:PORT`` or ``auto``) a cluster is joined and left running; an
+initialised session is used as it is. docs/how-to/scale-out.md.
 """
 from __future__ import annotations
 
@@ -63,10 +53,6 @@ def import_ray():
     except ImportError:
         raise ClusterError("--cluster ray needs Ray: pip install 'volcomp[cluster]'") from None
     return ray
-
-
-def ray_loaded() -> bool:
-    return "ray" in sys.modules
 
 
 def _parse_fault(text):
@@ -164,7 +150,7 @@ class RayExecutor:
         return self
 
     def __exit__(self, *exc):
-        if ray_loaded():
+        if "ray" in sys.modules:
             self._drop_actors()
         if self._owned:
             import ray

@@ -1,27 +1,14 @@
 """Compensating tool-path files (``volcomp compensate``) on any machine tool: plan, solve, guard, write.
 
-Every machine tool is its chain (:mod:`errormap.grinder_file`: a ``kind = "grinder"`` file
-is read as its chain, the same element names and columns x_mm, z_mm, a_deg), and one order of work serves them all,
-so that the output folder only ever holds whole files of one run:
-
-1. every input is read and checked (:func:`compensation.app.workflows.compensate_paths.read_tool_path`:
-   G-code with the machine's axis words, a CSV of its axis columns or of WCS targets; a bad one fails the
-   batch, naming file, line, column and word) before anything is written; a folder that already holds
-   files is refused unless ``force`` (which removes the files a previous run listed in its
-   ``compensate_summary.json`` and any file at the output path of an input this run refuses);
-2. the model (recognised by content: an element set, a trained network, a diagnosed model whose terms
-   take conditions per point from the path's columns or the options, a chain's model.json, MLflow);
-3. every point is solved with the method (:mod:`compensation.solvers`) through the chunk plan of
-   :mod:`compensation.batch` (fixed chunks and seeds: local threads or Ray,
-   :mod:`compensation.app.workflows.cluster`, give the same bytes; one unit per file and tool length),
-   moves split as ``max_segment_mm`` says; a cluster that cannot finish fails the batch before any write;
-4. the guards (:mod:`compensation.guards`: ball, strokes, calibrated volume, convergence; ``allow``
-   overrides, and the override is written into the file and the summary); the accepted files written
-   as one set (each in full to a temporary file, then all renamed), ``compensate_summary.json`` last.
-
-Residuals: the MODEL residual of every file (the solver's own field); with ``truth`` (a truth element set
-of the same chain, given by a tester or a benchmark, never to the solver) also the TRUE residual
-(:mod:`compensation.app.workflows.compensate_report`).
+Every machine tool is its chain (a ``kind = "grinder"`` file read as one, :mod:`errormap.grinder_file`), and
+one order of work serves them all, so the output folder only ever holds whole files of one run: every input
+read and checked (:func:`compensation.app.workflows.compensate_paths.read_tool_path`) before anything is
+written, a non-empty folder refused unless ``force``; the model recognised by content; every point solved
+(:mod:`compensation.solvers`) through the chunk plan of :mod:`compensation.batch` (local threads or Ray,
+:mod:`compensation.app.workflows.cluster`, the same bytes), moves split as ``max_segment_mm`` says; the guards
+(:mod:`compensation.guards`, ``allow`` overrides recorded); the accepted files written as one set,
+``compensate_summary.json`` last. Residuals: the MODEL residual of every file; with ``truth`` also the TRUE
+one (:mod:`compensation.app.workflows.compensate_report`). docs/reference/tool-paths.md ("volcomp compensate").
 """
 from __future__ import annotations
 
@@ -51,7 +38,7 @@ from ...gcode import DEFAULT_RAPIDS
 from ...gcode_spline import spline_lines
 from ...nc_state import MACHINE, field_with_tool, machine_with_tool
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, compensated_sidecar
-from ...solvers import CHAIN_METHODS, solver_spec
+from ...solvers import METHODS, solver_spec
 from ...solvers.chain_exact import nominal_and_jacobian, solved_and_kept
 from ...solvers.threads import small_batch_threads
 from .compensate_paths import ToolPath, read_tool_path, render, source_line_of
@@ -65,7 +52,7 @@ WORK_OFFSETS_MACHINE_NOTE = "volcomp: work offsets taken as machine zero (--work
 @dataclass
 class CompensateSettings:
     """How :func:`compensate_files` compensates (the ``compensate`` options): ``method``
-    (:data:`compensation.solvers.CHAIN_METHODS`), ``model`` (a model file, folder or MLflow reference),
+    (:data:`compensation.solvers.METHODS`), ``model`` (a model file, folder or MLflow reference),
     ``out_dir``; ``force`` (replace earlier outputs), ``allow`` (guards overridden; ``("all",)``: every
     guard), ``rapids``, ``block_delete``, ``arc_tolerance_um``, ``units`` (``"check"`` or ``"as-written"``),
     ``truth`` (a truth file: the TRUE residual too), ``seed`` (seeded methods), ``show`` (offending points
@@ -355,9 +342,9 @@ def solve_units(paths, field_, truth, machine, s: CompensateSettings, executor=N
 
 def check_settings(machine, s: CompensateSettings) -> None:
     """Refuse (UsageError, naming the option) a method or rotary limit the machine cannot take."""
-    if s.method not in CHAIN_METHODS:
+    if s.method not in METHODS:
         raise UsageError(f"--method {s.method}: on the machine tool {machine.name!r} the methods are "
-                         f"{', '.join(CHAIN_METHODS)}")
+                         f"{', '.join(METHODS)}")
     try:  # every method moves the three axes read from the chain (a lathe's X, Z, C; a mill's X, Y, Z)
         solved_and_kept(machine)
     except ValueError as exc:

@@ -1,20 +1,13 @@
 """The whole pipeline on one machine (``volcomp demo``).
 
-simulate a truth grinder (``DIR/sim``) → its 11×11×11 feature points → train the BP network
-(Levenberg–Marquardt, tracked in MLflow) → compensate the variable-helix flute path with every
-method (:mod:`compensation.app.workflows.compare`) → ``DIR/report.html``, ``DIR/metrics.json``,
-``DIR/residuals.csv`` (MODEL and TRUE residual of the methods that ran on every point; a method run on a
-subset, the per-point ``ga``, has its own ``DIR/residuals_<method>.csv`` with only its rows) and
-``DIR/demo.json``; the flute as an NC program ``DIR/flute.nc`` and its compensated form
-``DIR/compensated/flute.nc`` (``volcomp compensate --method exact --work-offsets machine`` with the
-trained model: the flute is written in machine coordinates). The report files are also logged to the
-training's MLflow run.
-
-The demo's budget, stated on its page and in ``metrics.json`` (``budget``): LM stops when the
-error on the off-grid selection points has not improved for ``select_patience`` iterations
-(early stopping; the kept iterate is the best on those points, as in ``volcomp train``, which
-runs on to its iteration cap), and the per-point PyGAD ``ga`` runs on the evenly spaced points
-that fit in ``ga_budget_s``. ``demo.json`` records each stage's wall and CPU seconds.
+simulate a truth grinder (``DIR/sim``) → its feature points → train the BP network (Levenberg–Marquardt,
+tracked in MLflow) → compensate the variable-helix flute path with every method
+(:mod:`compensation.app.workflows.compare`) → ``DIR/report.html``, ``DIR/metrics.json``, ``DIR/residuals.csv``
+(MODEL and TRUE residual; the per-point ``ga``'s subset in ``DIR/residuals_<method>.csv``), ``DIR/demo.json``
+(each stage's wall and CPU seconds); the flute as ``DIR/flute.nc`` and its compensated form
+``DIR/compensated/flute.nc`` (machine coordinates). The budget (LM early stopping after ``select_patience``
+iterations without improvement off the grid, the ``ga`` points that fit in ``ga_budget_s``) is stated on the
+page and in ``metrics.json``. docs/reference/tool-paths.md ("volcomp demo").
 """
 from __future__ import annotations
 

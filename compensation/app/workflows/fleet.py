@@ -1,29 +1,14 @@
 """The fleet: identify → train → diagnose for every machine of a fleet file, one task per machine.
 
-A fleet file (TOML, ``format = "volcomp-fleet/1"``, docs/reference/file-formats.md) lists machines, each
-with its tracker sweeps and check measurements; a machine is any machine tool (the built-in grinder, a
-``kind = "grinder"`` file or a machine-tool chain file), each step the one its command runs for it. Per
-machine (:func:`run_machine`), into ``DIR/<name>/``:
-
-1. **identify** the elements from the sweeps (smoothed; Gauss–Newton's or the bootstrap's covariance;
-   ``volcomp identify``): ``elements.json``, ``elements.cov.npz``, ``identify_report.json``;
-2. **train** the network on the identified set's feature points over the machine's axes (LM, a fixed
-   iteration count; ``volcomp featurepoints`` and ``train``), tracked as an MLflow run: ``featurepoints.csv``,
-   ``train/`` (model, metrics);
-3. **diagnose** the checks against the identified set and its covariance (the closed loop:
-   identified → updated → updated + effects, judged on held-out checks — the MEASURED
-   residual): ``diagnosis/``; the diagnosis figures are also logged to the training run;
-4. ``machine_summary.json`` last.
-
-Every input of every machine is read and validated on the driver before any work starts
-(a bad file stops the fleet with exit status 2, naming file, row and column). With
-``--cluster ray`` each machine is one Ray task (one CPU, torch on one thread); without it,
-machines run one after another in this process. A machine that fails is reported (its
-folder removed) and the others go on. ``DIR/fleet_summary.json`` is written last.
-
-Several machines training at once must not share one SQLite file (or a local ``file:`` store):
-with ``--cluster ray`` and more than one machine, only a tracking server (``http(s)://``) is
-accepted.
+A fleet file (TOML, ``format = "volcomp-fleet/1"``, docs/reference/file-formats.md) lists machines (any
+machine tool), each with its tracker sweeps and check measurements. Per machine (:func:`run_machine`), into
+``DIR/<name>/``: identify (``elements.json``, ``elements.cov.npz``, ``identify_report.json``), train on the
+identified set's feature points (``featurepoints.csv``, ``train/``, an MLflow run), diagnose the checks
+(``diagnosis/``, the MEASURED residual), ``machine_summary.json`` last. Every input is validated on the driver
+before any work (exit 2); with ``--cluster ray`` each machine is one Ray task, else they run one after
+another; a machine that fails is reported and its folder removed. ``DIR/fleet_summary.json`` last. Several
+machines training at once need a tracking server (``http(s)://``), never one SQLite file.
+docs/how-to/scale-out.md ("The fleet").
 """
 from __future__ import annotations
 
