@@ -57,7 +57,7 @@ def train_adam(model, theta0, u, y, settings: LMSettings | None = None, callback
     while True:
         opt.zero_grad(set_to_none=True)
         loss = torch.mean((model.forward(theta, u) - y) ** 2)
-        mse = float(loss)
+        mse = float(loss.detach())
         if mse < best:
             best, best_theta = mse, theta.detach().clone()
         reason = stop_reason(s, h, mse, t0)
