@@ -106,7 +106,7 @@ def iso_summary_lines(elements: ElementSet) -> list[str]:
     """The 23 elements with their ISO 230-1 names (docs/how-to/export-to-controller.md) and their largest magnitude.
 
     The ISO names hold in the project's frames: Z's lateral pairs and A's radial/tilt pairs
-    are turned (θ1, a) before they equal the ISO components (``errormap.iso230.to_iso``).
+    are turned (θ1, a) before they equal the ISO components (``errormap.iso230.axis_to_mcs``).
     """
     from errormap.elements import CONSTANT_ELEMENTS, FUNCTION_ELEMENTS
     lines = ["element (ISO 230-1)    max |value|"]
