@@ -146,3 +146,17 @@ def test_a_fleet_of_a_machine_tool_chain_runs_the_same_steps(tmp_path, capsys):
     (tmp_path / "fleet.toml").write_text(body.replace('sweeps = "sweeps.csv"', 'sweeps = ["sweeps.csv", "sweeps.csv"]'))
     with pytest.raises(InputError, match=r"machine\[0\].sweeps': a machine-tool chain .* one sweep file"):
         validate_inputs(read_fleet(tmp_path / "fleet.toml"))
+
+
+def test_a_built_in_machine_is_named_as_machine_takes_it(tmp_path):
+    """``machine = "mill-xyz"`` names the built-in file, as ``--machine mill-xyz`` does; a path that names no file,
+    and a name that is no built-in machine, are refused naming the key."""
+    from errormap.machine import builtin_named
+    _touch(tmp_path, "s.csv", "c.csv")
+    body = 'format = "volcomp-fleet/1"\n[[machine]]\nname = "a"\nmachine = "{}"\nsweeps = "s.csv"\nchecks = "c.csv"\n'
+    (tmp_path / "f.toml").write_text(body.format("mill-xyz"))
+    assert read_fleet(tmp_path / "f.toml")[0]["machine"] == builtin_named("mill-xyz").resolve()
+    for wrong in ("no-such-machine", "machines/none.toml"):
+        (tmp_path / "f.toml").write_text(body.format(wrong))
+        with pytest.raises(InputError, match=re.escape("f.toml: key 'machine[0].machine': no such file")):
+            read_fleet(tmp_path / "f.toml")

@@ -64,6 +64,12 @@ def read_fleet(path) -> list[dict]:
             _fail(path, key, f"no such file: {p}")
         return p.resolve()
 
+    def machine_(key, value):
+        """A machine file, or a built-in machine's name (``mill-xyz``) as ``--machine`` takes it."""
+        from errormap.machine import builtin_named
+        builtin = builtin_named(value) if isinstance(value, str) and "/" not in value and "." not in value else None
+        return builtin.resolve() if builtin is not None else file_(key, value)
+
     for i, m in enumerate(machines):
         k = f"machine[{i}]"
         bad = sorted(set(m) - MACHINE_KEYS)
@@ -83,8 +89,7 @@ def read_fleet(path) -> list[dict]:
         noise = m.get("noise_um")
         if noise is not None and (isinstance(noise, bool) or not isinstance(noise, (int, float)) or not noise > 0):
             _fail(path, f"{k}.noise_um", f"expected a tracker noise σ > 0 in μm, got {noise!r}")
-        out.append({"name": name,
-                    "machine": file_(f"{k}.machine", m["machine"]) if "machine" in m else None,
+        out.append({"name": name, "machine": machine_(f"{k}.machine", m["machine"]) if "machine" in m else None,
                     "sweeps": [file_(f"{k}.sweeps[{j}]", s) for j, s in enumerate(sweeps)],
                     "checks": file_(f"{k}.checks", m.get("checks")),
                     "noise_um": None if noise is None else float(noise), "fleet_file": str(path), "key": k})
