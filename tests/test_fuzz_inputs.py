@@ -115,11 +115,11 @@ def test_fuzz_featurepoints_reader(sim, machine, data):
 
 @FUZZ
 @given(data=st.data())
-def test_fuzz_sweeps_reader(sim, data):
+def test_fuzz_sweeps_reader(sim, machine, data):
     from errormap.sweeps import read_sweeps
     text = (sim / "sweeps.csv").read_text(encoding="utf-8")
     raw = data.draw(mangled(text))
-    reads_or_refuses(lambda p: read_sweeps([p]), raw, ".csv")
+    reads_or_refuses(lambda p: read_sweeps([p], machine), raw, ".csv")
 
 
 @FUZZ
@@ -472,6 +472,6 @@ def test_fuzz_main_other_file_kinds(sim, machine, tally, data):
             argv = ["sweeps", "--machine", str(src), "--seed", "1", "--out", str(d / "sw.csv")]
             rc, err = run_main(argv)
             if _tally_outcome(argv, rc, err, [str(src)]):
-                from errormap.chain_sweeps import read_mt_sweeps
-                sw = read_mt_sweeps(d / "sw.csv", load_machine(src))
+                from errormap.sweeps import read_sweeps
+                sw = read_sweeps(d / "sw.csv", load_machine(src))
                 _check_output("sweeps", len(read_table(d / "sw.csv")) > 0 and sw is not None, argv)

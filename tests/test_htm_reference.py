@@ -16,7 +16,6 @@ from errormap.elements import A_ELEMENTS, AXIS_OF, CONSTANT_ELEMENTS, ELEMENT_NA
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import error_jacobian, spatial_error
 from errormap.chain_kernel import forward, inverse
-from errormap.sweeps import body_frames
 
 TOL_FIELD_UM = 1e-9
 """Issue 26's bound for the field against the hand-written chains: tool points of ~0.5 m, one ulp
@@ -233,6 +232,6 @@ def test_kinematics_and_body_frames_equal_the_hand_written_chain(grinder):
     z_body = tool @ _rigid_inv(_T(None, np.array([grinder.geometry["l3"], 0.0, grinder.geometry["l4"]]), len(ax))
                                @ _T(None, np.array([0.0, 0.0, -grinder.geometry["R"]]), len(ax)))
     for word, M in (("X", work_x), ("A", work), ("Z", z_body)):
-        R, t = body_frames(grinder, word, ax, v)
+        R, t = grinder.body_frames(word, ax, v)
         assert np.abs(t - M[:, :3, 3]).max() < TOL_KIN_MM
         assert np.abs(R - M[:, :3, :3]).max() < TOL_KIN_MM * 1e-3   # a rotation entry × a 1 m lever, in mm

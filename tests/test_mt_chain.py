@@ -229,18 +229,17 @@ def test_error_jacobian_is_the_first_order_model():
 
 
 def test_body_frames_equal_the_grinder_sweep_frames():
-    """The body frames of the chain file against errormap/sweeps.py's hand-written ones."""
-    from errormap.sweeps import ball_positions, body_frames
+    """The body frames and target balls of the grinder's chain against those of the grinder-chain file."""
     g, mt = load_machine(), load_machine("grinder-chain")
     el = _grinder_elements(g, 51, scale_um=60.0)
     ax = _grinder_axes(g, 3000, 52)
     v = el.values(ax)
     for word in ("X", "Z", "A"):
-        R0, t0 = body_frames(g, word, ax, v)
+        R0, t0 = g.body_frames(word, ax, v)
         R1, t1 = mt.body_frames(word, ax, v)
         assert np.abs(t1 - t0).max() * 1e3 < TOL_EQUIV_UM
         assert np.abs(R1 - R0).max() < TOL_EQUIV_UM * 1e-3   # a rotation entry × 1 m lever, in μm
-        balls = ball_positions((R0, t0), g.targets[word])
+        balls = np.einsum("nij,kj->nki", R0, np.asarray(g.targets[word], float)) + t0[:, None, :]
         assert np.abs(mt.target_points(word, ax, v) - balls).max() * 1e3 < TOL_EQUIV_UM
 
 

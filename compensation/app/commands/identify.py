@@ -99,7 +99,7 @@ def run(args) -> int:
                 print(f"wrote plot: {p}")
         return 0
     truth = ElementSet.load(args.truth) if args.truth else None
-    sweeps = read_sweeps(args.sweeps)
+    sweeps = read_sweeps(args.sweeps, machine)
     say_read_as(machine)   # a kind = "grinder" file read as its chain; the inputs read: refusals above stay one line
     print(f"identifying from {', '.join(args.sweeps)} ...", file=sys.stderr)
     ident = identify_elements(machine, args.sweeps, args.out, report=args.report, noise_um=args.noise_um,

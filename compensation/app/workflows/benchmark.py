@@ -8,7 +8,7 @@ test paths, records every run in MLflow under one parent run, and writes
 
 **Grinder** (one simulated truth machine, seed ``truth_seed``):
 
-* measurements: laser-tracker sweeps (``errormap.sweeps.simulate_sweeps``) with ``stations``
+* measurements: laser-tracker sweeps (``errormap.chain_sweeps.simulate_mt_sweeps``) with ``stations``
   stations per axis and tracker noise ``noise_um``; ``n_measurements = stations × 3 balls × 3 axes``
   (ball-centre measurements); the closed loop adds ``n_checks`` check measurements;
 * parametric: identified 23 elements → :class:`errormap.chain_field.ChainField` → ``exact`` solver;

@@ -39,7 +39,7 @@ def identify_elements(machine, sweep_files, out, report=None, noise_um=None, n_b
     """Identify from ``sweep_files`` and write ``out`` (element set), its covariance and ``report``
     (default ``OUT.report.json``). ``sweeps``: the files already read (else read here)."""
     from errormap.uncertainty import covariance_path, smooth_identify
-    sweeps = read_sweeps(sweep_files) if sweeps is None else sweeps
+    sweeps = read_sweeps(sweep_files, machine) if sweeps is None else sweeps
     sm = smooth_identify(sweeps, machine, noise_um=noise_um, n_boot=n_boot, seed=seed, smooth=smooth, gauge=gauge)
     res = sm.raw
     res.elements_ = sm.elements_
@@ -69,9 +69,10 @@ def truth_in_gauge(truth, elements, machine, gauge: str):
     (:class:`errormap.identification.ChainIdentification` on the grinder's chain, whose squareness
     split is the same condition for both). Returns an :class:`errormap.elements.ElementSet`."""
     from errormap.identification import ChainIdentification
+    from errormap.chain_sweeps import simulate_mt_sweeps
     from errormap.simulator import TruthGrinder
-    from errormap.sweeps import simulate_sweeps, sweeps_from_columns
-    cols = simulate_sweeps(TruthGrinder(machine, truth, {}), noise_um=0.0, seed=0,
-                           stations={k: np.asarray(v) for k, v in elements.stations.items()})
+    from errormap.sweeps import sweeps_from_columns
+    cols = simulate_mt_sweeps(TruthGrinder(machine, truth, {}), noise_um=0.0, seed=0,
+                              stations={k: np.asarray(v) for k, v in elements.stations.items()})
     sw = sweeps_from_columns(cols, "<noise-free sweeps of the truth>")
     return ChainIdentification(gauge=gauge).fit(sw, machine).elements_.to_element_set()

@@ -127,16 +127,13 @@ def sweeps_chain(machine, out, seed=None, truth_file=None, effects=(), family="d
 
 def identify_chain_files(machine, sweep_files, out, report=None, noise_um=None, n_boot: int | None = None,
                          seed: int = 0, gauge: str = "station-mean", smooth: bool = True) -> tuple:
-    """Identify from one sweep file in ``gauge``; write the element set (smoothed by
+    """Identify from the sweep file(s) of one tracker set-up in ``gauge``; write the element set (smoothed by
     :func:`errormap.identification.smooth_chain` unless ``smooth=False``), ``OUT.cov.npz`` (Gauss–Newton's
     σ̂²·(JᵀJ)⁻¹, σ̂ the known tracker σ ``noise_um`` when given, or with ``n_boot`` the residual bootstrap's,
     :func:`errormap.identification.bootstrap_covariance`; through the smoother when smoothed) and the report."""
     from errormap.identification import ChainIdentification, bootstrap_covariance, smooth_chain
-    from errormap.chain_sweeps import read_mt_sweeps
-    if len(sweep_files) != 1:
-        raise UsageError(f"a machine-tool chain is identified from one sweep file (one tracker set-up), got "
-                         f"{len(sweep_files)}")
-    sweeps = read_mt_sweeps(sweep_files[0], machine)
+    from errormap.sweeps import read_sweeps
+    sweeps = read_sweeps(sweep_files, machine)
     res = ChainIdentification(noise_um=noise_um, gauge=gauge).fit(sweeps, machine).result_
     if n_boot is not None:
         res = bootstrap_covariance(sweeps, machine, res, n_boot, seed, gauge=gauge)
