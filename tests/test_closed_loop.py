@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from compensation.app.cli import main
-from errormap.elements import ElementSet
+from errormap.chain_elements import ChainElementSet
+from errormap.machine import load_machine
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import spatial_error
 from errormap.simulator import EFFECT_DEFAULTS, random_axes, random_truth
@@ -66,7 +67,7 @@ def test_simulate_cli_family(tmp_path):
     assert main(["simulate", "--family", "independent", "--seed", "2", "--checks", "50", "--out", str(tmp_path)]) == 0
     info = json.loads((tmp_path / "truth.json").read_text())
     assert info["family"] == "independent"
-    assert ElementSet.load(tmp_path / "truth_elements.json").stations["z_mm"].size == TRUTH_STATIONS
+    assert ChainElementSet.load(tmp_path / "truth_elements.json", load_machine()).stations["z_mm"].size == TRUTH_STATIONS
 
 
 def test_noise_is_estimated_from_ball_residuals(indep):
@@ -128,7 +129,7 @@ def test_predict_band_cli(tmp_path, capsys):
     el = tmp_path / "el.json"
     assert main(["identify", str(sw), "--out", str(el)]) == 0
     assert covariance_path(el).is_file()
-    ElementCovariance.load(covariance_path(el), ElementSet.load(el))
+    ElementCovariance.load(covariance_path(el), ChainElementSet.load(el, load_machine()))
     pts = tmp_path / "p.csv"
     pts.write_text("x_mm,z_mm,a_deg\n10,5,30\n150,40,200\n")
     out = tmp_path / "pred.csv"

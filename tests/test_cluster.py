@@ -158,7 +158,7 @@ def test_fleet_refuses_a_file_store_for_several_writers(tmp_path, grinder, capsy
 def test_fleet_on_ray_tracked_on_a_server(ray_session, mlflow_server, grinder, capsys):  # noqa: F811
     from mlflow.tracking import MlflowClient
 
-    from errormap.elements import ElementSet
+    from errormap.chain_elements import ChainElementSet
     from errormap.sweeps import read_sweeps
     from errormap.uncertainty import smooth_identify
     url, tmp = mlflow_server
@@ -184,6 +184,6 @@ def test_fleet_on_ray_tracked_on_a_server(ray_session, mlflow_server, grinder, c
     assert len(list((tmp / "art").rglob("diagnosis.json"))) == 2
     # the Ray task identified what an in-process identification of the same sweeps gives
     ref = smooth_identify(read_sweeps([str(tmp / "m1" / "sweeps.csv")], grinder), grinder, n_boot=4, seed=0).elements_
-    got = ElementSet.load(out / "g1" / "elements.json")
+    got = ChainElementSet.load(out / "g1" / "elements.json", grinder)
     pts = random_axes(grinder, 200, np.random.default_rng(0))
     assert np.abs(got.values(pts) - ref.values(pts)).max() < IDENTIFY_TOL

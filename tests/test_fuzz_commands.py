@@ -84,7 +84,7 @@ def files(tmp_path_factory):
 def test_fuzz_identify_grinder(files, data):
     """exit 0 writes the element set the library identifies from the same file (compared through the field)."""
     from compensation.app.workflows.identification import identify_elements
-    from errormap.elements import ElementSet
+    from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
     from errormap.sweeps import read_sweeps
     machine = load_machine(None)
@@ -98,7 +98,7 @@ def test_fuzz_identify_grinder(files, data):
             with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
                 lib = identify_elements(machine, [str(p)], Path(d) / "L.json", n_boot=2, seed=0,
                                         sweeps=read_sweeps([str(p)], machine))
-            got = ChainField(machine, ElementSet.load(Path(d) / "E.json")).predict(AXES_PROBE)
+            got = ChainField(machine, ChainElementSet.load(Path(d) / "E.json", machine)).predict(AXES_PROBE)
             want = ChainField(machine, lib.result.elements_).predict(AXES_PROBE)
             _check_output("identify", np.allclose(got, want, rtol=TOL_PREDICT_REL, atol=TOL_PREDICT_ABS_UM), argv)
 

@@ -10,7 +10,8 @@ import numpy as np
 from chain_fixtures import grinder_variant
 import pytest
 
-from errormap.elements import ELEMENT_NAMES, FUNCTION_ELEMENTS, ElementSet
+from errormap.chain_elements import ChainElementSet
+from errormap.elements import ELEMENT_NAMES, FUNCTION_ELEMENTS
 from errormap.chain_field import ChainField
 from errormap.chain_sweeps import simulate_mt_sweeps
 from errormap.identification import ChainIdentification, layout_problem, rigid_fit
@@ -98,7 +99,7 @@ def test_station_mean_gauge_keeps_the_tool_point_and_averages_the_frame(machine,
 @pytest.mark.parametrize("name", ["dy_x", "ey_x", "ex_z", "dz_z", "ex_a", "dy_a", "ez_oa", "dz_oa"])
 def test_injected_element_is_recovered(machine, points, name):
     """Inject one element's profile into an otherwise perfect machine; it comes back."""
-    z = ElementSet.zeros(machine)
+    z = ChainElementSet.zeros(machine)
     functions, constants = dict(z.functions), dict(z.constants)
     if name in FUNCTION_ELEMENTS:
         st = z.stations[{"x": "x_mm", "z": "z_mm", "a": "a_deg"}[name[-1]]]
@@ -106,7 +107,7 @@ def test_injected_element_is_recovered(machine, points, name):
         functions[name] = 30.0 * (np.sin(2 * np.pi * u) + (0.0 if name.endswith("_a") else u**2))
     else:
         constants[name] = 40.0
-    el = ElementSet(z.stations, functions, constants, machine.name, machine.sha256)
+    el = ChainElementSet(machine, z.stations, functions, constants, machine.name, machine.sha256)
     truth = TruthGrinder(machine, el, {})
     res = identify(simulate_mt_sweeps(truth, noise_um=0.0, seed=3), machine)
     j = ELEMENT_NAMES.index(name)
@@ -195,7 +196,7 @@ def test_estimator_contract(machine, truth):
     sw = sweeps_from_columns(simulate_mt_sweeps(truth, noise_um=0.0, seed=1))
     assert est.fit(sw, machine) is est
     assert est.result_.elements_ is est.elements_ and est.result_.gauge == "station-mean"
-    assert isinstance(est.elements_.to_element_set(), ElementSet)
+    assert isinstance(est.elements_, ChainElementSet) and est.elements_.machine is machine
     with pytest.raises(ValueError, match="gauge"):
         ChainIdentification(gauge="nope").fit(sw, machine)
 

@@ -99,7 +99,8 @@ def test_chain_sweeps_equal_grinder_sweeps():
     give the same sweeps through the one simulator."""
     g, gc = load_machine(None), load_machine("grinder-chain")
     tg = random_truth(g, 1)
-    tc = MTTruth(gc, ChainElementSet.from_element_set(gc, tg.elements), {})
+    el = tg.elements
+    tc = MTTruth(gc, ChainElementSet(gc, el.stations, el.functions, el.constants), {})
     a = simulate_mt_sweeps(tg, noise_um=0.0, seed=3)
     b = simulate_mt_sweeps(tc, noise_um=0.0, seed=3)
     assert (a["axis"] == b["axis"]).all() and (a["station"] == b["station"]).all()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from errormap.elements import ElementSet
+from errormap.chain_elements import ChainElementSet
 from errormap.estimators import Identification
 from errormap.identification import GAUGES
 from errormap.machine import load_machine
@@ -98,7 +98,7 @@ def run(args) -> int:
             for p in plot_chain_elements(res.elements_, args.plot, truth):
                 print(f"wrote plot: {p}")
         return 0
-    truth = ElementSet.load(args.truth) if args.truth else None
+    truth = ChainElementSet.load(args.truth, machine) if args.truth else None
     sweeps = read_sweeps(args.sweeps, machine)
     say_read_as(machine)   # a kind = "grinder" file read as its chain; the inputs read: refusals above stay one line
     print(f"identifying from {', '.join(args.sweeps)} ...", file=sys.stderr)

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import sys
 
-from errormap.elements import ElementSet
+from errormap.chain_elements import ChainElementSet
 from errormap.machine import load_machine
 from errormap.seeds import spawn_seeds
 from errormap.simulator import EFFECT_CHOICES, EFFECT_HELP, TruthGrinder
@@ -86,7 +86,7 @@ def _run_grinder(machine, args) -> int:
     if args.truth is not None:
         if args.effect:
             raise UsageError("--effect needs --seed (a truth element file carries no effects)")
-        truth = TruthGrinder(machine, ElementSet.load(args.truth), {})
+        truth = TruthGrinder(machine, ChainElementSet.load(args.truth, machine), {})
         what = f"truth {args.truth}"
     else:
         from errormap.truth_families import make_truth

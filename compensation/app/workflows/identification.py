@@ -67,7 +67,7 @@ def truth_in_gauge(truth, elements, machine, gauge: str):
     tool point the same. The exact way to the identified frame is the identification itself:
     noise-free sweeps of the truth at ``elements``' stations identified with ``gauge``
     (:class:`errormap.identification.ChainIdentification` on the grinder's chain, whose squareness
-    split is the same condition for both). Returns an :class:`errormap.elements.ElementSet`."""
+    split is the same condition for both). Returns a :class:`errormap.chain_elements.ChainElementSet`."""
     from errormap.identification import ChainIdentification
     from errormap.chain_sweeps import simulate_mt_sweeps
     from errormap.simulator import TruthGrinder
@@ -75,4 +75,4 @@ def truth_in_gauge(truth, elements, machine, gauge: str):
     cols = simulate_mt_sweeps(TruthGrinder(machine, truth, {}), noise_um=0.0, seed=0,
                               stations={k: np.asarray(v) for k, v in elements.stations.items()})
     sw = sweeps_from_columns(cols, "<noise-free sweeps of the truth>")
-    return ChainIdentification(gauge=gauge).fit(sw, machine).elements_.to_element_set()
+    return ChainIdentification(gauge=gauge).fit(sw, machine).elements_

@@ -187,7 +187,7 @@ def load_chain_model(path, machine, prior: bool = False):
     if not cp.is_file():
         return el, None, None
     from errormap.chain_covariance import read_chain_covariance
-    return el, read_chain_covariance(cp, p, prior), cp
+    return el, read_chain_covariance(cp, el, prior), cp
 
 
 BAND_BATCH = 4096
