@@ -273,14 +273,14 @@ def test_identify_truth_overlay_is_in_the_identified_gauge(machine):
     the overlay must be the truth in the identified gauge, and the old one measurably was not."""
     from errormap.sweeps import sweeps_from_columns
     from errormap.uncertainty import smooth_identify
-    from compensation.app.workflows.identification import truth_in_gauge
+    from compensation.app.workflows.measurement import truth_in_gauge
     truth = random_truth(machine, SEED).elements
     sweeps = sweeps_from_columns(simulate_mt_sweeps(random_truth(machine, SEED), noise_um=0.0, seed=3), "<sweeps>")
     # the interpolating identification (--raw): on noise-free sweeps it is the truth in its gauge exactly
     ident = smooth_identify(sweeps, machine, noise_um=0.5, smooth=False, gauge="station-mean").elements_
     pts = np.zeros((300, 3))
     pts[:, 0], pts[:, 1], pts[:, 2] = np.linspace(0, 200, 300), np.linspace(0, 60, 300), np.linspace(0, 360, 300)
-    overlay = truth_in_gauge(truth, ident, machine, "station-mean")
+    overlay = truth_in_gauge(machine, truth, "station-mean", ident.stations)
     assert np.abs(overlay.values(pts) - ident.values(pts)).max() < GAUGE_TOL
     assert np.abs(truth.values(pts) - ident.values(pts)).max() > GAUGE_SHIFT_MIN
 

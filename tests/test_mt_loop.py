@@ -314,7 +314,7 @@ def test_identify_noise_um_scales_the_covariance_as_on_the_grinder(tmp_path, mil
 def test_identify_plot_and_truth_on_a_chain(tmp_path, mill):
     """``identify --plot PREFIX --truth ELEMENTS`` on a chain (as on the grinder): one figure per swept axis, the
     truth overlaid in the identified gauge (the identification of its noise-free sweeps: the same tool points)."""
-    from compensation.app.workflows.measurement import chain_truth_in_gauge
+    from compensation.app.workflows.measurement import truth_in_gauge
     t = make_mt_truth(mill, 0)
     write_sweeps(tmp_path / "sw.csv", simulate_mt_sweeps(t, noise_um=1.0, seed=0))
     truth_file = t.elements.save(tmp_path / "truth.json")
@@ -323,7 +323,7 @@ def test_identify_plot_and_truth_on_a_chain(tmp_path, mill):
     for w in swept_words(mill):
         assert (tmp_path / f"el_{w}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     g = volume_grid(mill, 300)
-    gauged = chain_truth_in_gauge(mill, truth_file)
+    gauged = truth_in_gauge(mill, ChainElementSet.load(truth_file, mill))
     np.testing.assert_allclose(ChainField(mill, gauged).predict(g), ChainField(mill, t.elements).predict(g),
                                rtol=0, atol=NOISE_FREE_UM)
 

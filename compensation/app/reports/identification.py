@@ -50,7 +50,7 @@ def plot_elements(elements: ChainElementSet, prefix, truth: ChainElementSet | No
 
     Written atomically as ``PREFIX_X.png``, ``PREFIX_Z.png``, ``PREFIX_A.png``; returns the paths.
     The caller passes the truth in the identified gauge and squareness split
-    (:func:`compensation.app.workflows.identification.truth_in_gauge`), so like is compared with like.
+    (:func:`compensation.app.workflows.measurement.truth_in_gauge`), so like is compared with like.
     """
     from errormap.elements import ELEMENT_NAMES
     c = elements.constants

@@ -9,8 +9,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from errormap.io import companion_path, write_json
 from errormap.iso230 import ISO_NAME
 from errormap.sweeps import read_sweeps
@@ -54,25 +52,3 @@ def identify_elements(machine, sweep_files, out, report=None, noise_um=None, n_b
     write_json(report, info)
     el_path = res.elements_.save(out)
     return Identification(sm, el_path, cov_path, report)
-
-
-def truth_in_gauge(truth, elements, machine, gauge: str):
-    """The truth element set expressed as the identification expresses ``elements``: in the same
-    machine frame (``gauge``), at the same stations, with the same squareness split — so that an
-    overlay compares like with like.
-
-    A truth set is written in its own frame (the simulator's: every axis-motion element zero at its
-    first station); the identified one in the gauge of the identification, and the two differ by a
-    rigid frame change that moves constants and linear trends between elements while leaving every
-    tool point the same. The exact way to the identified frame is the identification itself:
-    noise-free sweeps of the truth at ``elements``' stations identified with ``gauge``
-    (:class:`errormap.identification.ChainIdentification` on the grinder's chain, whose squareness
-    split is the same condition for both). Returns a :class:`errormap.chain_elements.ChainElementSet`."""
-    from errormap.identification import ChainIdentification
-    from errormap.chain_sweeps import simulate_mt_sweeps
-    from errormap.simulator import TruthGrinder
-    from errormap.sweeps import sweeps_from_columns
-    cols = simulate_mt_sweeps(TruthGrinder(machine, truth, {}), noise_um=0.0, seed=0,
-                              stations={k: np.asarray(v) for k, v in elements.stations.items()})
-    sw = sweeps_from_columns(cols, "<noise-free sweeps of the truth>")
-    return ChainIdentification(gauge=gauge).fit(sw, machine).elements_

@@ -151,18 +151,23 @@ def identify_chain_files(machine, sweep_files, out, report=None, noise_um=None, 
     return res, el_path, cov_path, report
 
 
-def chain_truth_in_gauge(machine, truth_file, gauge: str = "station-mean"):
-    """A truth element set (``truth_elements.json`` of ``simulate --machine``) as the identification expresses
-    its estimate: in ``gauge`` with its squareness split, found the exact way (the identification of the
-    truth's noise-free sweeps; tool points to 1e-6 μm, ``tests/test_mt_loop.py``), so that a plot overlays like
-    with like (as the grinder's :func:`compensation.app.workflows.identification.truth_in_gauge`)."""
+def truth_in_gauge(machine, truth, gauge: str = "station-mean", stations: dict | None = None):
+    """A truth element set (``truth_elements.json`` of ``simulate``, a
+    :class:`errormap.chain_elements.ChainElementSet` of ``machine``) as the identification expresses its estimate:
+    in ``gauge`` with its squareness split, at ``stations`` (per axis column, the identified set's; None: the
+    sweep default), so that a plot overlays like with like.
+
+    A truth set is written in its own frame (the simulator's: every axis-motion element zero at its first
+    station); the identified one in the gauge of the identification, and the two differ by a rigid frame change
+    that moves constants and linear trends between elements while leaving every tool point the same. The exact
+    way to the identified frame is the identification itself: noise-free sweeps of the truth identified with
+    ``gauge`` (tool points to 1e-6 μm, ``tests/test_mt_loop.py``)."""
     from errormap.identification import ChainIdentification
-    from errormap.chain_elements import ChainElementSet
     from errormap.chain_truth import MTTruth
     from errormap.chain_sweeps import simulate_mt_sweeps, swept_words
     from errormap.sweeps import sweeps_from_columns
-    truth = MTTruth(machine, ChainElementSet.load(truth_file, machine), {})
-    sw = sweeps_from_columns(simulate_mt_sweeps(truth, noise_um=0.0, seed=0), axes=swept_words(machine))
+    cols = simulate_mt_sweeps(MTTruth(machine, truth, {}), noise_um=0.0, seed=0, stations=stations)
+    sw = sweeps_from_columns(cols, "<noise-free sweeps of the truth>", axes=swept_words(machine))
     return ChainIdentification(gauge=gauge).fit(sw, machine).elements_
 
 
