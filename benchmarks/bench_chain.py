@@ -75,7 +75,7 @@ def run_seed(seed, points, repeats, baseline_root):
     rng_axes, rng_el = spawn_rngs(seed, 2)
     g, mt = load_machine(), load_machine("grinder-chain")
     el = random_truth(g, seed).elements
-    hand, chain, htm = old.ChainField(g, el), ChainField(mt, ChainElementSet.from_element_set(mt, el)), ChainField(g, el)
+    hand, chain, htm = old.ChainField(g, el), ChainField(mt, ChainElementSet(mt, el.stations, el.functions, el.constants)), ChainField(g, el)
     ax = _axes(mt, points, rng_axes)
     for f in (hand, chain, htm):  # compile / build splines outside the timing
         f.predict(ax[:10]), f.predict_and_jacobian(ax[:10])

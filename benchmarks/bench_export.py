@@ -6,7 +6,7 @@
 The user's path, per seed s (truth seed 100 + s):
 truth = ``random_truth(default grinder, 100 + s, effects=("reversal", "interaction"))`` (8 μm Z
 backlash; X positioning that grows with Z: a coupling no per-axis table and no 23-element model
-holds); model = ``identify(simulate_sweeps(truth, noise 2 μm, seed s))`` (the 23 elements from
+holds); model = ``identify(simulate_mt_sweeps(truth, noise 2 μm, seed s))`` (the 23 elements from
 tracker sweeps); diagnosed backlash = ``diagnose`` on 400 simulated check measurements (noise
 1 μm, seed s) against that model. Never the truth's own numbers.
 
@@ -38,7 +38,7 @@ from errormap.uncertainty import smooth_identify  # noqa: E402
 from errormap.io import atomic_write, write_json  # noqa: E402
 from errormap.machine import load_machine  # noqa: E402
 from errormap.simulator import random_truth  # noqa: E402
-from errormap.sweeps import simulate_sweeps  # noqa: E402
+from errormap.chain_sweeps import simulate_mt_sweeps  # noqa: E402
 
 FLUTE_REGION = {"x_mm": (90.0, 116.0), "z_mm": (0.3, 0.3)}
 """The default flute's axis box (x 90..115.3 mm, z = 0.3 mm): the per-joint fitting region."""
@@ -52,7 +52,7 @@ def identify(sweeps, machine, gauge="first-station"):
 def run_seed(seed: int, tolerances, n_volume: int) -> dict:
     m = load_machine()
     truth = random_truth(m, 100 + seed, effects=("reversal", "interaction"))
-    el = identify(simulate_sweeps(truth, noise_um=2.0, seed=seed), m).elements_
+    el = identify(simulate_mt_sweeps(truth, noise_um=2.0, seed=seed), m).elements_
     model = ex.ModelError(m, el)
     sets = ex.check_sets(m, n_volume, seed)
     tool = ex.truth_tool_points(truth, m)

@@ -67,14 +67,14 @@ def worker(case: str, d: Path, out: Path, repeats: int) -> dict:
     import io
     import shutil
     from compensation.app.cli import main
-    from errormap.elements import ElementSet
+    from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
     from errormap.chain_kernel import forward
     from errormap.machine import load_machine
     g = load_machine()
     if case == "exact-100k":
         from compensation.solvers import solve
-        field = ChainField(g, ElementSet.load(d / "el.json"))
+        field = ChainField(g, ChainElementSet.load(d / "el.json", g))
         q = np.load(d / "axes100k.npy")
         tg = forward(g, q)
 

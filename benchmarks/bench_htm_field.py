@@ -56,12 +56,16 @@ class ReferenceChainField(ChainField):
         super().__init__(machine, elements)
         self.grinder_elements = elements
         self.exact_chain = exact_chain
+        from scipy.interpolate import make_interp_spline   # one spline per element, the per-element reference
+        self.splines = {k: make_interp_spline(elements.stations[AXIS_OF[k]], elements.functions[k], k=3,
+                                              bc_type="periodic" if AXIS_OF[k] == "a_deg" else None)
+                        for k in FUNCTION_ELEMENTS}
 
     def predict(self, axes):
         axes = np.asarray(axes, dtype=float)
         el = self.grinder_elements
-        cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": el.wrap_a(axes[:, 2])}
-        v = np.stack([el._spline(k)(cols[AXIS_OF[k]]) for k in FUNCTION_ELEMENTS]
+        cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": el.wrap("a_deg", axes[:, 2])}
+        v = np.stack([self.splines[k](cols[AXIS_OF[k]]) for k in FUNCTION_ELEMENTS]
                      + [np.full(len(axes), el.constants[k]) for k in CONSTANT_ELEMENTS], axis=1)
         return self.exact_chain(self.machine, axes, v, chunk=self.chunk)
 

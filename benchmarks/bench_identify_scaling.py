@@ -5,7 +5,7 @@ the CLI's default), the parameter vector and covariance dumped for an old-vs-new
 Usage: ``OMP_NUM_THREADS=1 python benchmarks/bench_identify_scaling.py run --machine grinder --stations 201 --seed 0
 [--gauge station-mean] [--dump out.npz]`` (one run, prints one JSON line); ``compare A.npz B.npz`` (largest
 absolute differences of element values, μm or μrad, and covariance, μm² or μrad²). Run a tree's code with
-``PYTHONPATH=<tree>``. Data: simulated sweeps (grinder: ``simulate_sweeps`` of ``make_truth(grinder, seed)``, 2 μm
+``PYTHONPATH=<tree>``. Data: simulated sweeps (grinder: ``simulate_mt_sweeps`` of ``make_truth(grinder, seed)``, 2 μm
 tracker noise; mill-xyz: ``simulate_mt_sweeps`` of ``make_mt_truth(mill, seed)``, noise seed ``seed + 100``).
 """
 from __future__ import annotations
@@ -21,15 +21,14 @@ import numpy as np
 
 def make_sweeps(machine_name: str, stations: int, seed: int):
     """(sweeps, machine-tool chain) of one simulated tracker set-up."""
+    from errormap.chain_sweeps import simulate_mt_sweeps, swept_words
     from errormap.machine import load_machine
     from errormap.sweeps import sweeps_from_columns
     if machine_name == "grinder":
-        from errormap.sweeps import simulate_sweeps
         from errormap.truth_families import make_truth
         g = load_machine(None)
-        return sweeps_from_columns(simulate_sweeps(make_truth(g, seed), n_stations=stations)), g
+        return sweeps_from_columns(simulate_mt_sweeps(make_truth(g, seed), n_stations=stations)), g
     from errormap.chain_truth import make_mt_truth
-    from errormap.chain_sweeps import simulate_mt_sweeps, swept_words
     mt = load_machine(machine_name)
     cols = simulate_mt_sweeps(make_mt_truth(mt, seed), n_stations=stations, seed=seed + 100)
     return sweeps_from_columns(cols, axes=swept_words(mt)), mt

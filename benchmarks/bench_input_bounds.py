@@ -43,9 +43,10 @@ def make_input(case: str, size, d: Path) -> tuple[list, Path]:
                 sim / "checks.csv"
         return cli("calibrate", sim / "poses.csv", "--machine", "ur5", "--out", d / f"c{size}"), sim / "poses.csv"
     if case == "identify":
-        from errormap.sweeps import simulate_sweeps, write_sweeps
+        from errormap.chain_sweeps import simulate_mt_sweeps
+        from errormap.sweeps import write_sweeps
         from errormap.truth_families import make_truth
-        p = write_sweeps(d / f"gsw{size}.csv", simulate_sweeps(make_truth(load_machine(None), 3), n_stations=size))
+        p = write_sweeps(d / f"gsw{size}.csv", simulate_mt_sweeps(make_truth(load_machine(None), 3), n_stations=size))
         return cli("identify", p, "--out", d / f"gE{size}.json"), p
     if case == "identify-chain":
         from errormap.chain_truth import make_mt_truth

@@ -41,7 +41,7 @@ def _el_stats(el, truth, names) -> tuple:
 def grinder_case(seed: int) -> dict:
     from bench_sweeps_band import N_PROBE, _sweeps
     from compensation.app.cli import main
-    from compensation.app.workflows.identification import truth_in_gauge
+    from compensation.app.workflows.measurement import truth_in_gauge
     from errormap.elements import FUNCTION_ELEMENTS
     from errormap.chain_field import ChainField
     from errormap.machine import load_machine
@@ -60,7 +60,7 @@ def grinder_case(seed: int) -> dict:
     sm = smooth_identify(sw, m)
     e = ChainField(m, sm.elements_).predict(P) - et
     sd = prediction_sd(m, sm.elements_, sm.covariance_.cov, P)
-    tg = truth_in_gauge(truth.elements, sm.elements_, m, "station-mean")
+    tg = truth_in_gauge(m, truth.elements, "station-mean", sm.elements_.stations)
     return {"tp": _stats(e), "el": _el_stats(sm.elements_, tg, FUNCTION_ELEMENTS),
             "cover": float(np.mean(np.abs(e) <= Z95 * sd))}
 

@@ -188,13 +188,13 @@ def _stage_child(prog, model, out_dir, root):
 
 
 def _learned_model(tmp, elements_path, iters):
-    from errormap.elements import ElementSet
+    from errormap.chain_elements import ChainElementSet
     from errormap.featurepoints import FeaturePoints
     from errormap.chain_field import ChainField
     from errormap.simulator import volume_grid
     from training.trainers import fit_field
     m = load_machine()
-    f = ChainField(m, ElementSet.load(elements_path))
+    f = ChainField(m, ChainElementSet.load(elements_path, m))
     grid = volume_grid(m, (11, 11, 11))
     val = random_axes(m, 2000, np.random.default_rng(1))
     fit = fit_field(FeaturePoints(grid, f.predict(grid), {}), trainer="lm", max_iter=iters, track=False,

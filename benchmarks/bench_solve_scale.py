@@ -54,9 +54,9 @@ def child(model_kind: str, model_path: str, points: int, workers: int, seed: int
     from errormap.machine import load_machine
     m = load_machine()
     if model_kind == "htm":
-        from errormap.elements import ElementSet
+        from errormap.chain_elements import ChainElementSet
         from errormap.chain_field import ChainField
-        field = ChainField(m, ElementSet.load(model_path))
+        field = ChainField(m, ChainElementSet.load(model_path, m))
     else:
         from training.model import MLPField
         field = MLPField.load(model_path)

@@ -90,8 +90,9 @@ def _sweeps(main, td, family, seed, noise_seed):
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(["sweeps", "--family", family, "--seed", str(seed), "--noise-um", "2", "--seed-noise",
                      str(noise_seed), "--out", str(td / "sw.csv")]) == 0
+    from errormap.machine import load_machine
     from errormap.sweeps import read_sweeps
-    return read_sweeps([str(td / "sw.csv")])
+    return read_sweeps([str(td / "sw.csv")], load_machine(None))
 
 
 def loop_sweeps(family: str, seed: int):

@@ -248,15 +248,15 @@ def _read_diagnosed(src: ModelSource, machine, tracking_uri) -> Model:
 def load_diagnosed_model(path, machine, doc: dict | None = None):
     """The grinder's closed-loop ``model.json`` ``path`` (``volcomp-diagnosed-model/1``) as a
     :class:`errormap.diagnosis.corrected.CorrectedField` (its elements, learned residual when kept, and terms)."""
-    from errormap.elements import ElementSet
+    from errormap.chain_elements import ChainElementSet
     path = Path(path)
     doc = _doc(path) if doc is None else doc
-    return diagnosed_field(doc, machine, lambda name: ElementSet.load(path.parent / name), path)
+    return diagnosed_field(doc, machine, lambda name: ChainElementSet.load(path.parent / name, machine), path)
 
 
 def diagnosed_field(doc: dict, machine, load_elements, where):
     """``model.json``'s content ``doc`` (``volcomp-diagnosed-model/1``) as a
-    :class:`errormap.diagnosis.corrected.CorrectedField`; ``load_elements(name) -> ElementSet``: the element set
+    :class:`errormap.diagnosis.corrected.CorrectedField`; ``load_elements(name) -> ChainElementSet``: the element set
     ``doc`` names (key ``elements``); ``where``: the file (or a label) an error names."""
     import numpy as np
     from errormap.diagnosis.corrected import CorrectedField

@@ -30,11 +30,11 @@ def save_chain_covariance(res, path) -> Path:
     return Path(path)
 
 
-def read_chain_covariance(cov_path, elements_path, prior: bool = False) -> tuple:
+def read_chain_covariance(cov_path, elements, prior: bool = False) -> tuple:
     """``(slot names, stations, Σ)`` from a covariance file beside an element set: a chain's
     (:func:`save_chain_covariance`) or a ``kind = "grinder"`` identification's (its 23 element names are the
     chain's slots, its stations the same; :class:`errormap.uncertainty.ElementCovariance`, checked against
-    ``elements_path``). ``prior``: Σ plus the file's ``prior_extra`` on the diagonal (none in the file: Σ)."""
+    ``elements``, the :class:`errormap.chain_elements.ChainElementSet` beside it). ``prior``: Σ plus the file's ``prior_extra`` on the diagonal (none in the file: Σ)."""
     try:
         with np.load(cov_path, allow_pickle=False) as d:
             files = set(d.files)
@@ -42,9 +42,8 @@ def read_chain_covariance(cov_path, elements_path, prior: bool = False) -> tuple
     except NPY_ERRORS as exc:
         raise InputError(f"{cov_path}: not a readable covariance file ({exc}); run `volcomp identify` again") from None
     if "format" not in files and "layout_element" in files:   # a grinder identification's file
-        from .elements import ElementSet
         from .uncertainty import ElementCovariance, theta_layout
-        gc = ElementCovariance.load(cov_path, ElementSet.load(elements_path))
+        gc = ElementCovariance.load(cov_path, elements)
         lay = theta_layout(gc.elements)
         slots, stations, C = [k for k, _ in lay], np.array([i for _, i in lay], int), gc.cov
         extra = gc.prior_extra

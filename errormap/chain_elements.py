@@ -1,7 +1,8 @@
-"""Element sets of any machine-tool chain: per-axis stations, component-error functions, constants.
+"""Element sets of any machine-tool chain (the grinder's chain among them): per-axis stations,
+component-error functions, constants.
 
-The generic form of :class:`errormap.elements.ElementSet`: the slots come from the machine file
-(:class:`errormap.machine_tool.MachineTool`), not from constants. Component errors (μm / μrad) are
+The slots come from the machine file (:class:`errormap.machine_tool.MachineTool`; the grinder's 23
+elements, :mod:`errormap.elements`, are its chain's slots). Component errors (μm / μrad) are
 functions of their own axis, stored as values at that axis' stations and interpolated by one
 vector-valued cubic B-spline per axis (``scipy.interpolate.make_interp_spline``, the same
 interpolation as the grinder's; periodic for a rotary axis whose stroke is a full turn, which
@@ -118,18 +119,6 @@ class ChainElementSet:
                 fun[s.name] = f
         return cls(machine, z.stations, fun, {k: rng.normal(0.0, scale_um) for k in machine.constant_slots})
 
-    @classmethod
-    def from_element_set(cls, machine: MachineTool, elements) -> "ChainElementSet":
-        """A grinder :class:`errormap.elements.ElementSet` as the element set of the grinder's chain (the same
-        names, :data:`errormap.grinder_file.ELEMENT_SLOTS`, and columns); another machine is refused."""
-        from .grinder_file import check_grinder_chain
-        check_grinder_chain(machine, machine.path)
-        unknown = sorted((set(elements.functions) | set(elements.constants)) - set(machine.slot_names))
-        if unknown:
-            raise ValueError(f"no slot of the grinder's chain for {unknown} (its 23 elements only)")
-        return cls(machine, dict(elements.stations), dict(elements.functions), dict(elements.constants),
-                   elements.machine_name, elements.machine_sha256)
-
     def copy(self) -> "ChainElementSet":
         return ChainElementSet(self.machine, {k: v.copy() for k, v in self.stations.items()},
                                {k: v.copy() for k, v in self.functions.items()}, dict(self.constants),
@@ -142,15 +131,6 @@ class ChainElementSet:
         out.constants = {k: v * factor for k, v in out.constants.items()}
         out._splines = {}
         return out
-
-    def to_element_set(self):
-        """The grinder's :class:`errormap.elements.ElementSet` of the same values (a grinder chain
-        file's element set; refused for another machine's slots)."""
-        from .elements import ElementSet
-        from .grinder_file import check_grinder_chain
-        check_grinder_chain(self.machine, self.machine.name)
-        return ElementSet(dict(self.stations), dict(self.functions), dict(self.constants),
-                          self.machine_name, self.machine_sha256)
 
     # -- evaluation ---------------------------------------------------------------------------
     def axis_spline(self, word: str):

@@ -1,7 +1,7 @@
 """The error field of any machine-tool chain (:class:`errormap.field.ErrorField` over its axes).
 
-``ChainField(machine, elements)`` (a :class:`~errormap.chain_elements.ChainElementSet`, or the grinder's
-:class:`~errormap.elements.ElementSet`, the same 23 names): ``predict(axes (n, k)) -> (n, 3)`` μm, the exact spatial error
+``ChainField(machine, elements)`` (a :class:`~errormap.chain_elements.ChainElementSet` of the machine, the
+grinder's 23 elements on its chain): ``predict(axes (n, k)) -> (n, 3)`` μm, the exact spatial error
 of the tool point in the workpiece frame (actual minus nominal, ``inv(work)·tool`` with every
 element transform exact); ``jacobian(axes) -> (n, 3, k)`` μm per mm / per deg;
 ``predict_and_jacobian``; ``error_jacobian(axes) -> (n, 3, P)`` μm per μm / per μrad (the
@@ -65,8 +65,6 @@ class ChainField:
     kind = "chain"
 
     def __init__(self, machine: MachineTool, elements, chunk: int = CHUNK):
-        if not isinstance(elements, ChainElementSet):   # the grinder's element set: its 23 names are the slots
-            elements = ChainElementSet.from_element_set(machine, elements)
         if elements.machine is not machine and elements.machine.slot_names != machine.slot_names:
             raise ValueError("the element set belongs to another machine")
         self.machine = machine

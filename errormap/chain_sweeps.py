@@ -1,6 +1,5 @@
-"""Laser-tracker axis sweeps of ANY machine-tool chain: the body chains, the simulator, the reader.
-
-The generic form of :mod:`errormap.sweeps` (the grinder's). A **body** is what an axis moves:
+"""Laser-tracker axis sweeps of ANY machine-tool chain (the grinder's chain file among them): the body
+chains and the simulator (the file and its reader: :mod:`errormap.sweeps`). A **body** is what an axis moves:
 the frame right after the axis' motion and component errors in its side's chain (work or tool;
 ``MachineTool.body_index``), in the machine base frame. Three target balls per body
 (``[targets]`` of the machine file, in that body frame, mm) are measured by a tracker at an
@@ -12,8 +11,8 @@ every other axis is **parked at the lower end of its stroke** — its first stat
 identification's gauge puts it (``docs/explanation/identification.md``). Every axis with component
 errors is swept (one tracker set-up: the bodies are related through it).
 
-Sweep file: the grinder's (``docs/reference/file-formats.md`` "Axis sweeps"), ``axis`` = the machine's axis
-words (``X Y Z A C``…), ``command`` in the axis' unit (mm or deg).
+Sweep file: ``docs/reference/file-formats.md`` "Axis sweeps", ``axis`` = the machine's axis words
+(``X Z A`` on the grinder, ``X Y Z A C``… on others), ``command`` in the axis' unit (mm or deg).
 
 Shapes: axes (n, k) in ``machine.axis_columns`` order, slot values (n, P) in
 ``machine.slot_names`` order, body frames (n, 4, 4), balls (n, 3, 3) [pose, target, xyz].
@@ -24,19 +23,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scipy.spatial.transform import Rotation
+
 from .chain import ET, Chain, Joint
-from .io import read_table
 from .machine_checks import MachineFileError
 from .machine_tool import MachineTool
-from .sweeps import (OPTIONAL_COLUMNS, REQUIRED_COLUMNS, SWEEP_FORMAT, Sweeps, columns_from_table,
-                     random_tracker_pose, sweeps_from_columns, write_sweeps)
+from .sweeps import OPTIONAL_COLUMNS, REQUIRED_COLUMNS, SWEEP_FORMAT, swept_words, write_sweeps
 
 REF_TEMP_C = 20.0
 DEFAULT_STATIONS = 21
 UM_MM = 1e-3
 
-__all__ = ["BodyChain", "body_chain", "park_axes", "sweep_stations", "simulate_mt_sweeps", "read_mt_sweeps",
-           "write_sweeps", "SWEEP_FORMAT", "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]
+__all__ = ["BodyChain", "body_chain", "park_axes", "sweep_stations", "simulate_mt_sweeps", "random_tracker_pose",
+           "swept_words", "write_sweeps", "SWEEP_FORMAT", "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]
 
 
 @dataclass
@@ -96,9 +95,13 @@ def body_chain(machine: MachineTool, word: str) -> BodyChain:
                      len(machine.slot_names))
 
 
-def swept_words(machine: MachineTool) -> tuple:
-    """The axes a sweep set-up covers: every axis with component errors, canonical order."""
-    return tuple(a.word for a in machine.axes if machine.slots_of(a.word))
+def random_tracker_pose(rng: np.random.Generator):
+    """An arbitrary rigid pose ``machine_in_tracker`` (R (3,3), t (3,) mm): a uniformly random
+    rotation and a translation of 1-3 m, as a tracker standing beside the machine."""
+    R = Rotation.random(random_state=rng).as_matrix()
+    direction = rng.normal(size=3)
+    t = direction / np.linalg.norm(direction) * rng.uniform(1000.0, 3000.0)
+    return R, t
 
 
 def park_axes(machine: MachineTool) -> np.ndarray:
@@ -113,11 +116,20 @@ def sweep_stations(machine: MachineTool, n_stations: int = DEFAULT_STATIONS) -> 
 
 
 def simulate_mt_sweeps(truth, noise_um: float = 2.0, seed=0, tracker_pose=None, n_stations: int = DEFAULT_STATIONS,
-                       bidirectional: bool = False, dt_s: float = 20.0, warmup_c: float = 0.0) -> dict:
-    """Simulated tracker sweeps of an :class:`errormap.chain_truth.MTTruth` (its effects included),
-    a dict of sweep-file columns (the grinder's :func:`errormap.sweeps.simulate_sweeps` layout)."""
-    if noise_um < 0:
-        raise ValueError(f"Expected noise_um >= 0, got {noise_um}")
+                       bidirectional: bool = False, dt_s: float = 20.0, warmup_c: float = 0.0, stations: dict | None = None,
+                       axes=None) -> dict:
+    """Simulated tracker sweeps of a truth machine (:class:`errormap.chain_truth.MTTruth`, or the grinder's
+    :class:`errormap.simulator.TruthGrinder`; its effects included), as a dict of sweep-file columns
+    (axis, station, command, target, x_mm, y_mm, z_mm, direction, time_s, temp_c; each (3·rows,), rows in
+    measurement order: per time, then target).
+
+    ``noise_um``: isotropic Gaussian noise σ per coordinate (μm). ``seed``: seeds the tracker pose (when
+    not given) and the noise. ``tracker_pose``: ``(R (3,3), t (3,) mm)`` machine -> tracker; default a
+    random pose. ``bidirectional``: each axis is also swept back down (``direction`` -1). ``warmup_c``:
+    temperature rise over the run, ``temp_c = 20 + warmup_c·(1 - exp(-t/2400 s))`` (default 0: the
+    reference temperature). ``stations``: commands per axis column (``x_mm``, ``a_deg`` …, as an element
+    set's stations), default ``n_stations`` equally spaced over each stroke. ``axes``: the axis words
+    swept (default every axis with error slots, :func:`swept_words`)."""
     m = truth.machine
     missing = [w for w in swept_words(m) if w not in m.targets]
     if missing:
@@ -128,12 +140,15 @@ def simulate_mt_sweeps(truth, noise_um: float = 2.0, seed=0, tracker_pose=None, 
     R_mt, t_mt = random_tracker_pose(rng) if tracker_pose is None else (np.asarray(tracker_pose[0], float),
                                                                          np.asarray(tracker_pose[1], float))
     st = sweep_stations(m, n_stations)
+    if stations is not None:
+        col = {a.column: a.word for a in m.axes}
+        st.update({col[k]: np.asarray(v, dtype=float) for k, v in stations.items()})
     park = park_axes(m)
     words = [a.word for a in m.axes]
     cols = {k: [] for k in ("axis", "station", "command", "target", "x_mm", "y_mm", "z_mm", "direction", "time_s",
                             "temp_c")}
     t_now = 0.0
-    for w in swept_words(m):
+    for w in swept_words(m) if axes is None else axes:
         bc = body_chain(m, w)
         cmd = st[w]
         idx = np.arange(cmd.size)
@@ -162,16 +177,3 @@ def simulate_mt_sweeps(truth, noise_um: float = 2.0, seed=0, tracker_pose=None, 
     out = {k: np.concatenate(v) for k, v in cols.items()}
     order = np.lexsort((out["target"], out["time_s"]))
     return {k: v[order] for k, v in out.items()}
-
-
-def read_mt_sweeps(path, machine: MachineTool) -> Sweeps:
-    """Read one sweep file of ``machine`` (axis words from the machine); errors name file, row, column."""
-    t = read_table(path, "sweeps")
-    words = swept_words(machine)
-    rotary = tuple(a.word for a in machine.axes if a.kind == "rotary")
-    cols = columns_from_table(t, axes=words, rotary=rotary,
-                              axes_note=f" (the axes of {machine.name!r} with error slots)")
-    cols["file"] = np.full(len(t), str(t.path))
-    sw = sweeps_from_columns(cols, source=str(t.path), setup=t.meta().get("setup", ""), axes=words)
-    sw.sources = [str(t.path)]
-    return sw

@@ -8,28 +8,12 @@ Shapes: sweeps grouped per axis and station (:class:`errormap.sweeps.Sweeps`); c
 """
 from __future__ import annotations
 
-from pathlib import Path
-
-
-def _is_chain(machine) -> bool:
-    """A machine-tool chain other than the grinder's (whose sweep files are the grinder's format)."""
-    from .grinder_file import is_grinder_chain
-    from .machine_tool import MachineTool
-    return isinstance(machine, MachineTool) and not is_grinder_chain(machine)
-
 
 def read_sweeps(paths, machine):
-    """Tracker sweeps of one set-up (:class:`errormap.sweeps.Sweeps`): a machine-tool chain's one sweep
-    file (its axis words from the machine), or the grinder file's sweep file(s)."""
-    if _is_chain(machine):
-        from .chain_sweeps import read_mt_sweeps
-        files = [paths] if isinstance(paths, (str, Path)) else list(paths)
-        if len(files) != 1:
-            raise ValueError(f"a machine-tool chain is identified from one sweep file (one tracker set-up), got "
-                             f"{len(files)}")
-        return read_mt_sweeps(files[0], machine)
-    from .sweeps import read_sweeps as read_grinder_sweeps
-    return read_grinder_sweeps(paths)
+    """Tracker sweeps of one set-up (:class:`errormap.sweeps.Sweeps`) of a machine-tool chain or the grinder
+    file's chain: one sweep file, or several naming the same ``# setup:`` (axis words from the machine)."""
+    from .sweeps import read_sweeps as read_machine_sweeps
+    return read_machine_sweeps(paths, _chain(machine, "read_sweeps(machine=...)"))
 
 
 def read_checks(path, machine, units: str = "check"):

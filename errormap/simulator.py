@@ -63,7 +63,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .effect_kinds import SIMULATOR_NAMES, TRUTH_ONLY, effect_kind, simulator_name
-from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, IDX, X_ELEMENTS, Z_ELEMENTS, ElementSet, default_stations
+from .chain_elements import ChainElementSet
+from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, IDX, X_ELEMENTS, Z_ELEMENTS, default_stations
 from .chain_kernel import forward, spatial_error
 from .machine_tool import MachineTool
 
@@ -123,7 +124,7 @@ def simulator_effects(effects) -> dict:
     return out
 
 
-def random_elements(machine: MachineTool, rng: np.random.Generator, n_stations: int = 21) -> ElementSet:
+def random_elements(machine: MachineTool, rng: np.random.Generator, n_stations: int = 21) -> ChainElementSet:
     """Smooth random profiles at ``n_stations`` stations, zero at each axis' first station.
 
     Linear axes: cubic polynomial plus one long-wave sinusoid; A: three harmonics.
@@ -144,7 +145,7 @@ def random_elements(machine: MachineTool, rng: np.random.Generator, n_stations: 
         v = v - v[0]
         fun[k] = ELEMENT_SCALE[k] * v / max(np.abs(v).max(), 1e-12) * abs(rng.normal(1.0, 0.3))
     const = {k: ELEMENT_SCALE[k] * rng.uniform(-1.0, 1.0) for k in CONSTANT_ELEMENTS}
-    return ElementSet(st, fun, const, machine.name, machine.sha256)
+    return ChainElementSet(machine, st, fun, const, machine.name, machine.sha256)
 
 
 def volume_grid(machine: MachineTool, n=(21, 13, 37)) -> np.ndarray:
@@ -167,7 +168,7 @@ class TruthGrinder:
     """
 
     machine: MachineTool
-    elements: ElementSet
+    elements: ChainElementSet
     effects: dict = field(default_factory=dict)
     seed: int | None = None
 

@@ -1,31 +1,20 @@
-"""Laser-tracker axis sweeps: the measurement simulator and the sweep file.
+"""Laser-tracker axis sweeps of any machine-tool chain: the sweep file, its reader and its grouping.
 
-What is measured (the grinder paper, section 2.1): three target balls, not collinear,
-fixed on a moving body; the axis stops at every 1/20 of its stroke (21 stations; A every
-18°) and the tracker measures the three ball centres in its own frame.
-
-Body frames (the grinder's chain file, :func:`errormap.grinder_file.grinder_chain`, in the machine
-frame MCS)::
-
-    X carriage  T_X(x)    = Trans(l5,0,l6)·Trans(x,0,0)·E_x(x)
-    Z carriage  T_Z(z)    = RotZ(θ1)·Trans(l2,0,l1)·Trans(RotZ(-θ1)·z·(sin s_xz, 0, cos s_xz))·E_z(z)
-    A body      T_A(x, a) = T_X(x)·Trans(l7,0,l8)·E_oa·RotX(a)·E_a(a)
-
-A ball mounted at ``u`` (machine file ``[targets]``, in its body frame) is at
-``T_B · u`` in the MCS and at ``machine_in_tracker · T_B · u`` in the tracker frame.
-During the X sweep Z and A are parked at their lower stroke limits, during the Z sweep
-X and A, and during the A sweep X and Z (the A sweep is taken with the X carriage at its
-first station, which the identification relies on).
+What is measured (the grinder paper, section 2.1): three target balls, not collinear, fixed on a
+moving body; the axis stops at its stations (default every 1/20 of its stroke, 21 stations; a
+full-turn rotary axis every 18°) while the other axes stand parked, and the tracker measures the
+three ball centres in its own frame (the simulator and the body chains:
+:mod:`errormap.chain_sweeps`).
 
 Sweep file (CSV, docs/reference/file-formats.md "Axis sweeps"; provenance in its sidecar or leading ``#`` lines)::
 
     axis,station,command,target,x_mm,y_mm,z_mm[,direction,time_s,temp_c]
 
-``axis`` X|Z|A; ``station`` 0-based int (the same number in both directions);
-``command`` mm for X/Z, deg for A; ``target`` 1..3; ball centre in the tracker frame, mm;
-``direction`` +1/-1 (default +1); ``time_s``; ``temp_c``. One tracker set-up per file;
-files that share a set-up say so with the same ``# setup: <id>`` line (see
-:func:`read_sweeps`). Extra columns are kept and ignored.
+``axis`` an axis word of the machine with error slots (the grinder's X, Z, A; a mill's X, Y, Z …);
+``station`` 0-based int (the same number in both directions); ``command`` mm for a linear axis,
+deg for a rotary one; ``target`` 1..3; ball centre in the tracker frame, mm; ``direction`` +1/-1
+(default +1); ``time_s``; ``temp_c``. One tracker set-up per file; files that share a set-up say
+so with the same ``# setup: <id>`` line (see :func:`read_sweeps`). Extra columns are kept and ignored.
 """
 from __future__ import annotations
 
@@ -33,123 +22,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from .elements import default_stations
 from .io import InputError, read_table, write_csv
 from .machine_tool import MachineTool
 
-UM = 1e-3   # mm per μm
-
-SWEEP_AXES = ("X", "Z", "A")
-AXIS_STROKE_KEY = {"X": "x_mm", "Z": "z_mm", "A": "a_deg"}
 REQUIRED_COLUMNS = ("axis", "station", "command", "target", "x_mm", "y_mm", "z_mm")
 OPTIONAL_COLUMNS = ("direction", "time_s", "temp_c")
 SWEEP_FORMAT = "volcomp-sweeps/1"
-REF_TEMP_C = 20.0
 MAX_STATION = 100_000  # station numbers count positions along one stroke; more is a typing mistake
 
 
-def _chain(machine: MachineTool):
-    return machine
-
-
-def body_frames(machine: MachineTool, body: str, axes, values):
-    """Actual frame of a moving body in the MCS.
-
-    ``body`` X|Z|A; ``axes`` shape (n, 3) (x_mm, z_mm, a_deg); ``values`` shape (n, 23)
-    element values there. Returns ``(R (n,3,3), t (n,3) mm)``: MCS <- body. The chain file's
-    body frames (:meth:`errormap.machine_tool.MachineTool.body_frames`).
-    """
-    if body not in SWEEP_AXES:
-        raise ValueError(f"Expected body X, Z or A, got {body!r}")
-    return _chain(machine).body_frames(body, np.asarray(axes, dtype=float), np.asarray(values, dtype=float))
-
-
-def ball_positions(frames, mounts_mm) -> np.ndarray:
-    """Ball centres ``R·u + t`` for body frames (R (n,3,3), t (n,3)) and mounts (3,3) -> (n, 3, 3)."""
-    R, t = frames
-    return np.einsum("nij,kj->nki", R, np.asarray(mounts_mm, dtype=float)) + t[:, None, :]
-
-
-def random_tracker_pose(rng: np.random.Generator):
-    """An arbitrary rigid pose ``machine_in_tracker`` (R (3,3), t (3,) mm): a uniformly random
-    rotation and a translation of 1-3 m, as a tracker standing beside the machine."""
-    R = Rotation.random(random_state=rng).as_matrix()
-    direction = rng.normal(size=3)
-    t = direction / np.linalg.norm(direction) * rng.uniform(1000.0, 3000.0)
-    return R, t
-
-
-def sweep_axes(machine: MachineTool, axis: str, stations_cmd, park=None) -> np.ndarray:
-    """Axis points (n, 3) for a sweep of ``axis`` over ``stations_cmd``, the other axes parked
-    at ``park`` (default: their lower stroke limits)."""
-    lo = machine.stroke_lo if park is None else np.asarray(park, dtype=float)
-    pts = np.tile(lo, (len(stations_cmd), 1))
-    pts[:, SWEEP_AXES.index(axis)] = stations_cmd
-    return pts
-
-
-def simulate_sweeps(truth, noise_um: float = 2.0, seed: int = 0, tracker_pose=None, bidirectional: bool = False,
-                    n_stations: int = 21, axes=SWEEP_AXES, dt_s: float = 20.0, warmup_c: float = 0.0,
-                    mounts: dict | None = None, stations: dict | None = None) -> dict:
-    """Simulated laser-tracker sweeps of a truth grinder, as a dict of sweep-file columns.
-
-    ``truth``: a :class:`errormap.simulator.TruthGrinder` (its effects are included, so
-    undeclared effects show in the sweeps). ``noise_um``: isotropic Gaussian noise σ per
-    coordinate (μm). ``seed``: seeds the tracker pose (when not given) and the noise.
-    ``tracker_pose``: ``(R (3,3), t (3,) mm)`` machine -> tracker; default a random pose.
-    ``bidirectional``: each axis is also swept back down (``direction`` -1).
-    ``warmup_c``: temperature rise over the run, ``temp_c = 20 + warmup_c·(1 - exp(-t/2400 s))``
-    (default 0: sweeps at the reference temperature). ``mounts``: ball mounts per body,
-    default the machine file's ``[targets]``. ``stations``: commands per axis (``x_mm``, ``z_mm``,
-    ``a_deg`` arrays), default ``n_stations`` equally spaced over each stroke.
-    Returns columns axis, station, command, target, x_mm, y_mm, z_mm, direction, time_s, temp_c,
-    each shape (3·rows,).
-    """
-    if noise_um < 0:
-        raise ValueError(f"Expected noise_um >= 0, got {noise_um}")
-    machine = truth.machine
-    rng = np.random.default_rng(seed)
-    R_mt, t_mt = random_tracker_pose(rng) if tracker_pose is None else (np.asarray(tracker_pose[0], float),
-                                                                         np.asarray(tracker_pose[1], float))
-    mounts = machine.targets if mounts is None else mounts
-    st = default_stations(machine, n_stations) if stations is None else {
-        k: np.asarray(v, dtype=float) for k, v in stations.items()}
-    cols = {k: [] for k in ("axis", "station", "command", "target", "x_mm", "y_mm", "z_mm",
-                            "direction", "time_s", "temp_c")}
-    t_now = 0.0
-    for axis in axes:
-        cmd = st[AXIS_STROKE_KEY[axis]]
-        idx = np.arange(cmd.size)
-        runs = [(idx, 1)] + ([(idx[::-1], -1)] if bidirectional else [])
-        for order, direction in runs:
-            pts = sweep_axes(machine, axis, cmd[order])
-            n = len(order)
-            time_s = t_now + dt_s * np.arange(n)
-            t_now = time_s[-1] + dt_s
-            temp = REF_TEMP_C + warmup_c * (1.0 - np.exp(-time_s / 2400.0))
-            dirs = {f"dir_{k}": np.ones(n) for k in ("x", "z", "a")}
-            dirs[f"dir_{axis.lower()}"] = np.full(n, float(direction))
-            values = truth.element_values(pts, temp_c=temp, **dirs)
-            balls = ball_positions(body_frames(machine, axis, pts, values), mounts[axis])  # (n, 3, 3) MCS
-            balls = np.einsum("ij,nkj->nki", R_mt, balls) + t_mt
-            balls = balls + rng.normal(0.0, noise_um * UM, balls.shape)
-            for k in range(3):
-                cols["axis"].append(np.full(n, axis))
-                cols["station"].append(order)
-                cols["command"].append(cmd[order])
-                cols["target"].append(np.full(n, k + 1))
-                cols["x_mm"].append(balls[:, k, 0])
-                cols["y_mm"].append(balls[:, k, 1])
-                cols["z_mm"].append(balls[:, k, 2])
-                cols["direction"].append(np.full(n, direction))
-                cols["time_s"].append(time_s)
-                cols["temp_c"].append(temp)
-    out = {k: np.concatenate(v) for k, v in cols.items()}
-    # rows in measurement order: per time, then target
-    order = np.lexsort((out["target"], out["time_s"]))
-    return {k: v[order] for k, v in out.items()}
+def swept_words(machine: MachineTool) -> tuple:
+    """The axes a sweep set-up covers: every axis with component errors, canonical order."""
+    return tuple(a.word for a in machine.axes if machine.slots_of(a.word))
 
 
 def write_sweeps(path, columns: dict, comments=()) -> Path:
@@ -206,9 +91,9 @@ def _check_units(names, path):
                                  "convert the file, units are never guessed")
 
 
-def columns_from_table(table, axes=SWEEP_AXES, rotary=("A",), axes_note: str = "") -> dict:
+def columns_from_table(table, axes, rotary, axes_note: str = "") -> dict:
     """Validated sweep columns from a :class:`errormap.io.Table`; errors name file, row, column.
-    ``axes``: the axis words a row may name (the grinder's X, Z, A; a chain machine's swept words),
+    ``axes``: the axis words a row may name (the machine's swept words, :func:`swept_words`),
     ``rotary``: those commanded in deg; ``axes_note``: said after the expected words in a refusal."""
     _check_units(table.names, table.path)
     table.require(*REQUIRED_COLUMNS)
@@ -241,9 +126,10 @@ def columns_from_table(table, axes=SWEEP_AXES, rotary=("A",), axes_note: str = "
     return cols
 
 
-def sweeps_from_columns(cols: dict, source: str = "<columns>", setup: str = "", axes=SWEEP_AXES) -> Sweeps:
-    """Group sweep columns (as from :func:`simulate_sweeps` or a file) by axis and station;
-    ``axes``: the axis words to group (the grinder's X, Z, A; a chain machine's from its file).
+def sweeps_from_columns(cols: dict, source: str = "<columns>", setup: str = "", axes=None) -> Sweeps:
+    """Group sweep columns (as from :func:`errormap.chain_sweeps.simulate_mt_sweeps` or a file) by axis and
+    station; ``axes``: the axis words to group (the machine's, :func:`swept_words`; None: every word in
+    the columns, in the order they first appear).
 
     Refuses duplicated rows, missing targets, missing stations, inconsistent commands and
     commands that do not increase with the station number, naming the axis and station.
@@ -269,6 +155,9 @@ def sweeps_from_columns(cols: dict, source: str = "<columns>", setup: str = "", 
         if bad is not None:
             raise InputError(f"{where(bad[0])}, column 'temp_c': units do not fit: {bad[1]}")
 
+    if axes is None:
+        first = np.unique(axis, return_index=True)[1]
+        axes = tuple(axis[np.sort(first)])
     out = {}
     for ax in axes:
         sel = np.flatnonzero(axis == ax)
@@ -325,17 +214,21 @@ def sweeps_from_columns(cols: dict, source: str = "<columns>", setup: str = "", 
     return Sweeps(out, setup, [source])
 
 
-def read_sweeps(paths) -> Sweeps:
-    """Read one or more sweep files of ONE tracker set-up.
+def read_sweeps(paths, machine: MachineTool) -> Sweeps:
+    """Read one or more sweep files of ONE tracker set-up of ``machine`` (its axis words with error
+    slots, :func:`swept_words`; commands in deg on its rotary axes).
 
     A single file is one set-up. Several files are merged only when every file names the
-    same set-up in a ``# setup: <id>`` header line (X, Z and A must share the tracker
-    set-up: squareness and the A-axis line relate the bodies through it); an axis may then
+    same set-up in a ``# setup: <id>`` header line (every axis must share the tracker set-up:
+    squareness and the rotary axes' lines relate the bodies through it); an axis may then
     appear in one file only. Errors name the file, row and column.
     """
     paths = [Path(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]
     if not paths:
         raise InputError("no sweep files given")
+    words = swept_words(machine)
+    rotary = tuple(a.word for a in machine.axes if a.kind == "rotary")
+    note = f" (the axes of {machine.name!r} with error slots)"
     tables = [read_table(p, "sweeps") for p in paths]
     setups = [t.meta().get("setup", "") for t in tables]
     if len(paths) > 1 and (len(set(setups)) != 1 or not setups[0]):
@@ -344,7 +237,7 @@ def read_sweeps(paths) -> Sweeps:
     merged: dict = {}
     axis_file: dict = {}
     for t in tables:
-        c = columns_from_table(t)
+        c = columns_from_table(t, axes=words, rotary=rotary, axes_note=note)
         c["file"] = np.full(len(t), str(t.path))
         for ax in set(c["axis"].tolist()):
             if ax in axis_file and axis_file[ax] != str(t.path):
@@ -355,6 +248,6 @@ def read_sweeps(paths) -> Sweeps:
     keys = [k for k in merged if len(merged[k]) == len(tables)]
     cols = {k: np.concatenate(merged[k]) for k in keys}
     source = ", ".join(map(str, paths))
-    sw = sweeps_from_columns(cols, source=source, setup=setups[0])
+    sw = sweeps_from_columns(cols, source=source, setup=setups[0], axes=words)
     sw.sources = [str(p) for p in paths]
     return sw

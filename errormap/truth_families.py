@@ -1,7 +1,7 @@
 """A second, independent family of truth grinders, for testing estimators on machines the
 default simulator (:mod:`errormap.simulator`) did not shape.
 
-What differs from the default family (same interfaces: an :class:`~errormap.elements.ElementSet`
+What differs from the default family (same interfaces: an :class:`~errormap.chain_elements.ChainElementSet`
 inside a :class:`~errormap.simulator.TruthGrinder`, the same effect names):
 
 * **Element shapes**: linear axes — a sum of 2–5 Gaussian bumps (centre anywhere on the
@@ -27,7 +27,8 @@ import numpy as np
 from numpy.polynomial import chebyshev
 from scipy.stats import qmc
 
-from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, X_ELEMENTS, Z_ELEMENTS, ElementSet, default_stations
+from .chain_elements import ChainElementSet
+from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, X_ELEMENTS, Z_ELEMENTS, default_stations
 from .chain_kernel import spatial_error
 from .machine_tool import MachineTool
 from .seeds import spawn_rngs
@@ -73,7 +74,7 @@ def _fourier(theta: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return v / max(np.abs(v).max(), 1e-12)
 
 
-def independent_elements(machine: MachineTool, rng: np.random.Generator, n_stations: int = TRUTH_STATIONS) -> ElementSet:
+def independent_elements(machine: MachineTool, rng: np.random.Generator, n_stations: int = TRUTH_STATIONS) -> ChainElementSet:
     """Unscaled independent-family elements on ``n_stations`` stations per axis (see module doc)."""
     st = default_stations(machine, n_stations)
     u = np.linspace(0.0, 1.0, n_stations)
@@ -84,7 +85,7 @@ def independent_elements(machine: MachineTool, rng: np.random.Generator, n_stati
         fun[k] = scale[k] * _fourier(theta, rng)
         fun[k][-1] = fun[k][0]
     const = {k: scale[k] * rng.choice([-1.0, 1.0]) * rng.uniform(0.3, 1.0) for k in CONSTANT_ELEMENTS}
-    return ElementSet(st, fun, const, machine.name, machine.sha256)
+    return ChainElementSet(machine, st, fun, const, machine.name, machine.sha256)
 
 
 def independent_effect_parameters(rng: np.random.Generator) -> dict:

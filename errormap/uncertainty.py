@@ -5,7 +5,7 @@
 by default), its covariance Gauss–Newton's σ̂²·(JᵀJ)⁻¹ through the gauge (or a residual bootstrap), the
 station values smoothed by the UBRE smoother (:func:`errormap.smoothing.smooth_blocks` through
 :func:`errormap.identification.smooth_chain`), and re-expresses the result as the grinder's
-:class:`~errormap.elements.ElementSet` and :class:`ElementCovariance` (the covariance of the smoothed values
+:class:`~errormap.chain_elements.ChainElementSet` and :class:`ElementCovariance` (the covariance of the smoothed values
 ``H Σ Hᵀ`` plus the smoother's estimated squared bias per element on the diagonal).
 
 The parameter vector θ (:class:`ElementCovariance`): the 18 functions' values at their
@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import make_interp_spline
 
-from .elements import A_ELEMENTS, AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS, ElementSet
+from .chain_elements import ChainElementSet
+from .elements import A_ELEMENTS, AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS
 from .chain_kernel import error_jacobian
 from .io import NPY_ERRORS, InputError, atomic_write, check_document_size, companion_path
 from .machine_tool import MachineTool
@@ -36,7 +37,7 @@ COMPANION_THETA_TOL = 1e-9
 JSON keeps every float exactly (round-trip repr); a larger difference is another identification's file."""
 
 
-def theta_layout(elements: ElementSet) -> list[tuple[str, int]]:
+def theta_layout(elements: ChainElementSet) -> list[tuple[str, int]]:
     """``(element, station index)`` of every entry of θ (station −1 for a constant)."""
     out = []
     for k in FUNCTION_ELEMENTS:
@@ -45,19 +46,19 @@ def theta_layout(elements: ElementSet) -> list[tuple[str, int]]:
     return out + [(k, -1) for k in CONSTANT_ELEMENTS]
 
 
-def theta_blocks(elements: ElementSet) -> dict:
+def theta_blocks(elements: ChainElementSet) -> dict:
     """Function element -> indices (m,) of its station values in θ (see :func:`theta_layout`)."""
     names = np.array([k for k, _ in theta_layout(elements)])
     return {k: np.flatnonzero(names == k) for k in FUNCTION_ELEMENTS}
 
 
-def theta_from_elements(elements: ElementSet) -> np.ndarray:
+def theta_from_elements(elements: ChainElementSet) -> np.ndarray:
     """θ (P,) from an element set (see module doc)."""
     parts = [elements.functions[k][:-1] if k in A_ELEMENTS else elements.functions[k] for k in FUNCTION_ELEMENTS]
     return np.concatenate(parts + [np.array([elements.constants[k] for k in CONSTANT_ELEMENTS])])
 
 
-def elements_from_theta(theta, template: ElementSet) -> ElementSet:
+def elements_from_theta(theta, template: ChainElementSet) -> ChainElementSet:
     """The element set with θ's values on ``template``'s stations."""
     theta = np.asarray(theta, dtype=float)
     fun, i = {}, 0
@@ -70,14 +71,15 @@ def elements_from_theta(theta, template: ElementSet) -> ElementSet:
             fun[k] = theta[i:i + m].copy()
             i += m
     const = {k: float(theta[i + j]) for j, k in enumerate(CONSTANT_ELEMENTS)}
-    return ElementSet(template.stations, fun, const, template.machine_name, template.machine_sha256)
+    return ChainElementSet(template.machine, template.stations, fun, const, template.machine_name,
+                           template.machine_sha256)
 
 
-def interpolation_weights(elements: ElementSet, axes) -> dict:
+def interpolation_weights(elements: ChainElementSet, axes) -> dict:
     """Per axis key, the cubic-interpolation weights (n, m_free) mapping the free station values
-    to the element value at the points (the ElementSet's own splines, applied to unit vectors)."""
+    to the element value at the points (the element set's own splines, applied to unit vectors)."""
     axes = np.asarray(axes, dtype=float)
-    cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": elements.wrap_a(axes[:, 2])}
+    cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": elements.wrap("a_deg", axes[:, 2])}
     out = {}
     for key in ("x_mm", "z_mm"):
         st = elements.stations[key]
@@ -88,7 +90,7 @@ def interpolation_weights(elements: ElementSet, axes) -> dict:
     return out
 
 
-def theta_design(machine: MachineTool, elements: ElementSet, axes) -> np.ndarray:
+def theta_design(machine: MachineTool, elements: ChainElementSet, axes) -> np.ndarray:
     """``∂(spatial error μm)/∂θ`` at axis points, shape (n, 3, P) (first order, exact in θ)."""
     axes = np.asarray(axes, dtype=float)
     J = error_jacobian(machine, axes)
@@ -107,7 +109,7 @@ class ElementCovariance:
 
     theta: np.ndarray
     cov: np.ndarray
-    elements: ElementSet
+    elements: ChainElementSet
     info: dict = field(default_factory=dict)
     prior_extra: np.ndarray | None = None
     """(P,) variance added on the diagonal when θ is used as a prior for an update (the
@@ -158,7 +160,7 @@ class ElementCovariance:
         return Path(path)
 
     @classmethod
-    def load(cls, path, elements: ElementSet) -> "ElementCovariance":
+    def load(cls, path, elements: ChainElementSet) -> "ElementCovariance":
         """Read a covariance file written by :meth:`save` for ``elements``; errors name the file."""
         import json
         path = Path(path)
@@ -206,7 +208,7 @@ def nullspace_smoother(Sigma, periodic: bool) -> np.ndarray:
     return X @ np.linalg.solve(X.T @ Xw, Xw.T)
 
 
-def nullspace_noise_cov(raw_cov, elements: ElementSet) -> np.ndarray:
+def nullspace_noise_cov(raw_cov, elements: ChainElementSet) -> np.ndarray:
     """Covariance (P, P) of the station values after the heaviest smoothing of this family
     (:func:`nullspace_smoother` per element, constants as identified), from the raw
     identification's bootstrap covariance ``raw_cov`` (P, P): the tracker noise that no
@@ -223,7 +225,7 @@ def nullspace_noise_cov(raw_cov, elements: ElementSet) -> np.ndarray:
     return H @ raw_cov @ H.T
 
 
-def prediction_sd(machine: MachineTool, elements: ElementSet, cov, axes) -> np.ndarray:
+def prediction_sd(machine: MachineTool, elements: ChainElementSet, cov, axes) -> np.ndarray:
     """Per-component standard deviation (n, 3) μm of the spatial error at ``axes`` for a θ
     covariance ``cov`` (P, P) of ``elements``' layout (the diagonal of ``J Σ Jᵀ``)."""
     A = theta_design(machine, elements, np.asarray(axes, dtype=float))
@@ -237,7 +239,7 @@ class SmoothIdentificationResult:
     ``smoothing``: per element {lambda, edf}."""
 
     raw: object
-    elements_: ElementSet
+    elements_: ChainElementSet
     covariance_: ElementCovariance
     noise_um: float
     smoothing: dict
@@ -267,7 +269,7 @@ def _grinder_theta_index(result) -> np.ndarray:
     of the grinder's θ (:func:`theta_layout`; the element and slot names are the same, the A axis' last
     station, the first pose again, not in θ)."""
     where = {(s, int(i)): j for j, (s, i) in enumerate(zip(result.param_slot, result.param_station))}
-    return np.array([where[key] for key in theta_layout(result.elements_.to_element_set())])
+    return np.array([where[key] for key in theta_layout(result.elements_)])
 
 
 def smooth_identify(sweeps, machine: MachineTool, noise_um: float | None = None, n_boot: int | None = None, seed: int = 0,
@@ -278,8 +280,8 @@ def smooth_identify(sweeps, machine: MachineTool, noise_um: float | None = None,
     (σ̂ from the ball residuals, or the known ``noise_um``) or, with ``n_boot`` ≥ 2, the residual bootstrap's
     (:func:`errormap.identification.bootstrap_covariance`, seeded by ``seed``), smoothed by the UBRE smoother
     (:func:`errormap.identification.smooth_chain`) unless ``smooth=False``. The result carries the grinder's
-    :class:`ElementSet` and :class:`ElementCovariance` (θ layout, files as before); ``raw`` is the chain
-    identification (its ``elements_`` the interpolating grinder set). ``sweeps``: :class:`errormap.sweeps.Sweeps`
+    element set and :class:`ElementCovariance` (θ layout, files as before); ``raw`` is the chain identification
+    (its ``elements_`` the interpolating set). ``sweeps``: :class:`errormap.sweeps.Sweeps`
     or a dict of sweep columns."""
     from dataclasses import replace
     from .identification import ChainIdentification, bootstrap_covariance, smooth_chain
@@ -292,7 +294,7 @@ def smooth_identify(sweeps, machine: MachineTool, noise_um: float | None = None,
         raw = bootstrap_covariance(sweeps, machine, raw, n_boot, seed, **settings)
     res = smooth_chain(raw, machine) if smooth else raw
     idx = _grinder_theta_index(raw)
-    elements = res.elements_.to_element_set()
+    elements = res.elements_
     C = res.cov[np.ix_(idx, idx)]
     extra = None if res.prior_extra is None else res.prior_extra[idx]
     sigma = raw.sigma_um if noise_um is None else float(noise_um)
@@ -302,7 +304,6 @@ def smooth_identify(sweeps, machine: MachineTool, noise_um: float | None = None,
             "n_boot": n_boot, "seed": seed, "noise_um": sigma, "noise_estimated": noise_um is None,
             "smoothed": bool(smooth), "gauge": gauge}
     smoothing = res.covariance_info.get("smoothing", {})
-    raw_out = replace(raw, elements_=raw.elements_.to_element_set())
-    return SmoothIdentificationResult(raw_out, elements, ElementCovariance(theta_from_elements(elements), C, elements,
+    return SmoothIdentificationResult(replace(raw), elements, ElementCovariance(theta_from_elements(elements), C, elements,
                                                                            info, extra),
                                       sigma, smoothing, raw.cov[np.ix_(idx, idx)])

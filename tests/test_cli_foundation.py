@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from compensation.app.cli import main
-from errormap.elements import ElementSet
+from errormap.chain_elements import ChainElementSet
 from errormap.featurepoints import DEFAULT_GRID, FeaturePoints
 from errormap.io import read_table, sidecar_path
 
@@ -43,7 +43,7 @@ def test_bad_inputs_exit_cleanly(tmp_path, capsys):
     pts.write_text("x_mm,z_mm,a_deg\n1,2,3\n4,oops,6\n")
     el = tmp_path / "el.json"
     from errormap.machine import load_machine
-    ElementSet.zeros(load_machine()).save(el)
+    ChainElementSet.zeros(load_machine()).save(el)
     assert main(["predict", "--model", str(el), str(pts), "--out", str(tmp_path / "p.csv")]) == 2
     err = capsys.readouterr().err
     assert "row 3" in err and "z_mm" in err
@@ -117,7 +117,7 @@ def test_provenance_paths_resolve_relative_to_the_file(tmp_path, monkeypatch):
 def test_predict_refuses_outside_the_calibrated_volume(tmp_path, capsys):
     el = tmp_path / "el.json"
     from errormap.machine import load_machine
-    ElementSet.zeros(load_machine()).save(el)
+    ChainElementSet.zeros(load_machine()).save(el)
     pts = tmp_path / "pts.csv"
     pts.write_text("x_mm,z_mm,a_deg\n10,2,3\n1000000,2,3\n")
     argv = ["predict", "--model", str(el), str(pts), "--out", str(tmp_path / "p.csv")]

@@ -7,11 +7,12 @@ import numpy as np
 import pytest
 
 from compensation.app.cli import main
-from errormap.elements import ElementSet
+from errormap.chain_elements import ChainElementSet
+from errormap.machine import load_machine
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import spatial_error
 from errormap.simulator import EFFECT_DEFAULTS, random_axes, random_truth
-from errormap.sweeps import simulate_sweeps
+from errormap.chain_sweeps import simulate_mt_sweeps
 from errormap.truth_families import TRUTH_STATIONS, make_truth
 from errormap.uncertainty import (ElementCovariance, covariance_path, elements_from_theta, smooth_identify,
                                   theta_design, theta_from_elements)
@@ -42,7 +43,7 @@ def _loop(grinder, sm, cols, tmp, **kw):
 @pytest.fixture(scope="module")
 def indep(grinder):
     truth = make_truth(grinder, SEED, family="independent")
-    sm = smooth_identify(simulate_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=SEED + 50), grinder)
+    sm = smooth_identify(simulate_mt_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=SEED + 50), grinder)
     return truth, sm
 
 
@@ -66,7 +67,7 @@ def test_simulate_cli_family(tmp_path):
     assert main(["simulate", "--family", "independent", "--seed", "2", "--checks", "50", "--out", str(tmp_path)]) == 0
     info = json.loads((tmp_path / "truth.json").read_text())
     assert info["family"] == "independent"
-    assert ElementSet.load(tmp_path / "truth_elements.json").stations["z_mm"].size == TRUTH_STATIONS
+    assert ChainElementSet.load(tmp_path / "truth_elements.json", load_machine()).stations["z_mm"].size == TRUTH_STATIONS
 
 
 def test_noise_is_estimated_from_ball_residuals(indep):
@@ -115,7 +116,7 @@ def test_update_brings_held_out_to_the_noise_floor_and_reports_no_effect(grinder
 @pytest.mark.slow
 def test_reversal_is_named_after_the_update(grinder, tmp_path):
     truth = make_truth(grinder, 1, family="independent", effects=["reversal"])
-    sm = smooth_identify(simulate_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=51), grinder)
+    sm = smooth_identify(simulate_mt_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=51), grinder)
     s, _ = _loop(grinder, sm, truth.check_measurements(800, 1.0, seed=13), tmp_path)
     e = s["effects"]
     assert e and (e[0]["kind"], e[0]["axis"]) == ("reversal", "Z")
@@ -128,7 +129,7 @@ def test_predict_band_cli(tmp_path, capsys):
     el = tmp_path / "el.json"
     assert main(["identify", str(sw), "--out", str(el)]) == 0
     assert covariance_path(el).is_file()
-    ElementCovariance.load(covariance_path(el), ElementSet.load(el))
+    ElementCovariance.load(covariance_path(el), ChainElementSet.load(el, load_machine()))
     pts = tmp_path / "p.csv"
     pts.write_text("x_mm,z_mm,a_deg\n10,5,30\n150,40,200\n")
     out = tmp_path / "pred.csv"
@@ -251,7 +252,7 @@ def test_an_effect_the_update_would_imitate_is_named_and_kept(grinder, tmp_path)
     """Thermal growth (a dx_x slope at the mean temperature) is partly taken up by an update made alone; the loop
     names it, re-fits it jointly with the update, and keeps the model with it."""
     truth = make_truth(grinder, 0, family="independent", effects=["thermal"])
-    sm = smooth_identify(simulate_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder)
+    sm = smooth_identify(simulate_mt_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder)
     s, _ = _loop(grinder, sm, truth.check_measurements(800, 1.0, seed=14), tmp_path)
     assert s["effects"] and (s["effects"][0]["kind"], s["effects"][0]["axis"]) == ("thermal", "X")
     assert s["kept_stage"] == "updated_plus_effects"
@@ -264,7 +265,7 @@ def test_an_effect_the_element_slots_represent_is_named_as_absorbed(grinder, tmp
     the checks, so the update takes it up; the loop names it as absorbed (not a missed effect) and the updated
     model reaches the held-out target."""
     truth = make_truth(grinder, 0, family="independent", effects=["interaction"])
-    sm = smooth_identify(simulate_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder)
+    sm = smooth_identify(simulate_mt_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder)
     s, _ = _loop(grinder, sm, truth.check_measurements(800, 1.0, seed=14), tmp_path)
     assert ("interaction", "X*Z") in {(e["kind"], e["axis"]) for e in s["effects_absorbed"]}
     assert s["held_out_rms_um"] < HELD_OUT_TARGET_UM

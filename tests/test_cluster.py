@@ -130,10 +130,11 @@ def test_worker_killed_mid_batch(ray_session, batch, monkeypatch, capsys):
 
 def _fleet_inputs(d: Path, grinder) -> Path:
     from errormap.simulator import TruthGrinder
-    from errormap.sweeps import simulate_sweeps, write_sweeps
+    from errormap.chain_sweeps import simulate_mt_sweeps
+    from errormap.sweeps import write_sweeps
     for seed in (1, 2):
         truth = random_truth(grinder, seed)
-        write_sweeps(d / f"m{seed}" / "sweeps.csv", simulate_sweeps(TruthGrinder(grinder, truth.elements, {}),
+        write_sweeps(d / f"m{seed}" / "sweeps.csv", simulate_mt_sweeps(TruthGrinder(grinder, truth.elements, {}),
                                                                      seed=seed), comments=["setup: s1"])
         write_csv(d / f"m{seed}" / "checks.csv", truth.check_measurements(n=150, seed=seed + 10),
                   header_comments=["format: volcomp-checks/1"])
@@ -157,7 +158,7 @@ def test_fleet_refuses_a_file_store_for_several_writers(tmp_path, grinder, capsy
 def test_fleet_on_ray_tracked_on_a_server(ray_session, mlflow_server, grinder, capsys):  # noqa: F811
     from mlflow.tracking import MlflowClient
 
-    from errormap.elements import ElementSet
+    from errormap.chain_elements import ChainElementSet
     from errormap.sweeps import read_sweeps
     from errormap.uncertainty import smooth_identify
     url, tmp = mlflow_server
@@ -182,7 +183,7 @@ def test_fleet_on_ray_tracked_on_a_server(ray_session, mlflow_server, grinder, c
     assert len(list((tmp / "art").rglob("weights.npy"))) == 2
     assert len(list((tmp / "art").rglob("diagnosis.json"))) == 2
     # the Ray task identified what an in-process identification of the same sweeps gives
-    ref = smooth_identify(read_sweeps([str(tmp / "m1" / "sweeps.csv")]), grinder, n_boot=4, seed=0).elements_
-    got = ElementSet.load(out / "g1" / "elements.json")
+    ref = smooth_identify(read_sweeps([str(tmp / "m1" / "sweeps.csv")], grinder), grinder, n_boot=4, seed=0).elements_
+    got = ChainElementSet.load(out / "g1" / "elements.json", grinder)
     pts = random_axes(grinder, 200, np.random.default_rng(0))
     assert np.abs(got.values(pts) - ref.values(pts)).max() < IDENTIFY_TOL

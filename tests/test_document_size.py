@@ -65,13 +65,13 @@ def test_every_reader_sizes_first(tmp_path):
     """The loaders behind the commands, each given an over-size file: one InputError naming it."""
     from compensation.app.workflows.fleet import read_fleet
     from errormap.diagnosis.drift_models import DriftModel
-    from errormap.elements import ElementSet
+    from errormap.chain_elements import ChainElementSet
     from errormap.machine import load_machine
     from errormap.simulator import random_truth
     from errormap.uncertainty import ElementCovariance
     grinder = load_machine("grinder")
     el = random_truth(grinder, 3).elements
-    loaders = {"elements.json": ElementSet.load, "drift.json": DriftModel.load, "fleet.toml": read_fleet,
+    loaders = {"elements.json": lambda p: ChainElementSet.load(p, grinder), "drift.json": DriftModel.load, "fleet.toml": read_fleet,
                "diag.json": read_json, "e.cov.npz": lambda p: ElementCovariance.load(p, el)}
     for name, load in loaders.items():
         big = _huge(tmp_path / name)

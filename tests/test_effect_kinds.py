@@ -10,7 +10,7 @@ import pytest
 from compensation.app.cli import main
 from errormap import effect_kinds as ek
 from errormap.diagnosis import effects as fx
-from errormap.elements import ElementSet
+from errormap.chain_elements import ChainElementSet
 from errormap.elements import IDX
 from errormap.simulator import EFFECT_DEFAULTS, EFFECT_NAMES, OUT_OF_CATALOGUE, TruthGrinder, random_axes
 from errormap.truth_families import independent_effect_parameters
@@ -77,7 +77,7 @@ def test_simulator_alias_is_the_same_physics_as_the_diagnosis_kind(grinder, sim,
     they are the same term: the simulator's addition to the element equals the diagnosis basis
     with the amplitude and phase written as its ``s·sin + c·cos`` coefficients."""
     assert ek.effect_kind(sim).name == canonical and ek.simulator_name(canonical) == sim
-    el = ElementSet.zeros(grinder)
+    el = ChainElementSet.zeros(grinder)
     axes = random_axes(grinder, N_POINTS, np.random.default_rng(SEED))
     by_alias = TruthGrinder(grinder, el, {sim: params}).element_values(axes)[:, IDX[element]]
     by_name = TruthGrinder(grinder, el, {canonical: params})
@@ -95,7 +95,7 @@ def test_unknown_kinds_raise_in_code(grinder):
     with pytest.raises(ValueError, match="unknown effect kind 'bogus'"):
         ek.effect_kind("bogus")
     with pytest.raises(ValueError, match="'bogus'"):
-        TruthGrinder(grinder, ElementSet.zeros(grinder), {"bogus": {}})
+        TruthGrinder(grinder, ChainElementSet.zeros(grinder), {"bogus": {}})
     with pytest.raises(ValueError, match="unknown effect kind 'bogus'"):
         fx.Candidate("bogus", "x", "dx_x")
     with pytest.raises(ValueError, match="simulator's name; the diagnosis calls it 'periodic'"):
@@ -124,7 +124,7 @@ def _one_error_line(capsys) -> str:
 
 
 def test_export_refuses_an_unknown_kind_in_a_diagnosis_file(grinder, tmp_path, capsys):
-    el_path = ElementSet.zeros(grinder).save(tmp_path / "el.json")
+    el_path = ChainElementSet.zeros(grinder).save(tmp_path / "el.json")
     diag = tmp_path / "diagnosis.json"
     diag.write_text(json.dumps({"effects": [
         {"kind": "reversal", "axis": "z", "element": "dz_z", "parameters": {"backlash_um": {"value": 8.0}}},
@@ -138,7 +138,7 @@ def test_export_refuses_an_unknown_kind_in_a_diagnosis_file(grinder, tmp_path, c
 
 
 def test_compensate_refuses_an_unknown_kind_in_a_diagnosed_model(grinder, tmp_path, capsys):
-    ElementSet.zeros(grinder).save(tmp_path / "updated_elements.json")
+    ChainElementSet.zeros(grinder).save(tmp_path / "updated_elements.json")
     model = tmp_path / "model.json"
     model.write_text(json.dumps({"format": "volcomp-diagnosed-model/1", "elements": "updated_elements.json",
                                  "terms": [{"kind": "wobble", "axis": "x", "element": "dx_x",

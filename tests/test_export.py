@@ -7,7 +7,7 @@ import pytest
 from compensation import export as ex
 from compensation.app.cli import main
 from compensation.toolpath import flute_path
-from errormap.elements import ElementSet
+from errormap.chain_elements import ChainElementSet
 from errormap.io import InputError, read_table
 from errormap.simulator import TruthGrinder, random_truth
 
@@ -27,10 +27,10 @@ REMOVED_UM = 1e-3
 
 def linear_elements(machine, k_um_per_mm=0.1):
     """dx_x = k·(x − x0), everything else zero: a model every format represents exactly."""
-    el = ElementSet.zeros(machine)
+    el = ChainElementSet.zeros(machine)
     x = el.stations["x_mm"]
     el.functions["dx_x"] = k_um_per_mm * (x - x[0])
-    return ElementSet(el.stations, el.functions, el.constants, machine.name, machine.sha256)
+    return ChainElementSet(machine, el.stations, el.functions, el.constants, machine.name, machine.sha256)
 
 
 @pytest.fixture(scope="module")

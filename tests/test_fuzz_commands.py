@@ -84,7 +84,7 @@ def files(tmp_path_factory):
 def test_fuzz_identify_grinder(files, data):
     """exit 0 writes the element set the library identifies from the same file (compared through the field)."""
     from compensation.app.workflows.identification import identify_elements
-    from errormap.elements import ElementSet
+    from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
     from errormap.sweeps import read_sweeps
     machine = load_machine(None)
@@ -97,8 +97,8 @@ def test_fuzz_identify_grinder(files, data):
         if _tally_outcome(argv, rc, err, [str(p)]):
             with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
                 lib = identify_elements(machine, [str(p)], Path(d) / "L.json", n_boot=2, seed=0,
-                                        sweeps=read_sweeps([str(p)]))
-            got = ChainField(machine, ElementSet.load(Path(d) / "E.json")).predict(AXES_PROBE)
+                                        sweeps=read_sweeps([str(p)], machine))
+            got = ChainField(machine, ChainElementSet.load(Path(d) / "E.json", machine)).predict(AXES_PROBE)
             want = ChainField(machine, lib.result.elements_).predict(AXES_PROBE)
             _check_output("identify", np.allclose(got, want, rtol=TOL_PREDICT_REL, atol=TOL_PREDICT_ABS_UM), argv)
 
@@ -111,7 +111,7 @@ def test_fuzz_identify_chain(files, data):
     command's defaults: station-mean gauge, smoothed)."""
     from errormap.chain_elements import ChainElementSet
     from errormap.identification import ChainIdentification, smooth_chain
-    from errormap.chain_sweeps import read_mt_sweeps
+    from errormap.sweeps import read_sweeps
     mill = load_machine("mill-xyz")
     raw = data.draw(hostile_bytes((files / "m_sweeps.csv").read_text(), table=True))
     with tempfile.TemporaryDirectory() as d:
@@ -120,7 +120,7 @@ def test_fuzz_identify_chain(files, data):
         argv = ["identify", str(p), "--machine", "mill-xyz", "--out", str(Path(d) / "E.json")]
         rc, err = run_main(argv)
         if _tally_outcome(argv, rc, err, [str(p)]):
-            res = ChainIdentification(gauge="station-mean").fit(read_mt_sweeps(p, mill), mill).result_
+            res = ChainIdentification(gauge="station-mean").fit(read_sweeps(p, mill), mill).result_
             want = smooth_chain(res, mill).elements_
             got = ChainElementSet.load(Path(d) / "E.json", mill)
             pairs = [(got.constants.get(k), v) for k, v in want.constants.items()] + [

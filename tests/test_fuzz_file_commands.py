@@ -106,7 +106,7 @@ def test_fuzz_export_element_set(grinder, data, tol):
     from the element set read from the same file (same rows), names that file's sha256 and met the tolerance; or
     one line naming the file or --tolerance-um."""
     from compensation.export.iso_tables import iso_tables_from_model, read_iso_tables
-    from errormap.elements import ElementSet
+    from errormap.chain_elements import ChainElementSet
     machine = load_machine(None)
     raw = data.draw(hostile_bytes((grinder / "sim" / "truth_elements.json").read_text(), table=True))
     with tempfile.TemporaryDirectory() as d:
@@ -116,7 +116,7 @@ def test_fuzz_export_element_set(grinder, data, tol):
         rc, err = run_main(argv)
         if _tally_outcome(argv, rc, err, [str(src), "--tolerance-um"]):
             doc = json.loads((out / "export.json").read_text())
-            want = iso_tables_from_model(ElementSet.load(src), machine, doc["sizing"]["rows_per_axis"])
+            want = iso_tables_from_model(ChainElementSet.load(src, machine), machine, doc["sizing"]["rows_per_axis"])
             got = read_iso_tables(out, machine)
             same = all(np.allclose(got.values[k], want.values[k], rtol=TOL_PREDICT_REL, atol=TOL_PREDICT_ABS_UM)
                        for k in want.values) and set(got.values) == set(want.values)
@@ -227,7 +227,7 @@ def test_fuzz_compensate_targets_csv(grinder, data, seg):
     """compensate --method exact on a hostile targets CSV: exit 0 writes axes that land on every target the library
     reads from the same file under the model, or one line naming the file or --max-segment-mm."""
     from compensation.pathio import read_path
-    from errormap.elements import ElementSet
+    from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
     from errormap.chain_kernel import forward
     machine = load_machine(None)
@@ -240,7 +240,7 @@ def test_fuzz_compensate_targets_csv(grinder, data, seg):
                 "--out", str(out)]
         rc, err = run_main(argv)
         if _tally_outcome(argv, rc, err, [str(p), "--max-segment-mm"]):
-            field = ChainField(machine, ElementSet.load(el))
+            field = ChainField(machine, ChainElementSet.load(el, machine))
             src = read_path(p, machine)
             res = read_path(out / p.name, machine)
             lands = forward(machine, res.axes) + 1e-3 * field.predict(res.axes)
@@ -262,7 +262,7 @@ def test_fuzz_compensate_work_offsets(grinder, data):
     from compensation.app.commands.compensate import settings_of
     from compensation.app.workflows.compensate_paths import read_tool_path
     from compensation.solvers.chain_exact import nominal_and_jacobian
-    from errormap.elements import ElementSet
+    from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
     from errormap.chain_kernel import forward
     machine = load_machine(None)
@@ -276,7 +276,7 @@ def test_fuzz_compensate_work_offsets(grinder, data):
                 "--out", str(out)]
         rc, err = run_main(argv)
         if _tally_outcome(argv, rc, err, [str(wo), str(prog)]):
-            field = ChainField(machine, ElementSet.load(el))
+            field = ChainField(machine, ChainElementSet.load(el, machine))
             s = settings_of(build_parser(["compensate"]).parse_args(argv))   # the table read as the command reads it
             mt = machine   # the command reads every machine tool's program by its chain
             src = read_tool_path(prog, mt, s, field)   # nominal machine axes, the table's offsets applied

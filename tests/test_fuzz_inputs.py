@@ -115,11 +115,11 @@ def test_fuzz_featurepoints_reader(sim, machine, data):
 
 @FUZZ
 @given(data=st.data())
-def test_fuzz_sweeps_reader(sim, data):
+def test_fuzz_sweeps_reader(sim, machine, data):
     from errormap.sweeps import read_sweeps
     text = (sim / "sweeps.csv").read_text(encoding="utf-8")
     raw = data.draw(mangled(text))
-    reads_or_refuses(lambda p: read_sweeps([p]), raw, ".csv")
+    reads_or_refuses(lambda p: read_sweeps([p], machine), raw, ".csv")
 
 
 @FUZZ
@@ -134,8 +134,8 @@ def test_fuzz_toolpath_csv_reader(machine, data, targets):
 
 @FUZZ
 @given(data=st.data())
-def test_fuzz_element_set_reader(sim, data):
-    from errormap.elements import ElementSet
+def test_fuzz_element_set_reader(sim, machine, data):
+    from errormap.chain_elements import ChainElementSet
     d = json.loads((sim / "sim" / "truth_elements.json").read_text())
     # one value anywhere in the document replaced by an absurd JSON value, or the bytes mangled
     paths = []
@@ -158,7 +158,7 @@ def test_fuzz_element_set_reader(sim, data):
     o[at[-1]] = value
     text = json.dumps(d, allow_nan=True)
     raw = data.draw(st.one_of(st.just(text.encode()), mangled(text)))
-    reads_or_refuses(ElementSet.load, raw, ".json")
+    reads_or_refuses(lambda p: ChainElementSet.load(p, machine), raw, ".json")
 
 
 TOML_VALUES = st.one_of(
@@ -364,7 +364,7 @@ def tally():
 def test_fuzz_main_predict_checks_its_output(sim, machine, tally, data):
     """predict on hostile point files: exit 0 writes exactly the element set's prediction of the
     rows it read (compared with the library on the same file), or one line naming the file."""
-    from errormap.elements import ElementSet
+    from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
     from errormap.io import read_table
     el = sim / "sim" / "truth_elements.json"
@@ -378,7 +378,7 @@ def test_fuzz_main_predict_checks_its_output(sim, machine, tally, data):
         if _tally_outcome(argv, rc, err, [str(p)]):
             t_in, t_out = read_table(p), read_table(o)
             axes = np.stack([t_in.float(c) for c in ("x_mm", "z_mm", "a_deg")], axis=1)
-            want = ChainField(machine, ElementSet.load(el)).predict(axes)
+            want = ChainField(machine, ChainElementSet.load(el, machine)).predict(axes)
             got = np.stack([t_out.float(c) for c in ("dx_um", "dy_um", "dz_um")], axis=1)
             _check_output("predict", got.shape == want.shape and np.allclose(got, want, rtol=TOL_PREDICT_REL,
                                                                   atol=TOL_PREDICT_ABS_UM), (argv, got, want))
@@ -394,7 +394,7 @@ def test_fuzz_main_compensate_checks_its_output(sim, machine, tally, data, arc, 
     the option."""
     from compensation.nc_state import MACHINE, read_work_offsets
     from compensation.pathio import read_path
-    from errormap.elements import ElementSet
+    from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
     from errormap.chain_kernel import forward
     el = sim / "sim" / "truth_elements.json"
@@ -406,7 +406,7 @@ def test_fuzz_main_compensate_checks_its_output(sim, machine, tally, data, arc, 
                 "--arc-tolerance-um", arc, "--max-segment-mm", seg, "--work-offsets", "machine"]
         rc, err = run_main(argv)
         if _tally_outcome(argv, rc, err, [str(p), "--arc-tolerance-um", "--max-segment-mm"]):
-            field = ChainField(machine, ElementSet.load(el))
+            field = ChainField(machine, ChainElementSet.load(el, machine))
             seg_mm = {"auto": "auto", "none": None}.get(seg) if seg in ("auto", "none") else float(seg)
             mcs = read_work_offsets(MACHINE)  # PROGRAM is in machine coordinates
             src = read_path(p, machine, arc_tolerance_um=float(arc), max_segment_mm=seg_mm, field=field, work_offsets=mcs)
@@ -426,7 +426,7 @@ def test_fuzz_main_other_file_kinds(sim, machine, tally, data):
     """The other file kinds through their commands: an element set (featurepoints), a covariance
     companion (predict --band), a chain machine file (sweeps --machine) — exit 0 with the output
     checked, or one line naming the file."""
-    from errormap.elements import ElementSet
+    from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
     from errormap.io import read_table
     kind = data.draw(st.sampled_from(["elements", "covariance", "chain_machine"]))
@@ -441,7 +441,7 @@ def test_fuzz_main_other_file_kinds(sim, machine, tally, data):
                 t = read_table(d / "fp.csv")
                 axes = np.stack([t.float(c) for c in ("x_mm", "z_mm", "a_deg")], axis=1)
                 got = np.stack([t.float(c) for c in ("dx_um", "dy_um", "dz_um")], axis=1)
-                want = ChainField(machine, ElementSet.load(src)).predict(axes)
+                want = ChainField(machine, ChainElementSet.load(src, machine)).predict(axes)
                 _check_output("featurepoints", len(t) == 8 and np.allclose(got, want, rtol=TOL_PREDICT_REL,
                                                                            atol=TOL_PREDICT_ABS_UM), argv)
         elif kind == "covariance":
@@ -472,6 +472,6 @@ def test_fuzz_main_other_file_kinds(sim, machine, tally, data):
             argv = ["sweeps", "--machine", str(src), "--seed", "1", "--out", str(d / "sw.csv")]
             rc, err = run_main(argv)
             if _tally_outcome(argv, rc, err, [str(src)]):
-                from errormap.chain_sweeps import read_mt_sweeps
-                sw = read_mt_sweeps(d / "sw.csv", load_machine(src))
+                from errormap.sweeps import read_sweeps
+                sw = read_sweeps(d / "sw.csv", load_machine(src))
                 _check_output("sweeps", len(read_table(d / "sw.csv")) > 0 and sw is not None, argv)

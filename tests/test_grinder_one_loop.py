@@ -97,12 +97,14 @@ def test_the_grinder_covariance_carries_the_smoothers_prior_extra(run):
     """The loop's prior is the identification's covariance plus the smoother's prior_extra on its diagonal, read
     from the grinder identification's file by the chain's names."""
     from errormap.chain_covariance import read_chain_covariance
-    from errormap.elements import ElementSet
+    from errormap.chain_elements import ChainElementSet
+    from errormap.machine import load_machine
     from errormap.uncertainty import ElementCovariance
     d, _, _ = run
-    gc = ElementCovariance.load(d / "el.cov.npz", ElementSet.load(d / "el.json"))
-    slots, stations, C = read_chain_covariance(d / "el.cov.npz", d / "el.json")
-    _, _, P = read_chain_covariance(d / "el.cov.npz", d / "el.json", prior=True)
+    el = ChainElementSet.load(d / "el.json", load_machine(d / "my_grinder.toml"))
+    gc = ElementCovariance.load(d / "el.cov.npz", el)
+    slots, stations, C = read_chain_covariance(d / "el.cov.npz", el)
+    _, _, P = read_chain_covariance(d / "el.cov.npz", el, prior=True)
     np.testing.assert_array_equal(C, gc.cov)
     np.testing.assert_array_equal(P, gc.prior_cov())
     assert np.all(gc.prior_extra >= 0) and gc.prior_extra.max() > 0

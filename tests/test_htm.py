@@ -5,7 +5,8 @@ import numpy as np
 from errormap.grinder_file import rho0_mm
 import pytest
 
-from errormap.elements import ELEMENT_NAMES, ElementSet
+from errormap.chain_elements import ChainElementSet
+from errormap.elements import ELEMENT_NAMES
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import error_jacobian, spatial_error
 from errormap.simulator import random_truth
@@ -58,7 +59,7 @@ def axes(rng):
 
 
 def test_zero_elements_give_zero_error(grinder, axes):
-    field = ChainField(grinder, ElementSet.zeros(grinder))
+    field = ChainField(grinder, ChainElementSet.zeros(grinder))
     assert np.abs(field.predict(axes)).max() < TOL_ZERO_UM
 
 
@@ -108,7 +109,7 @@ def test_jacobian_matches_finite_differences(grinder, axes, rng):
 def test_element_set_round_trip(tmp_path, grinder, axes):
     el = random_truth(grinder, 7).elements
     path = el.save(tmp_path / "el.json")
-    back = ElementSet.load(path)
+    back = ChainElementSet.load(path, grinder)
     np.testing.assert_array_equal(back.values(axes), el.values(axes))
 
 
@@ -123,12 +124,12 @@ def test_element_splines_interpolate_and_are_periodic_in_a(grinder):
     np.testing.assert_allclose(v1, v2, atol=1e-9)
 
 
-def test_element_set_file_errors(tmp_path):
+def test_element_set_file_errors(tmp_path, grinder):
     from errormap.io import InputError
     p = tmp_path / "bad.json"
     p.write_text('{"format": "other"}')
     with pytest.raises(InputError, match="format"):
-        ElementSet.load(p)
+        ChainElementSet.load(p, grinder)
 
 
 def _first_order(machine, axes, values):

@@ -4,13 +4,14 @@
   :meth:`errormap.machine_tool.MachineTool.spatial_error` (the numpy matrix chain),
   on random points with multi-turn A, for a simulator truth, the same truth ×100, and element
   values drawn independently of the simulator (other shapes, other magnitudes);
-* :meth:`ElementSet.values` (one vector-valued spline per axis) vs the per-element splines;
+* :meth:`ChainElementSet.values` (one vector-valued spline per axis) vs the per-element splines;
 * :class:`HTMField` end to end vs reference values pushed through the reference chain.
 """
 import numpy as np
 import pytest
 
-from errormap.elements import AXIS_OF, CONSTANT_ELEMENTS, ELEMENT_NAMES, FUNCTION_ELEMENTS, ElementSet
+from errormap.chain_elements import ChainElementSet
+from errormap.elements import AXIS_OF, CONSTANT_ELEMENTS, ELEMENT_NAMES, FUNCTION_ELEMENTS
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import spatial_error
 from errormap.simulator import random_axes, random_truth
@@ -43,7 +44,15 @@ def _independent_elements(machine, seed):
         amp, f, ph = rng.uniform(-500, 500, 3), rng.integers(1, 4, 3), rng.uniform(0, 2 * np.pi, 3)
         fun[k] = sum(amp[j] * np.sin(2 * np.pi * f[j] * u + ph[j]) for j in range(3))
         fun[k] = fun[k] - fun[k][0]
-    return ElementSet(st, fun, {k: float(rng.uniform(-300, 300)) for k in CONSTANT_ELEMENTS})
+    return ChainElementSet(machine, st, fun, {k: float(rng.uniform(-300, 300)) for k in CONSTANT_ELEMENTS})
+
+
+def _element_spline(el, k):
+    """The reference interpolation of one function element: its own cubic spline through its stations
+    (periodic in A), independent of the element set's per-axis vector splines."""
+    from scipy.interpolate import make_interp_spline
+    return make_interp_spline(el.stations[AXIS_OF[k]], el.functions[k], k=3,
+                              bc_type="periodic" if AXIS_OF[k] == "a_deg" else None)
 
 
 @pytest.mark.parametrize("case", ["truth", "truth_x100", "independent"])
@@ -61,8 +70,8 @@ def test_closed_form_equals_matrix_chain(grinder, case):
 def test_axis_splines_equal_per_element_splines(grinder):
     for el in (random_truth(grinder, 5).elements, _independent_elements(grinder, 8)):
         axes = _axes_multi_turn(grinder, 3000, 12)
-        cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": el.wrap_a(axes[:, 2])}
-        ref = np.stack([el._spline(k)(cols[AXIS_OF[k]]) for k in FUNCTION_ELEMENTS], axis=1)
+        cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": el.wrap("a_deg", axes[:, 2])}
+        ref = np.stack([_element_spline(el, k)(cols[AXIS_OF[k]]) for k in FUNCTION_ELEMENTS], axis=1)
         v = el.values(axes)
         tol = TOL_SPLINE_REL * np.abs(ref).max()
         np.testing.assert_allclose(v[:, :len(FUNCTION_ELEMENTS)], ref, rtol=0, atol=tol)
@@ -74,8 +83,8 @@ def test_axis_splines_equal_per_element_splines(grinder):
 def test_field_equals_reference_pipeline_and_periodic_in_a(grinder):
     el = random_truth(grinder, 9).elements
     axes = _axes_multi_turn(grinder, 2000, 13)
-    cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": el.wrap_a(axes[:, 2])}
-    v_ref = np.stack([el._spline(k)(cols[AXIS_OF[k]]) for k in FUNCTION_ELEMENTS]
+    cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": el.wrap("a_deg", axes[:, 2])}
+    v_ref = np.stack([_element_spline(el, k)(cols[AXIS_OF[k]]) for k in FUNCTION_ELEMENTS]
                      + [np.full(len(axes), el.constants[k]) for k in CONSTANT_ELEMENTS], axis=1)
     field = ChainField(grinder, el, chunk=700)  # several chunks, the last one partial
     np.testing.assert_allclose(field.predict(axes), grinder.spatial_error(axes, v_ref),

@@ -12,11 +12,10 @@ the error-transfer Jacobian, the nominal forward/inverse kinematics and the swee
 import numpy as np
 import pytest
 
-from errormap.elements import A_ELEMENTS, AXIS_OF, CONSTANT_ELEMENTS, ELEMENT_NAMES, FUNCTION_ELEMENTS, ElementSet
+from errormap.elements import A_ELEMENTS, AXIS_OF, CONSTANT_ELEMENTS, ELEMENT_NAMES, FUNCTION_ELEMENTS
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import error_jacobian, spatial_error
 from errormap.chain_kernel import forward, inverse
-from errormap.sweeps import body_frames
 
 TOL_FIELD_UM = 1e-9
 """Issue 26's bound for the field against the hand-written chains: tool points of ~0.5 m, one ulp
@@ -115,17 +114,25 @@ def reference_error(m, axes, v):
     return (reference_tool_point(m, axes, v) - reference_tool_point(m, axes, np.zeros_like(v))) * 1e3
 
 
+def _element_spline(el, k):
+    """The reference interpolation of one function element: its own cubic spline through its stations
+    (periodic in A), independent of the element set's per-axis vector splines."""
+    from scipy.interpolate import make_interp_spline
+    return make_interp_spline(el.stations[AXIS_OF[k]], el.functions[k], k=3,
+                              bc_type="periodic" if AXIS_OF[k] == "a_deg" else None)
+
+
 def reference_values_and_slopes(el, axes):
     """Element values (n, 23) from the per-element splines (A folded into its first turn) and each
     function element's slope along its own axis (n, 23), per mm / per deg."""
-    cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": el.wrap_a(axes[:, 2])}
+    cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": el.wrap("a_deg", axes[:, 2])}
     v = np.zeros((len(axes), len(ELEMENT_NAMES)))
     dv = np.zeros_like(v)
     for j, k in enumerate(ELEMENT_NAMES):
         if k in CONSTANT_ELEMENTS:
             v[:, j] = el.constants[k]
             continue
-        sp = el._spline(k)
+        sp = _element_spline(el, k)
         v[:, j] = sp(cols[AXIS_OF[k]])
         dv[:, j] = sp.derivative()(cols[AXIS_OF[k]])
     return v, dv
@@ -233,6 +240,6 @@ def test_kinematics_and_body_frames_equal_the_hand_written_chain(grinder):
     z_body = tool @ _rigid_inv(_T(None, np.array([grinder.geometry["l3"], 0.0, grinder.geometry["l4"]]), len(ax))
                                @ _T(None, np.array([0.0, 0.0, -grinder.geometry["R"]]), len(ax)))
     for word, M in (("X", work_x), ("A", work), ("Z", z_body)):
-        R, t = body_frames(grinder, word, ax, v)
+        R, t = grinder.body_frames(word, ax, v)
         assert np.abs(t - M[:, :3, 3]).max() < TOL_KIN_MM
         assert np.abs(R - M[:, :3, :3]).max() < TOL_KIN_MM * 1e-3   # a rotation entry × a 1 m lever, in mm

@@ -301,7 +301,7 @@ def test_predict_on_a_hybrid_model_total_band_and_outside_flag(grinder, staged, 
     elements' J Σ Jᵀ), learned_part 'unknown' outside the checks' box; outside refused unless
     --allow volume, which the header records."""
     from compensation.app.cli import main
-    from errormap.elements import ElementSet
+    from errormap.chain_elements import ChainElementSet
     from errormap.uncertainty import Z95, ElementCovariance, covariance_path
     _, learned, _ = staged
     el = _identified(tmp_path)
@@ -321,9 +321,9 @@ def test_predict_on_a_hybrid_model_total_band_and_outside_flag(grinder, staged, 
     assert main(["predict", str(pts), "--model", str(model), "--out", str(out), "--allow", "volume"]) == 0
     t, header = _read(out)
     e = np.stack([t.float(c) for c in ("dx_um", "dy_um", "dz_um")], 1)
-    field = HybridField(ChainField(grinder, ElementSet.load(el)), learned)
+    field = HybridField(ChainField(grinder, ChainElementSet.load(el, grinder)), learned)
     np.testing.assert_allclose(e, field.predict(P), rtol=0, atol=PREDICT_TOL_UM)
-    cov = ElementCovariance.load(covariance_path(el), ElementSet.load(el))
+    cov = ElementCovariance.load(covariance_path(el), ChainElementSet.load(el, grinder))
     sd = np.sqrt(learned.predict(P, return_std=True)[1] ** 2
                  + np.diagonal(cov.prediction_cov(grinder, P), axis1=1, axis2=2))
     band = np.stack([t.float(f"{c}_band95_um") for c in ("dx", "dy", "dz")], 1)

@@ -6,7 +6,7 @@ import numpy as np
 from chain_fixtures import OLD_GRINDER_FILE
 
 from compensation.app.cli import main
-from errormap.elements import ElementSet
+from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import ChainField
 from errormap.machine import load_machine
 from errormap.simulator import random_axes, random_truth
@@ -29,7 +29,8 @@ def test_sweeps_then_identify(tmp_path, capsys):
     assert len(report["residual_rms_um"]["A"]) == 21 and report["gauge"] == "station-mean"
     m = load_machine()
     pts = random_axes(m, 2000, np.random.default_rng(1))
-    d = ChainField(m, ElementSet.load(out)).predict(pts) - ChainField(m, ElementSet.load(truth_path)).predict(pts)
+    d = (ChainField(m, ChainElementSet.load(out, m)).predict(pts)
+         - ChainField(m, ChainElementSet.load(truth_path, m)).predict(pts))
     assert np.abs(d).max() < SPATIAL_TOL_UM
 
 

@@ -12,11 +12,12 @@ import pytest
 
 from compensation.app.cli import main
 from compensation.fields import resolve_model
-from errormap.elements import ElementSet
+from errormap.chain_elements import ChainElementSet
 from errormap.io import InputError, read_table, write_csv
 from errormap.machine import load_machine
 from errormap.simulator import random_truth
-from errormap.sweeps import simulate_sweeps, write_sweeps
+from errormap.chain_sweeps import simulate_mt_sweeps
+from errormap.sweeps import write_sweeps
 from errormap.uncertainty import covariance_path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -56,7 +57,7 @@ def _points(tmp_path, name, x, z, a) -> Path:
 
 # -- point 1: files known by content ---------------------------------------------------------------
 def test_models_are_recognised_by_their_format_key_whatever_the_name(machine, tmp_path):
-    el = ElementSet.zeros(machine).save(tmp_path / "elements")          # no suffix
+    el = ChainElementSet.zeros(machine).save(tmp_path / "elements")          # no suffix
     assert resolve_model(el).kind == "elements"
     (tmp_path / "m").write_text(json.dumps({"format": "volcomp-diagnosed-model/1", "elements": "elements"}))
     assert resolve_model(tmp_path / "m").kind == "diagnosed"
@@ -81,7 +82,7 @@ def test_models_are_recognised_by_their_format_key_whatever_the_name(machine, tm
 def test_a_model_of_another_kind_is_named_not_misread(machine, tmp_path, capsys):
     """`export --format drift` on an element set said "key 'schema': missing"; `predict` on a drift
     model would have tried it as an element set."""
-    el = ElementSet.zeros(machine).save(tmp_path / "el")
+    el = ChainElementSet.zeros(machine).save(tmp_path / "el")
     assert main(["export", str(el), "--format", "drift", "--out", str(tmp_path / "out")]) == 2
     line = _one_line(capsys)
     assert "an element set (volcomp-elements/1), but --format drift exports one of: drift model" in line
@@ -131,7 +132,7 @@ def test_diagnose_without_covariance_says_it_skips_the_update(machine, tmp_path,
 
 
 def test_tool_paths_are_told_csv_or_gcode_by_content(machine, tmp_path, capsys):
-    el = ElementSet.zeros(machine).save(tmp_path / "zero.json")
+    el = ChainElementSet.zeros(machine).save(tmp_path / "zero.json")
     csv_nc = tmp_path / "in" / "axes.nc"                       # a CSV named like G-code
     csv_nc.parent.mkdir()
     csv_nc.write_text("x_mm,z_mm,a_deg,feed\n10,5,0,100\n20,6,45,100\n")
@@ -149,7 +150,7 @@ def test_tool_paths_are_told_csv_or_gcode_by_content(machine, tmp_path, capsys):
 # -- point 2: one unit check ---------------------------------------------------------------------------
 def test_check_temperatures_in_fahrenheit_are_refused(machine, tmp_path, capsys):
     """°F (68 °F at 20 °C) passed the old −40…80 °C range; diagnose then found thermal effects."""
-    el = ElementSet.zeros(machine).save(tmp_path / "zero.json")
+    el = ChainElementSet.zeros(machine).save(tmp_path / "zero.json")
     checks = _checks(machine, tmp_path, "f.csv", temp_c=lambda t: t * 1.8 + 32)
     assert main(["diagnose", str(checks), "--model", str(el), "--out", str(tmp_path / "d")]) == 2
     line = _one_line(capsys)
@@ -161,7 +162,7 @@ def test_check_temperatures_in_fahrenheit_are_refused(machine, tmp_path, capsys)
 
 
 def test_compensate_temp_c_option_in_fahrenheit_is_refused(machine, tmp_path, capsys):
-    el = ElementSet.zeros(machine).save(tmp_path / "updated_elements.json")
+    el = ChainElementSet.zeros(machine).save(tmp_path / "updated_elements.json")
     model = tmp_path / "model"  # a diagnosed model, no suffix, with a thermal term
     model.write_text(json.dumps({"format": "volcomp-diagnosed-model/1", "elements": el.name, "needs": ["temp_c"],
                                  "terms": [{"kind": "thermal", "axis": "x_mm", "element": "dx_x",
@@ -181,7 +182,7 @@ def test_predict_points_in_metres_or_radians_are_refused(machine, tmp_path, caps
     x, z, a = rng.uniform(0, 200, 20), rng.uniform(0, 60, 20), rng.uniform(0, 360, 20)
     pts = _points(tmp_path, "p.csv", x / 1000, z / 1000, a) if case == "metres" else \
         _points(tmp_path, "p.csv", x, z, np.radians(a))
-    el = ElementSet.zeros(machine).save(tmp_path / "zero.json")
+    el = ChainElementSet.zeros(machine).save(tmp_path / "zero.json")
     out = tmp_path / "pred.csv"
     assert main(["predict", "--model", str(el), str(pts), "--out", str(out)]) == 2
     line = _one_line(capsys)
@@ -207,7 +208,7 @@ def test_tool_path_csv_unit_mistakes_are_refused(machine, tmp_path, capsys, case
     else:
         path = write_csv(tmp_path / "p.csv", {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": a,
                                                "temp_c": np.full(30, 68.0)})
-    el = ElementSet.zeros(machine).save(tmp_path / "zero.json")
+    el = ChainElementSet.zeros(machine).save(tmp_path / "zero.json")
     assert main(["compensate", "--work-offsets", "machine",
                  str(path), "--model", str(el), "--method", "exact", "--out", str(tmp_path / "o")]) == 2
     line = _one_line(capsys)
@@ -220,7 +221,7 @@ def test_tool_path_csv_unit_mistakes_are_refused(machine, tmp_path, capsys, case
 def test_a_path_in_mm_near_zero_passes_with_units_as_written(machine, tmp_path, capsys):
     """The override exists for a real path the plausibility test would take for metres; it is recorded."""
     path = _points(tmp_path, "p.csv", [0.05, 0.1, 0.15], [0.02, 0.03, 0.04], [0, 1, 2])
-    el = ElementSet.zeros(machine).save(tmp_path / "zero.json")
+    el = ChainElementSet.zeros(machine).save(tmp_path / "zero.json")
     base = ["compensate", "--work-offsets", "machine",
             str(path), "--model", str(el), "--method", "exact", "--max-segment-mm", "none"]
     assert main(base + ["--out", str(tmp_path / "o1")]) == 2
@@ -231,7 +232,7 @@ def test_a_path_in_mm_near_zero_passes_with_units_as_written(machine, tmp_path, 
 
 # -- point 8: messages that misled -------------------------------------------------------------------------
 def test_sweeps_in_metres_name_the_unit_not_coinciding_targets(machine, tmp_path, capsys):
-    cols = simulate_sweeps(random_truth(machine, SEED), noise_um=0.0, seed=0)
+    cols = simulate_mt_sweeps(random_truth(machine, SEED), noise_um=0.0, seed=0)
     for k in ("x_mm", "y_mm", "z_mm"):
         cols[k] = np.asarray(cols[k]) / 1000
     sw = write_sweeps(tmp_path / "sw_m.csv", cols)
@@ -242,12 +243,13 @@ def test_sweeps_in_metres_name_the_unit_not_coinciding_targets(machine, tmp_path
 
 
 def test_sweep_axis_typo_is_quoted_as_written(machine, tmp_path, capsys):
-    cols = simulate_sweeps(random_truth(machine, SEED), noise_um=0.0, seed=0)
+    cols = simulate_mt_sweeps(random_truth(machine, SEED), noise_um=0.0, seed=0)
     cols["axis"] = np.where(np.asarray(cols["axis"]) == "Z", "Y", np.asarray(cols["axis"]))
     sw = write_sweeps(tmp_path / "sw.csv", cols)
     assert main(["identify", str(sw), "--out", str(tmp_path / "e.json")]) == 2
     line = _one_line(capsys)
-    assert "column 'axis': expected one of ['X', 'Z', 'A'], got 'Y'" in line and "np.str_" not in line
+    assert "column 'axis': expected one of ['X', 'Z', 'A'] (the axes of " in line and line.endswith("got 'Y'")
+    assert "np.str_" not in line
 
 
 @pytest.mark.parametrize("text,expect", [
@@ -260,7 +262,7 @@ def test_sweep_axis_typo_is_quoted_as_written(machine, tmp_path, capsys):
 def test_spreadsheet_csv_is_named(machine, tmp_path, capsys, text, expect):
     p = tmp_path / "excel.csv"
     p.write_text(text)
-    el = ElementSet.zeros(machine).save(tmp_path / "zero.json")
+    el = ChainElementSet.zeros(machine).save(tmp_path / "zero.json")
     assert main(["predict", "--model", str(el), str(p), "--out", str(tmp_path / "o.csv")]) == 2
     line = _one_line(capsys)
     assert "excel.csv: row" in line and expect in line and "expected 1 cells" not in line
@@ -271,14 +273,14 @@ def test_identify_truth_overlay_is_in_the_identified_gauge(machine):
     the overlay must be the truth in the identified gauge, and the old one measurably was not."""
     from errormap.sweeps import sweeps_from_columns
     from errormap.uncertainty import smooth_identify
-    from compensation.app.workflows.identification import truth_in_gauge
+    from compensation.app.workflows.measurement import truth_in_gauge
     truth = random_truth(machine, SEED).elements
-    sweeps = sweeps_from_columns(simulate_sweeps(random_truth(machine, SEED), noise_um=0.0, seed=3), "<sweeps>")
+    sweeps = sweeps_from_columns(simulate_mt_sweeps(random_truth(machine, SEED), noise_um=0.0, seed=3), "<sweeps>")
     # the interpolating identification (--raw): on noise-free sweeps it is the truth in its gauge exactly
     ident = smooth_identify(sweeps, machine, noise_um=0.5, smooth=False, gauge="station-mean").elements_
     pts = np.zeros((300, 3))
     pts[:, 0], pts[:, 1], pts[:, 2] = np.linspace(0, 200, 300), np.linspace(0, 60, 300), np.linspace(0, 360, 300)
-    overlay = truth_in_gauge(truth, ident, machine, "station-mean")
+    overlay = truth_in_gauge(machine, truth, "station-mean", ident.stations)
     assert np.abs(overlay.values(pts) - ident.values(pts)).max() < GAUGE_TOL
     assert np.abs(truth.values(pts) - ident.values(pts)).max() > GAUGE_SHIFT_MIN
 
@@ -316,7 +318,7 @@ def test_every_csv_example_in_the_schemas_parses(machine, tmp_path, capsys):
     example compensates (exit 0) — the target example used to be refused by the stroke guard."""
     blocks = _schema_csv_blocks()
     assert len(blocks) >= 8
-    el = ElementSet.zeros(machine).save(tmp_path / "zero.json")
+    el = ChainElementSet.zeros(machine).save(tmp_path / "zero.json")
     paths = 0
     for i, b in enumerate(blocks):
         p = tmp_path / f"ex{i}.csv"
@@ -344,7 +346,7 @@ def test_pkm_calibration_file_is_known_by_its_format_key(tmp_path):
     cal.write_text(json.dumps({"format": CALIBRATION_FORMAT, "kind": m.kind, "identified_machine": im}))
     got = load_calibrated_machine(cal, m)
     assert np.array_equal(got.platform_joints_mm, m.platform_joints_mm * 1.001)
-    el = ElementSet.zeros(load_machine()).save(tmp_path / "calibration.json")  # the right name, the wrong content
+    el = ChainElementSet.zeros(load_machine()).save(tmp_path / "calibration.json")  # the right name, the wrong content
     with pytest.raises(InputError, match=r"key 'format': 'volcomp-elements/1'; not a PKM calibration file"):
         load_calibrated_machine(el, m)
 
@@ -356,12 +358,13 @@ def test_a_stale_covariance_companion_is_refused(machine, tmp_path):
     p = len(theta_layout(el))
     ElementCovariance(theta_from_elements(el), np.eye(p), el, {}).save(tmp_path / "E.cov.npz")
     el.save(tmp_path / "E.json")
-    ElementCovariance.load(covariance_path(tmp_path / "E.json"), ElementSet.load(tmp_path / "E.json"))
+    ElementCovariance.load(covariance_path(tmp_path / "E.json"), ChainElementSet.load(tmp_path / "E.json", machine))
     other = el.copy()
     other.constants["s_xz"] += 1.0
     other.save(tmp_path / "E.json")                      # re-identified, the old companion left beside it
     with pytest.raises(InputError, match=r"E\.cov\.npz: not the covariance of this element set: .* at s_xz"):
-        ElementCovariance.load(covariance_path(tmp_path / "E.json"), ElementSet.load(tmp_path / "E.json"))
+        ElementCovariance.load(covariance_path(tmp_path / "E.json"),
+                               ChainElementSet.load(tmp_path / "E.json", machine))
 
 
 def test_export_diagnosis_is_known_by_its_format_key(tmp_path):

@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 
 from errormap.chain import Chain, Joint, et, inverted
-from errormap.elements import A_ELEMENTS, CONSTANT_ELEMENTS, ELEMENT_NAMES, FUNCTION_ELEMENTS, ElementSet
+from errormap.elements import A_ELEMENTS, CONSTANT_ELEMENTS, ELEMENT_NAMES, FUNCTION_ELEMENTS
 from errormap.field import check_field
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import error_jacobian, spatial_error
+from errormap.io import InputError
 from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import ChainField, predict_and_jacobian_numpy
@@ -33,15 +34,15 @@ def _grinder_elements(machine, seed, scale_um=30.0):
     """Random element values (not the simulator's): ±scale per station, closed A profiles,
     non-zero constants."""
     rng = np.random.default_rng(seed)
-    el = ElementSet.zeros(machine)
+    el = ChainElementSet.zeros(machine)
     fun = {}
     for k in FUNCTION_ELEMENTS:
         v = rng.normal(0.0, scale_um, 21)
         if k in A_ELEMENTS:
             v[-1] = v[0]
         fun[k] = v
-    return ElementSet(el.stations, fun, {k: rng.normal(0.0, scale_um) for k in CONSTANT_ELEMENTS},
-                      machine.name, machine.sha256)
+    return ChainElementSet(machine, el.stations, fun, {k: rng.normal(0.0, scale_um) for k in CONSTANT_ELEMENTS},
+                           machine.name, machine.sha256)
 
 
 def _grinder_axes(machine, n, seed):
@@ -96,7 +97,7 @@ def _grinder_equivalence(n, seed):
     g, mt = load_machine(), load_machine("grinder-chain")
     el = _grinder_elements(g, seed, scale_um=60.0)
     f0 = ChainField(g, el)
-    f1 = ChainField(mt, ChainElementSet.from_element_set(mt, el))
+    f1 = ChainField(mt, ChainElementSet(mt, el.stations, el.functions, el.constants))
     ax = _grinder_axes(g, n, seed + 1)
     E0, J0 = f0.predict_and_jacobian(ax)
     E1, J1 = f1.predict_and_jacobian(ax)
@@ -125,11 +126,10 @@ def test_grinder_element_file_loads_for_the_chain(tmp_path):
     ax = _grinder_axes(g, 500, 6)
     np.testing.assert_array_equal(ce.values(ax), el.values(ax))
     ce.save(tmp_path / "el2.json")
-    np.testing.assert_array_equal(ElementSet.load(tmp_path / "el2.json").values(ax), el.values(ax))
-    np.testing.assert_array_equal(ce.to_element_set().values(ax), el.values(ax))
+    np.testing.assert_array_equal(ChainElementSet.load(tmp_path / "el2.json", g).values(ax), el.values(ax))
     np.testing.assert_array_equal(ce.scaled(2.0).values(ax), 2.0 * el.values(ax))
-    with pytest.raises(ValueError, match="23 elements"):
-        ChainElementSet.zeros(load_machine("mill-xyz")).to_element_set()
+    with pytest.raises(InputError, match=r"key 'stations': no 'y_mm'"):   # the grinder's file on another machine
+        ChainElementSet.load(p, load_machine("mill-xyz"))
 
 
 # -- the mill against a hand-written HTM --------------------------------------------------------
@@ -229,18 +229,17 @@ def test_error_jacobian_is_the_first_order_model():
 
 
 def test_body_frames_equal_the_grinder_sweep_frames():
-    """The body frames of the chain file against errormap/sweeps.py's hand-written ones."""
-    from errormap.sweeps import ball_positions, body_frames
+    """The body frames and target balls of the grinder's chain against those of the grinder-chain file."""
     g, mt = load_machine(), load_machine("grinder-chain")
     el = _grinder_elements(g, 51, scale_um=60.0)
     ax = _grinder_axes(g, 3000, 52)
     v = el.values(ax)
     for word in ("X", "Z", "A"):
-        R0, t0 = body_frames(g, word, ax, v)
+        R0, t0 = g.body_frames(word, ax, v)
         R1, t1 = mt.body_frames(word, ax, v)
         assert np.abs(t1 - t0).max() * 1e3 < TOL_EQUIV_UM
         assert np.abs(R1 - R0).max() < TOL_EQUIV_UM * 1e-3   # a rotation entry × 1 m lever, in μm
-        balls = ball_positions((R0, t0), g.targets[word])
+        balls = np.einsum("nij,kj->nki", R0, np.asarray(g.targets[word], float)) + t0[:, None, :]
         assert np.abs(mt.target_points(word, ax, v) - balls).max() * 1e3 < TOL_EQUIV_UM
 
 

@@ -12,10 +12,10 @@ from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
 from errormap.identification import ChainIdentification, root_axis
 from errormap.chain_truth import FAMILIES, TARGET_MAX_RANGE_UM, MTTruth, make_mt_truth, volume_grid
-from errormap.chain_sweeps import read_mt_sweeps, simulate_mt_sweeps, swept_words
+from errormap.chain_sweeps import simulate_mt_sweeps, swept_words
 from errormap.simulator import random_truth
 from errormap.simulator import volume_grid as grinder_grid
-from errormap.sweeps import simulate_sweeps, sweeps_from_columns, write_sweeps
+from errormap.sweeps import read_sweeps, sweeps_from_columns, write_sweeps
 from errormap.uncertainty import smooth_identify
 
 EXACT_MM = 1e-9
@@ -95,10 +95,13 @@ def test_effects_generic_by_axis(mill):
 
 
 def test_chain_sweeps_equal_grinder_sweeps():
+    """The grinder's truth (errormap.simulator) and the chain's (errormap.chain_truth) of the same elements
+    give the same sweeps through the one simulator."""
     g, gc = load_machine(None), load_machine("grinder-chain")
     tg = random_truth(g, 1)
-    tc = MTTruth(gc, ChainElementSet.from_element_set(gc, tg.elements), {})
-    a = simulate_sweeps(tg, noise_um=0.0, seed=3)
+    el = tg.elements
+    tc = MTTruth(gc, ChainElementSet(gc, el.stations, el.functions, el.constants), {})
+    a = simulate_mt_sweeps(tg, noise_um=0.0, seed=3)
     b = simulate_mt_sweeps(tc, noise_um=0.0, seed=3)
     assert (a["axis"] == b["axis"]).all() and (a["station"] == b["station"]).all()
     for c in ("x_mm", "y_mm", "z_mm"):
@@ -128,7 +131,7 @@ def test_root_axis(mill, five):
 def test_generic_identification_agrees_with_grinder(noise):
     g, gc = load_machine(None), load_machine("grinder-chain")
     tg = random_truth(g, 1)
-    cols = simulate_sweeps(tg, noise_um=noise, seed=3)
+    cols = simulate_mt_sweeps(tg, noise_um=noise, seed=3)
     eg = smooth_identify(cols, g, smooth=False, gauge="first-station").raw.elements_
     ec = ChainIdentification().fit(sweeps_from_columns(cols, axes=swept_words(gc)), gc).elements_
     grid = grinder_grid(g, (9, 5, 13))
@@ -210,7 +213,7 @@ def test_cli_closed_loop_on_the_mill(tmp_path, capsys, mill):
     assert _main(["simulate", *base, "--checks", "600", "--out", str(tmp_path / "sim")]) == 0
     hdr = (tmp_path / "sim" / "checks.csv").read_text().splitlines()
     assert [h for h in hdr if not h.startswith("#")][0].startswith("x_mm,y_mm,z_mm,dx_um,dy_um,dz_um")
-    sw = read_mt_sweeps(tmp_path / "sw.csv", mill)
+    sw = read_sweeps(tmp_path / "sw.csv", mill)
     assert sorted(sw.axes) == ["X", "Y", "Z"]
     assert _main(["identify", str(tmp_path / "sw.csv"), "--machine", "mill-xyz", "--out", str(tmp_path / "E.json")]) == 0
     assert (tmp_path / "E.cov.npz").is_file()
@@ -259,16 +262,16 @@ def test_chain_sweep_reader_shares_the_grinder_readers_row_checks(tmp_path, mill
     from errormap.chain_sweeps import write_sweeps
     cols = simulate_mt_sweeps(make_mt_truth(mill, 0), noise_um=1.0, seed=0)
     write_sweeps(tmp_path / "ok.csv", cols)
-    assert sorted(read_mt_sweeps(tmp_path / "ok.csv", mill).axes) == ["X", "Y", "Z"]
+    assert sorted(read_sweeps(tmp_path / "ok.csv", mill).axes) == ["X", "Y", "Z"]
     bad = {k: np.array(v).copy() for k, v in cols.items()}
     bad["station"][0] = 10 ** 9
     write_csv(tmp_path / "station.csv", bad)
     with pytest.raises(InputError, match=r"station\.csv: row \d+, column 'station'"):
-        read_mt_sweeps(tmp_path / "station.csv", mill)
+        read_sweeps(tmp_path / "station.csv", mill)
     unit = {**{k: np.array(v) for k, v in cols.items()}, "command_unit": np.full(len(cols["axis"]), "deg")}
     write_csv(tmp_path / "unit.csv", unit)
     with pytest.raises(InputError, match=r"unit\.csv: row \d+, column 'command_unit'.*expected 'mm'"):
-        read_mt_sweeps(tmp_path / "unit.csv", mill)
+        read_sweeps(tmp_path / "unit.csv", mill)
 
 
 COV_REL_TOL = 1e-12
@@ -287,7 +290,7 @@ def test_identify_noise_um_scales_the_covariance_as_on_the_grinder(tmp_path, mil
     import json
     t = make_mt_truth(mill, 0)
     write_sweeps(tmp_path / "sw.csv", simulate_mt_sweeps(t, noise_um=1.0, seed=0))
-    sw = read_mt_sweeps(tmp_path / "sw.csv", mill)   # what the command reads
+    sw = read_sweeps(tmp_path / "sw.csv", mill)   # what the command reads
     est = ChainIdentification().fit(sw, mill).result_
     given = ChainIdentification(noise_um=2.5).fit(sw, mill).result_
     for s, v in est.elements_.functions.items():
@@ -311,7 +314,7 @@ def test_identify_noise_um_scales_the_covariance_as_on_the_grinder(tmp_path, mil
 def test_identify_plot_and_truth_on_a_chain(tmp_path, mill):
     """``identify --plot PREFIX --truth ELEMENTS`` on a chain (as on the grinder): one figure per swept axis, the
     truth overlaid in the identified gauge (the identification of its noise-free sweeps: the same tool points)."""
-    from compensation.app.workflows.measurement import chain_truth_in_gauge
+    from compensation.app.workflows.measurement import truth_in_gauge
     t = make_mt_truth(mill, 0)
     write_sweeps(tmp_path / "sw.csv", simulate_mt_sweeps(t, noise_um=1.0, seed=0))
     truth_file = t.elements.save(tmp_path / "truth.json")
@@ -320,7 +323,7 @@ def test_identify_plot_and_truth_on_a_chain(tmp_path, mill):
     for w in swept_words(mill):
         assert (tmp_path / f"el_{w}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     g = volume_grid(mill, 300)
-    gauged = chain_truth_in_gauge(mill, truth_file)
+    gauged = truth_in_gauge(mill, ChainElementSet.load(truth_file, mill))
     np.testing.assert_allclose(ChainField(mill, gauged).predict(g), ChainField(mill, t.elements).predict(g),
                                rtol=0, atol=NOISE_FREE_UM)
 

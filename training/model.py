@@ -645,7 +645,7 @@ class MLPField:
 class PhysicsMLPField(PhysicsPart, MLPField):
     """The network on the residual of a fitted physical part: ``E = HTM(elements)(axes) + network(axes)``.
 
-    ``physics_`` is an :class:`~errormap.elements.ElementSet` fitted to the same feature points
+    ``physics_`` is an :class:`~errormap.chain_elements.ChainElementSet` fitted to the same feature points
     the network is trained on (:func:`training.physics.fit_physics_elements`), evaluated with the
     exact HTM model of ``physics_machine_`` (:class:`training.physics.PhysicsPart`); the network
     (every setting of :class:`MLPField`) learns the feature points minus that part. Capabilities:
@@ -665,9 +665,10 @@ class PhysicsMLPField(PhysicsPart, MLPField):
         return _check_axes(axes)
 
     def _read_physics(self, folder: Path):
-        from errormap.elements import ElementSet
+        from errormap.chain_elements import ChainElementSet
         from errormap.machine import load_machine
-        return load_machine(folder / PHYSICS_FILES[1], expect_kind="grinder"), ElementSet.load(folder / PHYSICS_FILES[0])
+        machine = load_machine(folder / PHYSICS_FILES[1], expect_kind="grinder")
+        return machine, ChainElementSet.load(folder / PHYSICS_FILES[0], machine)
 
     def predict_columns(self, xa):
         """Columns (3, m) in, (3, m) out, float64 (not a declared capability: the sum is not fused)."""

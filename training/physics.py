@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import make_interp_spline
 
-from errormap.elements import AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS, IDX, ElementSet, default_stations
+from errormap.elements import AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS, IDX, default_stations
 from errormap.chain_kernel import error_jacobian
 
 PHYSICS = ("none", "first-order")
@@ -88,8 +88,8 @@ def fit_physics_elements(machine, axes, errors_um, n_stations: int | None = None
     """The element set (``n_stations`` per axis) whose first-order field best fits ``errors_um``.
 
     The grinder's chain (:func:`errormap.grinder_file.is_grinder_chain`): ``axes`` (n, 3) (x_mm, z_mm,
-    a_deg), returns an :class:`ElementSet`; another machine-tool chain: ``axes`` (n, k) in its axis columns,
-    returns a :class:`errormap.chain_elements.ChainElementSet`
+    a_deg); another machine-tool chain: ``axes`` (n, k) in its axis columns; returns a
+    :class:`errormap.chain_elements.ChainElementSet`
     (:func:`fit_chain_physics_elements`). ``errors_um`` (n, 3). One minimum-norm linear
     least-squares solve (module doc, :func:`solve_station_values`) on the machine's stroke stations.
     """
@@ -106,7 +106,8 @@ def fit_physics_elements(machine, axes, errors_um, n_stations: int | None = None
     free, const = solve_station_values(J, errors_um, [(IDX[k], bases[AXIS_OF[k]]) for k in FUNCTION_ELEMENTS],
                                        [IDX[k] for k in CONSTANT_ELEMENTS])
     functions = {k: _profile(f, st[AXIS_OF[k]].size, AXIS_OF[k] == "a_deg") for k, f in zip(FUNCTION_ELEMENTS, free)}
-    return ElementSet(st, functions, dict(zip(CONSTANT_ELEMENTS, const)), machine.name, machine.sha256)
+    from errormap.chain_elements import ChainElementSet
+    return ChainElementSet(machine, st, functions, dict(zip(CONSTANT_ELEMENTS, const)), machine.name, machine.sha256)
 
 
 def fit_chain_physics_elements(machine, axes, errors_um, n_stations: int | None = None):

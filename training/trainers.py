@@ -181,21 +181,21 @@ def fit_metrics(prefix: str, predicted_um, reference_um) -> dict:
 def validation_points(machine, elements_or_field, n: int = 10_000, seed: int = 12345):
     """``n`` random points uniform over the whole working volume and their errors from the model.
 
-    ``elements_or_field``: an :class:`~errormap.elements.ElementSet` (evaluated with the exact
+    ``elements_or_field``: an :class:`~errormap.chain_elements.ChainElementSet` (evaluated with the exact
     HTM model) or any object with ``predict``. Returns ``(axes shape (n, 3), errors shape (n, 3) μm)``.
     Uniform random points lie off the feature-point grid with probability one.
     """
-    from errormap.elements import ElementSet
+    from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
     from errormap.simulator import random_axes
-    f = ChainField(machine, elements_or_field) if isinstance(elements_or_field, ElementSet) else elements_or_field
+    f = ChainField(machine, elements_or_field) if isinstance(elements_or_field, ChainElementSet) else elements_or_field
     axes = random_axes(machine, int(n), np.random.default_rng(seed))
     return axes, f.predict(axes)
 
 
 def reference_from_meta(meta: dict):
     """(machine, HTM field) from a feature-point file's provenance, or None when not available."""
-    from errormap.elements import ElementSet
+    from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
     from errormap.machine import load_machine, made_on
     el = meta.get("elements_file")
@@ -205,7 +205,7 @@ def reference_from_meta(meta: dict):
     if mf and not Path(mf).is_file() and made_on(load_machine(), meta.get("machine_sha256")):
         mf = None  # the built-in machine, recorded by another installation's path
     machine = load_machine(mf, expect_kind="grinder")
-    return machine, ChainField(machine, ElementSet.load(el))
+    return machine, ChainField(machine, ChainElementSet.load(el, machine))
 
 
 def zero_network(model) -> None:

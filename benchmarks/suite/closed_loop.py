@@ -112,7 +112,7 @@ def run_case(family: str, seed: int, effect: str, flute: bool = False, also=None
     """One case (module doc); ``also(td, machine, truth, probe_seed)``: a further scoring of the same files
     (sweeps ``sw.csv``, checks ``sim/checks.csv``, identified ``el.json``), its result the row's ``also``."""
     from compensation.app.cli import main
-    from errormap.elements import ElementSet
+    from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
     from errormap.machine import load_machine
     from errormap.seeds import spawn_seeds
@@ -135,9 +135,9 @@ def run_case(family: str, seed: int, effect: str, flute: bool = False, also=None
                      "--out", str(td / "diag")]) == 0
         cpu_loop = time.process_time() - t_cpu
         s = json.loads((td / "diag" / "diagnosis.json").read_text())
-        el = ElementSet.load(td / "el.json")
+        el = ChainElementSet.load(td / "el.json", m)
         cov = ElementCovariance.load(covariance_path(td / "el.json"), el)
-        upd = ElementSet.load(td / "diag" / "updated_elements.json")
+        upd = ChainElementSet.load(td / "diag" / "updated_elements.json", m)
         fl = _flute(main, td, m, truth, flute_points_per_turn) if flute and effect == "none" else None
         more = also(td, m, truth, probe_ss) if also is not None else None
     P = random_axes(m, N_PROBE, np.random.default_rng(probe_ss))

@@ -62,16 +62,13 @@ def chain_field(machine, elements):
 def load_elements(path, machine):
     """The element set ``path`` of ``machine`` (its own format on a grinder file, refused when made for another
     machine file; a chain's :class:`errormap.chain_elements.ChainElementSet`)."""
-    if is_grinder_chain(machine):
-        from errormap.elements import ElementSet
-        el = ElementSet.load(path)
-        if el.machine_sha256 and not made_on(machine, el.machine_sha256):
-            raise InputError(f"{path}: key 'machine_sha256': the model was made for machine file sha256 "
-                             f"{el.machine_sha256[:12]}…, but the machine given is {machine.sha256[:12]}… "
-                             f"({machine.path}); pass the model's --machine")
-        return el
     from errormap.chain_elements import ChainElementSet
-    return ChainElementSet.load(path, machine)
+    el = ChainElementSet.load(path, machine)
+    if is_grinder_chain(machine) and el.machine_sha256 and not made_on(machine, el.machine_sha256):
+        raise InputError(f"{path}: key 'machine_sha256': the model was made for machine file sha256 "
+                         f"{el.machine_sha256[:12]}…, but the machine given is {machine.sha256[:12]}… "
+                         f"({machine.path}); pass the model's --machine")
+    return el
 
 
 def chain_truth_tool_points(truth, machine):

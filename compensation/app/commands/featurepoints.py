@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import sys
 
-from errormap.elements import ElementSet
+from errormap.chain_elements import ChainElementSet
 from errormap.featurepoints import DEFAULT_GRID, make_feature_points
 from errormap.chain_field import ChainField
 from errormap.io import InputError, sha256_file
@@ -54,7 +54,7 @@ def _chain_field(machine, args):
 
 def _grinder_field(machine, args):
     """The grinder: its HTM field of the element set (by content: its format key, whatever the name)."""
-    return ChainField(machine, ElementSet.load(args.elements))
+    return ChainField(machine, ChainElementSet.load(args.elements, machine))
 
 
 FIELDS = {"grinder": _grinder_field, "chain": _chain_field}

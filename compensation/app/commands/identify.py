@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from errormap.elements import ElementSet
+from errormap.chain_elements import ChainElementSet
 from errormap.estimators import Identification
 from errormap.identification import GAUGES
 from errormap.machine import load_machine
@@ -13,7 +13,8 @@ from errormap.sweeps import read_sweeps
 from ..families import family_of, say_read_as
 from ..reports.identification import iso_summary_lines, plot_elements
 from ..validate import UsageError
-from ..workflows.identification import identify_elements, truth_in_gauge
+from ..workflows.identification import identify_elements
+from ..workflows.measurement import truth_in_gauge
 
 
 def register(sub):
@@ -93,13 +94,13 @@ def run(args) -> int:
         print(f"wrote model: {_model_file(machine, el_path, cov_path, args)}")
         if args.plot:
             from ..reports.identification import plot_chain_elements
-            from ..workflows.measurement import chain_truth_in_gauge
-            truth = chain_truth_in_gauge(machine, args.truth, args.gauge) if args.truth else None
+            truth = (truth_in_gauge(machine, ChainElementSet.load(args.truth, machine), args.gauge,
+                                    res.elements_.stations) if args.truth else None)
             for p in plot_chain_elements(res.elements_, args.plot, truth):
                 print(f"wrote plot: {p}")
         return 0
-    truth = ElementSet.load(args.truth) if args.truth else None
-    sweeps = read_sweeps(args.sweeps)
+    truth = ChainElementSet.load(args.truth, machine) if args.truth else None
+    sweeps = read_sweeps(args.sweeps, machine)
     say_read_as(machine)   # a kind = "grinder" file read as its chain; the inputs read: refusals above stay one line
     print(f"identifying from {', '.join(args.sweeps)} ...", file=sys.stderr)
     ident = identify_elements(machine, args.sweeps, args.out, report=args.report, noise_um=args.noise_um,
@@ -115,7 +116,7 @@ def run(args) -> int:
     print(f"wrote model: {_model_file(machine, ident.elements_path, ident.covariance_path, args)}")
     if args.plot:
         if truth is not None:  # in the identified gauge and squareness split, so like is compared with like
-            truth = truth_in_gauge(truth, elements, machine, args.gauge)
+            truth = truth_in_gauge(machine, truth, args.gauge, elements.stations)
         for p in plot_elements(elements, args.plot, truth):
             print(f"wrote plot: {p}")
     return 0

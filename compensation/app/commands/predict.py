@@ -113,8 +113,7 @@ def _predict_diagnosed(args, t, axes, machine, model):
     el_path = model.elements_path
     cov = None
     if model.covariance_path is not None:
-        from errormap.elements import ElementSet   # the grinder's covariance file is keyed by its element set
-        cov = ElementCovariance.load(model.covariance_path, ElementSet.load(el_path))
+        cov = ElementCovariance.load(model.covariance_path, model.elements)   # keyed by its element set
     elif args.band:   # the band asked for, half of it missing: refused, never a band without the elements' part
         raise UsageError(f"--band needs the kept elements' covariance {covariance_path(el_path)} (written beside "
                          f"them by volcomp diagnose); not found")
@@ -162,7 +161,7 @@ def _chain_covariance(args, model, machine) -> tuple:
     alone would understate it) or no covariance."""
     from errormap.chain_covariance import read_chain_covariance
     from ..workflows.measurement import check_chain_covariance
-    cov = read_chain_covariance(_band_covariance(args, model), model.elements_path)
+    cov = read_chain_covariance(_band_covariance(args, model), model.elements)
     check_chain_covariance(machine, model.elements, cov, model.covariance_path)
     return model.elements, cov, model.covariance_path
 
@@ -239,9 +238,8 @@ def _run_machine_tool(machine, args) -> int:
     if args.band and chain:
         cols.update(_chain_band(args, machine, axes, band_src))
     elif args.band:
-        from errormap.elements import ElementSet
         from errormap.uncertainty import ElementCovariance
-        cov = ElementCovariance.load(_band_covariance(args, model), ElementSet.load(model.elements_path))
+        cov = ElementCovariance.load(_band_covariance(args, model), model.elements)
         sd = np.sqrt(np.diagonal(cov.prediction_cov(machine, axes), axis1=1, axis2=2))
         cols.update(_band_columns(sd, args.band))
     path = write_csv(args.out, cols, header_comments=meta + allowed + tail)

@@ -3,11 +3,11 @@ from __future__ import annotations
 
 import sys
 
-from errormap.elements import ElementSet
+from errormap.chain_elements import ChainElementSet
 from errormap.machine import load_machine
 from errormap.seeds import spawn_seeds
 from errormap.simulator import EFFECT_CHOICES, EFFECT_HELP, TruthGrinder
-from errormap.sweeps import simulate_sweeps, write_sweeps
+from errormap.chain_sweeps import simulate_mt_sweeps, write_sweeps
 from compensation.app.validate import UsageError
 
 from ..families import family_of, say_read_as
@@ -86,7 +86,7 @@ def _run_grinder(machine, args) -> int:
     if args.truth is not None:
         if args.effect:
             raise UsageError("--effect needs --seed (a truth element file carries no effects)")
-        truth = TruthGrinder(machine, ElementSet.load(args.truth), {})
+        truth = TruthGrinder(machine, ChainElementSet.load(args.truth, machine), {})
         what = f"truth {args.truth}"
     else:
         from errormap.truth_families import make_truth
@@ -94,8 +94,8 @@ def _run_grinder(machine, args) -> int:
         what = f"truth seed {args.seed} ({getattr(args, 'family', 'default')} family)"
     print(f"simulating tracker sweeps of {what} (noise {args.noise_um} um, seed {args.seed_noise}) ...",
           file=sys.stderr)
-    cols = simulate_sweeps(truth, noise_um=args.noise_um, seed=args.seed_noise, bidirectional=args.bidirectional,
-                           warmup_c=args.warmup_c)
+    cols = simulate_mt_sweeps(truth, noise_um=args.noise_um, seed=args.seed_noise, bidirectional=args.bidirectional,
+                              warmup_c=args.warmup_c)
     path = write_sweeps(args.out, cols, comments=[
         f"setup: {args.setup}", f"machine: {machine.name}", f"machine_sha256: {machine.sha256}",
         f"truth: {what}", f"effects: {','.join(args.effect) or 'none'}", f"noise_um: {args.noise_um}",

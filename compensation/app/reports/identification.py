@@ -6,7 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.elements import A_ELEMENTS, ElementSet, X_ELEMENTS, Z_ELEMENTS, element_unit
+from errormap.chain_elements import ChainElementSet
+from errormap.elements import A_ELEMENTS, X_ELEMENTS, Z_ELEMENTS, element_unit
 from errormap.io import atomic_write
 from errormap.iso230 import label as iso_label
 
@@ -44,12 +45,12 @@ def _unit_label(unit: str) -> str:
     return "μm" if unit == "um" else "μrad"
 
 
-def plot_elements(elements: ElementSet, prefix, truth: ElementSet | None = None) -> list[Path]:
+def plot_elements(elements: ChainElementSet, prefix, truth: ChainElementSet | None = None) -> list[Path]:
     """One figure per axis (six elements each, the constants in the title), truth dashed when given.
 
     Written atomically as ``PREFIX_X.png``, ``PREFIX_Z.png``, ``PREFIX_A.png``; returns the paths.
     The caller passes the truth in the identified gauge and squareness split
-    (:func:`compensation.app.workflows.identification.truth_in_gauge`), so like is compared with like.
+    (:func:`compensation.app.workflows.measurement.truth_in_gauge`), so like is compared with like.
     """
     from errormap.elements import ELEMENT_NAMES
     c = elements.constants
@@ -102,7 +103,7 @@ def plot_chain_elements(elements, prefix, truth=None) -> list[Path]:
     return out
 
 
-def iso_summary_lines(elements: ElementSet) -> list[str]:
+def iso_summary_lines(elements: ChainElementSet) -> list[str]:
     """The 23 elements with their ISO 230-1 names (docs/how-to/export-to-controller.md) and their largest magnitude.
 
     The ISO names hold in the project's frames: Z's lateral pairs and A's radial/tilt pairs

@@ -16,7 +16,7 @@ from errormap.stats import residual_stats
 from .benchmark_common import (EFFECTS_LOOP, EXPERIMENT, FEATURE_REUSE_TOL_UM, LEARNED_GRID, PATH_CONDITIONS,
                                TRUTH_CONDITIONS, USER_LOOP, BenchmarkSettings, RowLog, Tracker, bench_row, rng_streams,
                                say, with_volume)
-from .benchmark_loop import at_conditions, chain_elements, loop_models
+from .benchmark_loop import at_conditions, loop_models
 
 @dataclass
 class GrinderCondition:
@@ -110,8 +110,8 @@ def grinder_truth(machine, s: BenchmarkSettings, effect=None):
 
 def condition_sweeps(s: BenchmarkSettings, truth, c: GrinderCondition) -> dict:
     """Simulated tracker sweeps of ``truth`` under condition ``c`` (columns, as a sweep file holds them)."""
-    from errormap.sweeps import simulate_sweeps
-    return simulate_sweeps(truth, noise_um=c.noise_um, seed=rng_streams(s.seed)["sweep_noise"], n_stations=c.stations)
+    from errormap.chain_sweeps import simulate_mt_sweeps
+    return simulate_mt_sweeps(truth, noise_um=c.noise_um, seed=rng_streams(s.seed)["sweep_noise"], n_stations=c.stations)
 
 
 def identify_from_sweeps(machine, s: BenchmarkSettings, truth, c: GrinderCondition):
@@ -353,14 +353,13 @@ class GrinderBench:
     def closed_loop_row(self, truth, label, checks, base_row, base, common):
         """The effect search on the base's element set (the closed loop without the element update); a base without
         elements (the learned field) is a row that says so."""
-        from errormap.chain_elements import ChainElementSet
         from errormap.diagnosis.chain_loop import closed_loop_chain
         from errormap.diagnosis.loop_model import ChainModelField
         s = self.s
         if getattr(base, "elements", None) is None:
             raise ValueError("the closed loop searches effects on an element set; a trained network is not one")
         mt = self.m
-        el = base.elements if isinstance(base.elements, ChainElementSet) else chain_elements(base.elements, mt)
+        el = base.elements
         t0 = time.perf_counter()
         d = closed_loop_chain(mt, el, checks, cov=None)
         diag_s = time.perf_counter() - t0

@@ -5,15 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 
-def chain_elements(elements, mt):
-    """A grinder :class:`~errormap.elements.ElementSet` as the element set of its chain ``mt`` (same names and
-    stations; read back as a chain file would be)."""
-    import tempfile
-    from errormap.chain_elements import ChainElementSet
-    with tempfile.TemporaryDirectory(prefix="volcomp-benchmark-") as td:
-        return ChainElementSet.load(elements.save(Path(td) / "elements.json"), mt)
-
-
 def at_conditions(field_, mt, conditions: dict):
     """``field_`` with ``conditions`` (``{name: value}``) for the conditions its terms need."""
     from .compensate import field_conditions

@@ -99,7 +99,7 @@ def read_fleet(path) -> list[dict]:
 def validate_inputs(machines) -> None:
     """Read every machine file, sweep set and check file (raises InputError / MachineFileError
     naming file, row and column) — before any work starts."""
-    from errormap.chain_sweeps import read_mt_sweeps
+    from errormap.sweeps import read_sweeps
     from errormap.diagnosis.chain_checks import load_mt_checks
     from errormap.machine import load_machine
     from ..families import family_of
@@ -109,8 +109,7 @@ def validate_inputs(machines) -> None:
         if family_of(machine).target("identify") == "chain" and len(m["sweeps"]) != 1:
             raise InputError(f"{m['fleet_file']}: key '{m['key']}.sweeps': a machine-tool chain ({machine.name!r}) is "
                              f"identified from one sweep file (one tracker set-up), got {len(m['sweeps'])}")
-        for p in m["sweeps"]:   # the sweep reader of the machine's chain (the grinder's files read the same)
-            read_mt_sweeps(p, machine)
+        read_sweeps(m["sweeps"], machine)   # the sweep reader of every machine (the grinder's chain among them)
         load_mt_checks(m["checks"], machine)   # the reader the loop itself uses (diagnose_chain)
 
 

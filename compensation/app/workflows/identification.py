@@ -9,8 +9,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from errormap.io import companion_path, write_json
 from errormap.iso230 import ISO_NAME
 from errormap.sweeps import read_sweeps
@@ -39,7 +37,7 @@ def identify_elements(machine, sweep_files, out, report=None, noise_um=None, n_b
     """Identify from ``sweep_files`` and write ``out`` (element set), its covariance and ``report``
     (default ``OUT.report.json``). ``sweeps``: the files already read (else read here)."""
     from errormap.uncertainty import covariance_path, smooth_identify
-    sweeps = read_sweeps(sweep_files) if sweeps is None else sweeps
+    sweeps = read_sweeps(sweep_files, machine) if sweeps is None else sweeps
     sm = smooth_identify(sweeps, machine, noise_um=noise_um, n_boot=n_boot, seed=seed, smooth=smooth, gauge=gauge)
     res = sm.raw
     res.elements_ = sm.elements_
@@ -54,24 +52,3 @@ def identify_elements(machine, sweep_files, out, report=None, noise_um=None, n_b
     write_json(report, info)
     el_path = res.elements_.save(out)
     return Identification(sm, el_path, cov_path, report)
-
-
-def truth_in_gauge(truth, elements, machine, gauge: str):
-    """The truth element set expressed as the identification expresses ``elements``: in the same
-    machine frame (``gauge``), at the same stations, with the same squareness split — so that an
-    overlay compares like with like.
-
-    A truth set is written in its own frame (the simulator's: every axis-motion element zero at its
-    first station); the identified one in the gauge of the identification, and the two differ by a
-    rigid frame change that moves constants and linear trends between elements while leaving every
-    tool point the same. The exact way to the identified frame is the identification itself:
-    noise-free sweeps of the truth at ``elements``' stations identified with ``gauge``
-    (:class:`errormap.identification.ChainIdentification` on the grinder's chain, whose squareness
-    split is the same condition for both). Returns an :class:`errormap.elements.ElementSet`."""
-    from errormap.identification import ChainIdentification
-    from errormap.simulator import TruthGrinder
-    from errormap.sweeps import simulate_sweeps, sweeps_from_columns
-    cols = simulate_sweeps(TruthGrinder(machine, truth, {}), noise_um=0.0, seed=0,
-                           stations={k: np.asarray(v) for k, v in elements.stations.items()})
-    sw = sweeps_from_columns(cols, "<noise-free sweeps of the truth>")
-    return ChainIdentification(gauge=gauge).fit(sw, machine).elements_.to_element_set()

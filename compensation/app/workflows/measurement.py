@@ -127,16 +127,13 @@ def sweeps_chain(machine, out, seed=None, truth_file=None, effects=(), family="d
 
 def identify_chain_files(machine, sweep_files, out, report=None, noise_um=None, n_boot: int | None = None,
                          seed: int = 0, gauge: str = "station-mean", smooth: bool = True) -> tuple:
-    """Identify from one sweep file in ``gauge``; write the element set (smoothed by
+    """Identify from the sweep file(s) of one tracker set-up in ``gauge``; write the element set (smoothed by
     :func:`errormap.identification.smooth_chain` unless ``smooth=False``), ``OUT.cov.npz`` (Gauss–Newton's
     σ̂²·(JᵀJ)⁻¹, σ̂ the known tracker σ ``noise_um`` when given, or with ``n_boot`` the residual bootstrap's,
     :func:`errormap.identification.bootstrap_covariance`; through the smoother when smoothed) and the report."""
     from errormap.identification import ChainIdentification, bootstrap_covariance, smooth_chain
-    from errormap.chain_sweeps import read_mt_sweeps
-    if len(sweep_files) != 1:
-        raise UsageError(f"a machine-tool chain is identified from one sweep file (one tracker set-up), got "
-                         f"{len(sweep_files)}")
-    sweeps = read_mt_sweeps(sweep_files[0], machine)
+    from errormap.sweeps import read_sweeps
+    sweeps = read_sweeps(sweep_files, machine)
     res = ChainIdentification(noise_um=noise_um, gauge=gauge).fit(sweeps, machine).result_
     if n_boot is not None:
         res = bootstrap_covariance(sweeps, machine, res, n_boot, seed, gauge=gauge)
@@ -154,18 +151,23 @@ def identify_chain_files(machine, sweep_files, out, report=None, noise_um=None, 
     return res, el_path, cov_path, report
 
 
-def chain_truth_in_gauge(machine, truth_file, gauge: str = "station-mean"):
-    """A truth element set (``truth_elements.json`` of ``simulate --machine``) as the identification expresses
-    its estimate: in ``gauge`` with its squareness split, found the exact way (the identification of the
-    truth's noise-free sweeps; tool points to 1e-6 μm, ``tests/test_mt_loop.py``), so that a plot overlays like
-    with like (as the grinder's :func:`compensation.app.workflows.identification.truth_in_gauge`)."""
+def truth_in_gauge(machine, truth, gauge: str = "station-mean", stations: dict | None = None):
+    """A truth element set (``truth_elements.json`` of ``simulate``, a
+    :class:`errormap.chain_elements.ChainElementSet` of ``machine``) as the identification expresses its estimate:
+    in ``gauge`` with its squareness split, at ``stations`` (per axis column, the identified set's; None: the
+    sweep default), so that a plot overlays like with like.
+
+    A truth set is written in its own frame (the simulator's: every axis-motion element zero at its first
+    station); the identified one in the gauge of the identification, and the two differ by a rigid frame change
+    that moves constants and linear trends between elements while leaving every tool point the same. The exact
+    way to the identified frame is the identification itself: noise-free sweeps of the truth identified with
+    ``gauge`` (tool points to 1e-6 μm, ``tests/test_mt_loop.py``)."""
     from errormap.identification import ChainIdentification
-    from errormap.chain_elements import ChainElementSet
     from errormap.chain_truth import MTTruth
     from errormap.chain_sweeps import simulate_mt_sweeps, swept_words
     from errormap.sweeps import sweeps_from_columns
-    truth = MTTruth(machine, ChainElementSet.load(truth_file, machine), {})
-    sw = sweeps_from_columns(simulate_mt_sweeps(truth, noise_um=0.0, seed=0), axes=swept_words(machine))
+    cols = simulate_mt_sweeps(MTTruth(machine, truth, {}), noise_um=0.0, seed=0, stations=stations)
+    sw = sweeps_from_columns(cols, "<noise-free sweeps of the truth>", axes=swept_words(machine))
     return ChainIdentification(gauge=gauge).fit(sw, machine).elements_
 
 
@@ -190,7 +192,7 @@ def load_chain_model(path, machine, prior: bool = False):
     if not cp.is_file():
         return el, None, None
     from errormap.chain_covariance import read_chain_covariance
-    return el, read_chain_covariance(cp, p, prior), cp
+    return el, read_chain_covariance(cp, el, prior), cp
 
 
 BAND_BATCH = 4096
