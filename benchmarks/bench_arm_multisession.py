@@ -36,7 +36,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 from bench_arm_register_sessions import LO, HI, MOVES, moved, session_effect_mm  # noqa: E402
 from bench_arm_sessions import NOISE_MM, T_CAL_C, thermal_truth  # noqa: E402
 
-from compensation.app.workflows.arm_calibration import ArmCalibrationSettings, load_arm_model
+from compensation.app.workflows.arm_calibration import ArmCalibrationSettings
+from compensation.model_file import read_model
 from compensation.app.workflows.arm_run import run_arm_calibration
 from compensation.app.workflows.arm_register import run_arm_register
 from errormap.arm_calibration import GeometricResult
@@ -116,7 +117,7 @@ def register_true(chain, cal_json, sess, truth_xyz, d: Path) -> dict:
         rest = sess.subset(np.arange(n, len(sess)))
         doc = json.loads((out / "calibration.json").read_text())
         plain = GeometricResult.from_dict(chain, doc["plain_geometric"])
-        geo, lrn = load_arm_model(chain, out / "calibration.json")
+        geo, lrn = read_model(out / "calibration.json", chain, family="arm").calibration.stages
         kept = geo.predict(rest.q) + (0.0 if lrn is None else lrn.predict(rest.q))
         t = truth_xyz[n:]
         row[n] = {"kept": r["kept"], "plain": float(np.linalg.norm(t - plain.predict(rest.q), axis=1).mean()),

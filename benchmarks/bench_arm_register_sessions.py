@@ -30,7 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from compensation.app.workflows.arm_calibration import ArmCalibrationSettings, load_arm_model
+from compensation.app.workflows.arm_calibration import ArmCalibrationSettings
+from compensation.model_file import read_model
 from compensation.app.workflows.arm_run import run_arm_calibration
 from compensation.app.workflows.arm_register import run_arm_register
 from errormap.arm_calibration import GeometricResult
@@ -67,7 +68,7 @@ def register_row(chain, cal_json, sess: ArmPoses, d: Path, truth_xyz=None) -> di
             rest = sess.subset(np.arange(n, len(sess)))
             doc = json.loads((out / "calibration.json").read_text())
             plain = GeometricResult.from_dict(chain, doc["plain_geometric"])
-            geo, lrn = load_arm_model(chain, out / "calibration.json")
+            geo, lrn = read_model(out / "calibration.json", chain, family="arm").calibration.stages
             kept = geo.predict(rest.q) + (0.0 if lrn is None else lrn.predict(rest.q))
             t = truth_xyz[n:]
             cell["true_plain"] = float(np.linalg.norm(t - plain.predict(rest.q), axis=1).mean())

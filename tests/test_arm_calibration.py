@@ -14,6 +14,7 @@ from errormap.arm_poses import convert_tracker_grid, read_arm_poses, write_arm_p
 from errormap.arm_simulate import draw_truth, measure, random_joints
 from errormap.io import read_table
 from errormap.machine import load_machine
+from compensation.calibration_models import calibration_section
 
 SHARED = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "serial-arms"
 # a UR5-like workspace box (deg) inside which the simulated poses are drawn (the real grid's ranges)
@@ -138,7 +139,7 @@ def test_simulated_arm_cli_learned_stage_and_compensation(tmp_path, ur5):
     r = cli("calibrate", tmp_path / "fit.csv", "--check", tmp_path / "check.csv", "--machine", "ur5", "--out",
             tmp_path / "cal")
     assert r.returncode == 0, r.stderr
-    doc = json.loads((tmp_path / "cal" / "calibration.json").read_text())
+    doc = calibration_section(tmp_path / "cal" / "calibration.json", "arm")[0]
     st = {s["name"]: s for s in doc["stages"]}
     base = {s["name"]: s for s in doc["baselines"]}
     kept = st[doc["kept_stage"]]
@@ -215,8 +216,9 @@ def test_a_plain_pipeline_that_wins_the_pipeline_cv_is_kept_and_handed_on(ur5, m
     the plain GP the learner, the stage is a row of ``stages`` with the baseline's figures, and the
     ``calibration.json`` hands the plain GP on to compensation."""
     import training.arm_residual as ar
-    from compensation.app.workflows.arm_calibration import (ArmCalibrationSettings, calibrate_arm, load_arm_model,
+    from compensation.app.workflows.arm_calibration import (ArmCalibrationSettings, calibrate_arm,
                                                             model_document)
+    from compensation.model_file import read_model
     real = ar.cv_pipelines
 
     def rigged(*a, **k):
@@ -238,7 +240,7 @@ def test_a_plain_pipeline_that_wins_the_pipeline_cv_is_kept_and_handed_on(ur5, m
     assert core["kept_learner"] is core["plain_gp"]
     doc = model_document(ur5, core, ArmCalibrationSettings(poses="fit.csv"), len(fit), len(check))
     (tmp_path / "calibration.json").write_text(json.dumps(doc))
-    geo, learner = load_arm_model(ur5, tmp_path / "calibration.json")
+    geo, learner = read_model(tmp_path / "calibration.json", ur5, family="arm").calibration.stages
     assert learner is not None and learner.inputs == "sincos"
     assert np.allclose(learner.predict(check.q), core["plain_gp"].predict(check.q), rtol=0, atol=ROUNDTRIP_ATOL_MM)
     assert np.array_equal(geo.predict(check.q), core["plain_model"].predict(check.q))
@@ -332,7 +334,7 @@ def test_real_ur5_grid_blocked_sector_through_the_cli(tmp_path, ur5):
     write_arm_poses(tmp_path / "check.csv", ur5, poses.subset(np.flatnonzero(held)))
     assert main(["calibrate", str(tmp_path / "fit.csv"), "--machine", "ur5", "--check", str(tmp_path / "check.csv"),
                  "--out", str(tmp_path / "cal"), "--no-learned"]) == 0
-    doc = json.loads((tmp_path / "cal" / "calibration.json").read_text(encoding="utf-8"))
+    doc = calibration_section(tmp_path / "cal" / "calibration.json", "arm")[0]
     assert doc["n_check_poses"] == held.sum() and doc["n_fit_poses"] == (~held).sum()
     assert q1[held].min() >= q1[~held].max()          # blocked: the held-out poses lie beyond every fit pose
     from errormap.arm_calibration import choose_model

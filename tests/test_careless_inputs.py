@@ -124,7 +124,7 @@ def test_an_arm_joint_file_without_rows_is_refused(tmp_path):
     """predict / compensate on an arm with a joint file that is a header alone: was a ValueError traceback (a max over
     zero rows) for both. The calibration: a plain geometric LSQ on 40 simulated UR5 poses (as tests/test_fuzz_commands)."""
     import numpy as np
-    from compensation.app.workflows.arm_calibration import MODEL_FORMAT
+    from compensation.fields import ARM_FORMAT as MODEL_FORMAT
     from errormap.arm_calibration import fit_plain_lsq
     from errormap.arm_simulate import draw_truth, measure, random_joints
     from errormap.machine import load_machine

@@ -13,9 +13,9 @@ from pathlib import Path
 
 from errormap.io import InputError
 from errormap.machine import builtin_machine_path, load_machine
-from errormap.pkm.calibration_file import load_calibrated_machine
 from errormap.pkm.hexapod import KinematicsError
 
+from compensation.model_file import read_model
 from compensation.pkm_interpolation import builtin_path, contour_step_mm, leg_program, read_waypoints
 
 from compensation.app.validate import UsageError
@@ -45,6 +45,11 @@ DEFAULT_MACHINE = "hexapod"
 """The built-in machine interpolated without ``--machine``."""
 
 
+def _calibrated(given, machine):
+    """The identified machine of the calibration ``given`` (a model file, or the folder ``calibrate`` wrote it in)."""
+    return read_model(given, machine, family="parallel").calibration
+
+
 def run(args) -> int:
     machine = load_machine(args.machine or builtin_machine_path(DEFAULT_MACHINE))
     family = family_of(machine)
@@ -70,7 +75,7 @@ def run(args) -> int:
         path = builtin_path(args.path, step)
     else:
         path = read_waypoints(args.path, step)
-    calibrated = load_calibrated_machine(args.calibration, machine) if args.calibration else None
+    calibrated = _calibrated(args.calibration, machine) if args.calibration else None
     print(f"interpolate: {len(path)} steps of f = {step:.4g} mm ({args.feed_mm_min:g} mm/min x {args.period_ms:g} ms)"
           f"{', compensated' if calibrated is not None else ''}", file=sys.stderr)
     try:

@@ -24,7 +24,7 @@ from compensation.app.validate import UsageError
 
 from ...arm_compensation import solve_joints
 from ...fields import FAILED_VERDICT, check_verdict
-from .arm_calibration import load_arm_model
+from ...model_file import read_model
 
 EXIT_REFUSED = 3
 
@@ -103,7 +103,8 @@ def run_arm_compensate(chain, files, settings: ArmCompensateSettings) -> int:
     """``volcomp compensate`` of the joint programs ``files`` on a serial arm (the options it does not take were
     refused by the family registry, :mod:`compensation.app.families`) → exit status (3: a file refused)."""
     model = settings.model
-    geo, learner = load_arm_model(chain, model, base_frame=True)
+    cal = read_model(model, chain, family="arm").calibration.require_base_frame(model)
+    geo, learner = cal.geometric, cal.learner
     verdict = check_verdict(model, settings.allow_failed_verdict)   # a failed calibration: refused unless allowed
     out = Path(settings.out_dir)
     srcs = [Path(f) for f in files]

@@ -28,7 +28,7 @@ from errormap.io import read_table, write_csv
 from compensation.app.validate import UsageError
 
 from ...arm_compensation import model_point
-from .arm_calibration import load_arm_model
+from ...model_file import read_model
 from .arm_compensate import joint_values, nominal_base_points, read_program
 
 
@@ -81,7 +81,8 @@ def run_arm_predict(chain, points, settings: ArmPredictSettings) -> int:
     """``volcomp predict`` of the joint configurations (or tracker-grid poses) in ``points`` on a serial arm."""
     from ...fields import FAILED_VERDICT, check_verdict
     model, band = settings.model, settings.band
-    geo, learner, band_c = load_arm_model(chain, model, band_scale=True, base_frame=True)
+    cal = read_model(model, chain, family="arm").calibration.require_base_frame(model)
+    geo, learner, band_c = cal.geometric, cal.learner, cal.band_scale
     verdict = check_verdict(model, settings.allow_failed_verdict)   # a failed calibration: refused
     q, measured = read_points(points, chain)
     if band and (learner is None or learner.chosen_ == "none") and not geo.full_covariance:

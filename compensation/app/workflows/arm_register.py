@@ -8,19 +8,20 @@ for the calibration as it was. Writes ``DIR2/calibration.json``: the calibration
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import numpy as np
 
 from errormap.arm_poses import read_arm_poses, temperature_summary
 from errormap.arm_register import MIN_POSES, choose_candidate, fit_frame, register_frame, registered_point
-from errormap.io import InputError, read_document_text, write_json
+from errormap.io import InputError, write_json
 from training.arm_residual import RotatedResidual
 
 from compensation.app.validate import UsageError
 
-from .arm_calibration import errors_mm, load_arm_model, stage_name
+from ...calibration_models import calibration_model_document
+from ...model_file import read_model
+from .arm_calibration import errors_mm, stage_name
 
 
 def _row(e) -> dict | None:
@@ -95,9 +96,9 @@ def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: in
     (``--allow failed-verdict``): then ``registration.allowed`` records it, and the calibration's own failed verdict
     stays in the output (every later use refuses it again unless allowed)."""
     from ...fields import FAILED_VERDICT, check_verdict
-    geo, learner = load_arm_model(chain, model)          # refuses what is not an arm calibration of this chain
+    m = read_model(model, chain, family="arm")          # refuses what is not an arm calibration of this chain
+    geo, learner, doc = m.calibration.geometric, m.calibration.learner, m.doc
     verdict = check_verdict(model, allow_failed_verdict)
-    doc = json.loads(read_document_text(model, "an arm calibration"))
     plain = plain_of(chain, doc, model)
     across = doc.get("across_blocks") if isinstance(doc.get("across_blocks"), dict) else {}
     sessions = doc.get("across_sessions") if isinstance(doc.get("across_sessions"), dict) else None
@@ -156,5 +157,6 @@ def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: in
                          "position norm, mm"}
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    write_json(out / "calibration.json", out_doc)
+    write_json(out / "calibration.json", calibration_model_document(
+        "arm", chain, out_doc, {"written_by": "volcomp register", "poses": str(poses), "model": str(model)}))
     return out_doc["registration"]

@@ -15,6 +15,8 @@ from errormap.arm_poses import read_arm_poses
 from errormap.arm_sessions import align_sessions, apply_alignment
 from errormap.io import write_json
 
+from ...calibration_models import calibration_model_document
+
 from ..reports.arm_calibration import write_report
 from .arm_calibration import (ArmCalibrationSettings, calibrate_arm, held_out_verdict, model_document, split,
                               stated_sigma_mm)
@@ -48,6 +50,7 @@ def run_arm_calibration(chain, s: ArmCalibrationSettings, out, log=None) -> dict
     doc["verdict"] = held_out_verdict(core, check, stated_sigma_mm(s, check))   # failed: calibrate exits 1
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    write_json(out / "calibration.json", doc)
+    write_json(out / "calibration.json", calibration_model_document(
+        "arm", chain, doc, {"written_by": "volcomp calibrate", "poses": str(s.poses), "check": s.check}))
     write_report(doc, chain, core, check, out)
     return doc

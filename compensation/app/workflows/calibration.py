@@ -23,6 +23,8 @@ from errormap.pkm.pipeline import rms_um, validated_calibration
 
 from compensation.app.validate import UsageError
 
+from ...calibration_models import calibration_model_document
+
 from ..families import family_of
 
 from ..reports.calibration import write_html, write_plots
@@ -172,7 +174,8 @@ def run_calibration(machine, s: CalibrationSettings, out, log=None) -> Calibrati
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     doc = calibration_document(v, s, check, comparison)
-    write_json(out / "calibration.json", doc)
+    write_json(out / "calibration.json", calibration_model_document(
+        "parallel", machine, doc, {"written_by": "volcomp calibrate", "poses": str(s.poses), "check": s.check}))
     pngs = write_plots(v.result, v.before["position_um"], v.after["position_um"], out)
     write_html(doc, pngs, out)
     return CalibrationRun(doc, pngs, rms_um(v.before), rms_um(v.after), rms_um(v.baseline_e))

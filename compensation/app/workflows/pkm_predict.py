@@ -24,9 +24,9 @@ ANGLES = ("rx_deg", "ry_deg", "rz_deg")
 def run_pkm_predict(machine, points, model, out) -> int:
     """``volcomp predict`` of the commanded poses in the CSV ``points`` on a parallel machine, with its
     ``calibration.json`` ``model`` (``volcomp calibrate``); the CSV ``out`` written whole."""
-    from errormap.pkm.calibration_file import load_calibrated_machine
+    from ...model_file import read_model
     from errormap.pkm.hexapod import KinematicsError, angles_to_rotation, forward_kinematics, inverse_kinematics
-    calibrated = load_calibrated_machine(model, machine)
+    calibrated = read_model(model, machine, family="parallel").calibration
     if calibrated.extra.get("leg_terms"):
         raise UsageError(f"{model}: key 'leg_terms': the loop's leg terms are applied to commands "
                          "(interpolate --calibration), not yet predicted at poses; predict takes a calibration "
