@@ -1,5 +1,5 @@
 """A joint program compensated without tracker targets: a simulated UR5 (link + base + tool errors, 150 poses at
-20 µm) measured by a tracker 1.8 m away and turned 0.53 rad, its geometric stage written as a calibration.json,
+20 µm) measured by a tracker 1.8 m away and turned 0.53 rad, its geometric stage written as a model.json,
 and `volcomp compensate` of a 40-point joint program with no target columns. TRUE residual: the hidden truth at the
 compensated joints against the nominal points, both in the robot's base frame (the truth's base with link 1's offsets
 along and about its axis absorbed — the slots calibration holds). Self-contained, so it runs on an earlier revision

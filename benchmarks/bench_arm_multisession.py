@@ -115,9 +115,9 @@ def register_true(chain, cal_json, sess, truth_xyz, d: Path) -> dict:
         with contextlib.redirect_stderr(io.StringIO()):
             r = run_arm_register(chain, f, cal_json, out, fit_poses=n)
         rest = sess.subset(np.arange(n, len(sess)))
-        doc = json.loads((out / "calibration.json").read_text())
+        doc = json.loads((out / "model.json").read_text())
         plain = GeometricResult.from_dict(chain, doc["plain_geometric"])
-        geo, lrn = read_model(out / "calibration.json", chain, family="arm").calibration.stages
+        geo, lrn = read_model(out / "model.json", chain, family="arm").calibration.stages
         kept = geo.predict(rest.q) + (0.0 if lrn is None else lrn.predict(rest.q))
         t = truth_xyz[n:]
         row[n] = {"kept": r["kept"], "plain": float(np.linalg.norm(t - plain.predict(rest.q), axis=1).mean()),
@@ -154,7 +154,7 @@ def run_sim(seed, amp_mm):
             for name in ("multi", "single"):
                 d = Path(td) / f"{name}{lab}"
                 d.mkdir()
-                rows[name] = register_true(chain, Path(td) / name / "cal" / "calibration.json", new,
+                rows[name] = register_true(chain, Path(td) / name / "cal" / "model.json", new,
                                            tr.tool_point(chain, q), d)
             g = (lambda nm, key: " / ".join(f"{rows[nm][n][key]:.4f}" for n in REGISTER_POSES))
             print(f"| {lab} {temp - T_CAL_C:+.1f} °C | {g('multi', 'plain')} | **{g('multi', 'shipped')}** | "

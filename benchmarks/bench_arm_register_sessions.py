@@ -66,9 +66,9 @@ def register_row(chain, cal_json, sess: ArmPoses, d: Path, truth_xyz=None) -> di
         cell = {"kept": r["kept"], "meas": {k: v["mean_mm"] for k, v in r["heldout_by_candidate"].items()}}
         if truth_xyz is not None:
             rest = sess.subset(np.arange(n, len(sess)))
-            doc = json.loads((out / "calibration.json").read_text())
+            doc = json.loads((out / "model.json").read_text())
             plain = GeometricResult.from_dict(chain, doc["plain_geometric"])
-            geo, lrn = read_model(out / "calibration.json", chain, family="arm").calibration.stages
+            geo, lrn = read_model(out / "model.json", chain, family="arm").calibration.stages
             kept = geo.predict(rest.q) + (0.0 if lrn is None else lrn.predict(rest.q))
             t = truth_xyz[n:]
             cell["true_plain"] = float(np.linalg.norm(t - plain.predict(rest.q), axis=1).mean())
@@ -82,7 +82,7 @@ def calibrate(chain, cal: ArmPoses, d: Path) -> dict:
     with contextlib.redirect_stderr(io.StringIO()):
         doc = run_arm_calibration(chain, ArmCalibrationSettings(poses=str(d / "cal.csv")), d / "cal")
     own = {s["name"]: s["mean_mm"] for s in doc["stages"] + doc["baselines"]}
-    return {"json": d / "cal" / "calibration.json", "kept": doc["kept_stage"], "own_kept": own[doc["kept_stage"]],
+    return {"json": d / "cal" / "model.json", "kept": doc["kept_stage"], "own_kept": own[doc["kept_stage"]],
             "own_plain": own["plain geometric LSQ"],
             "carried": (doc.get("across_blocks") or {}).get("learned_carried")}
 

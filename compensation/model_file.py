@@ -330,7 +330,7 @@ def _read_calibration(src: ModelSource, machine, tracking_uri) -> Model:
     """A serial arm's or parallel machine's ``model.json`` or older ``calibration.json``
     (:mod:`compensation.calibration_models`): what was calibrated, and the calibration section."""
     family = KIND_FAMILY[src.kind]
-    calibration, doc = (read_arm_model if family == "arm" else read_pkm_model)(src, machine)
+    calibration, doc = {"arm": read_arm_model, "parallel": read_pkm_model}[family](src, machine)
     return Model(None, src, str(doc.get("format")), stage=doc.get("kept_stage"), doc=doc, family=family,
                  calibration=calibration)
 

@@ -260,7 +260,7 @@ def test_compensation_with_a_blend_lands_on_the_simulated_arm(ur5, learned_pair)
 @pytest.mark.slow
 def test_the_command_keeps_the_stack_by_its_rule_and_hands_it_on(ur5, tmp_path, monkeypatch, capsys):
     """calibrate → the stacked stage kept where the pipeline rule picks it (rigged here: the rule returns it, and the
-    weight is set to 0.6, a real blend: on this arm volcomp's pipeline alone is best, weight 1) → calibration.json →
+    weight is set to 0.6, a real blend: on this arm volcomp's pipeline alone is best, weight 1) → model.json →
     predict (point and band) and compensate through the CLI reproduce the kept blend."""
     import compensation.app.workflows.arm_calibration as ac
     import training.arm_residual as ar
@@ -272,13 +272,13 @@ def test_the_command_keeps_the_stack_by_its_rule_and_hands_it_on(ur5, tmp_path, 
     write_arm_poses(tmp_path / "check.csv", ur5, check)
     assert main(["calibrate", str(tmp_path / "fit.csv"), "--check", str(tmp_path / "check.csv"), "--machine", "ur5",
                  "--folds", "3", "--out", str(tmp_path / "cal")]) == 0
-    doc = calibration_section(tmp_path / "cal" / "calibration.json", "arm")[0]
+    doc = calibration_section(tmp_path / "cal" / "model.json", "arm")[0]
     assert doc["kept_stage"] == STACKED and doc["stacked_summary"]["kept"]
     assert "stacked pipeline" in doc["kept_why"]
     row = {s["name"]: s for s in doc["stages"]}[STACKED]
     w = doc["stacked"]["weight"]
     assert w == doc["stacked_summary"]["weight"] == RIGGED_WEIGHT and 0 <= doc["stacked_summary"]["coverage95_cv"] <= 1
-    geo, st = read_model(tmp_path / "cal" / "calibration.json", ur5, family="arm").calibration.stages
+    geo, st = read_model(tmp_path / "cal" / "model.json", ur5, family="arm").calibration.stages
     assert isinstance(st, StackedResidual) and st.weight == w
     # the stage row is the reloaded blend's held-out error (on the check file as the command read it)
     check = read_arm_poses(tmp_path / "check.csv", ur5)
@@ -288,7 +288,7 @@ def test_the_command_keeps_the_stack_by_its_rule_and_hands_it_on(ur5, tmp_path, 
     prog = tmp_path / "prog.csv"
     prog.write_text(",".join(ur5.joint_columns) + "\n" + "\n".join(",".join(f"{v:.10g}" for v in r) for r in qp))
     capsys.readouterr()
-    assert main(["predict", "--machine", "ur5", "--model", str(tmp_path / "cal" / "calibration.json"), str(prog),
+    assert main(["predict", "--machine", "ur5", "--model", str(tmp_path / "cal" / "model.json"), str(prog),
                  "--out", str(tmp_path / "pred.csv"), "--band", "95"]) == 0
     pred = read_table(tmp_path / "pred.csv")
     q_in = np.stack([pred.float(c) for c in ur5.joint_columns], 1)
@@ -301,7 +301,7 @@ def test_the_command_keeps_the_stack_by_its_rule_and_hands_it_on(ur5, tmp_path, 
     R = base_rotation(ur5, st.geometric.params)     # the band's components turned into the base frame
     sd = np.sqrt((st.predict(q_in, return_std=True)[1] ** 2) @ (R ** 2))
     assert np.allclose(band, 1.959963984540054 * c * sd, rtol=1e-9, atol=0)
-    assert main(["compensate", str(prog), "--machine", "ur5", "--model", str(tmp_path / "cal" / "calibration.json"),
+    assert main(["compensate", str(prog), "--machine", "ur5", "--model", str(tmp_path / "cal" / "model.json"),
                  "--out", str(tmp_path / "comp")]) == 0
     comp = read_table(tmp_path / "comp" / "prog.csv")
     qn = np.stack([comp.float(c) for c in ur5.joint_columns], 1)

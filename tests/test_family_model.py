@@ -138,7 +138,7 @@ def test_real_ur5_calibration_predicts_the_same_through_model_json_and_the_old_f
     (tmp_path / "ur5.csv").write_text("\n".join(lines[:121]) + "\n")
     assert main(["calibrate", str(tmp_path / "ur5.csv"), "--machine", "ur5", "--folds", "3", "--out",
                  str(tmp_path / "cal")]) == 0
-    new = tmp_path / "cal" / "calibration.json"
+    new = tmp_path / "cal" / "model.json"
     assert json.loads(new.read_text())["format"] == MODEL_FORMAT
     old = _old_of(new, tmp_path / "old.json")
     ur5 = load_machine("ur5")
@@ -159,6 +159,34 @@ def test_real_ur5_calibration_predicts_the_same_through_model_json_and_the_old_f
 
 
 # --- parallel machine --------------------------------------------------------------------------------------------
+def test_hexapod_model_json_and_older_pkm_files_read_the_same(tmp_path):
+    """A hexapod calibration section (its platform joints moved 0.1 %) as model.json, as the bare
+    volcomp-pkm-calibration/1 file and as that file before its format key: the same identified machine to the bit;
+    a garbled section refused naming the file and the key."""
+    from errormap.pkm.calibration_file import CALIBRATION_FORMAT
+    m = load_machine("hexapod")
+    im = {"base_joints_mm": m.base_joints_mm.tolist(), "platform_joints_mm": (m.platform_joints_mm * 1.001).tolist(),
+          "leg_offset_mm": np.asarray(m.leg_offset_mm).tolist(), "leg_scale": np.asarray(m.leg_scale).tolist()}
+    sec = {"format": CALIBRATION_FORMAT, "kind": m.kind, "machine": {"name": m.name}, "identified_machine": im}
+    files = {"new": write_json(tmp_path / "model.json", calibration_model_document("parallel", m, sec)),
+             "old": write_json(tmp_path / "old.json", sec),
+             "oldest": write_json(tmp_path / "oldest.json", {k: v for k, v in sec.items() if k != "format"})}
+    got = {k: read_model(f, m, family="parallel") for k, f in files.items()}
+    assert got["new"].source.kind == "pkm-model" and {got["old"].source.kind, got["oldest"].source.kind} == {"pkm-calibration"}
+    for k in ("old", "oldest"):
+        for a in ("base_joints_mm", "platform_joints_mm", "leg_offset_mm", "leg_scale"):
+            assert np.array_equal(getattr(got[k].calibration, a), getattr(got["new"].calibration, a)), (k, a)
+    assert np.array_equal(got["new"].calibration.platform_joints_mm, m.platform_joints_mm * 1.001)
+    doc = json.loads(files["new"].read_text())
+    for name, bad, key in (("im", {**sec, "identified_machine": {"leg_scale": [1]}}, "'calibration.identified_machine'"),
+                           ("kind", {**sec, "kind": "tripod"}, "'calibration.kind'"),
+                           ("fmt", {**sec, "format": "volcomp-pkm-calibration/7"}, "'calibration.format'")):
+        p = write_json(tmp_path / f"{name}.json", {**doc, "calibration": bad})
+        with pytest.raises(InputError, match=rf"{name}\.json: key {key}") as exc:
+            read_model(p, m, family="parallel")
+        assert len(str(exc.value)) < MAX_ERROR_CHARS and "\n" not in str(exc.value)
+
+
 @pytest.mark.slow  # a hexapod calibration: over 5 CPU s
 def test_hexapod_calibration_predicts_the_same_through_model_json_and_the_old_files(tmp_path, capsys):
     """A simulated hexapod calibrated (``--no-loop``: predict takes no leg terms); predict and interpolate through
@@ -172,7 +200,7 @@ def test_hexapod_calibration_predicts_the_same_through_model_json_and_the_old_fi
                  "--out", str(tmp_path / "sim")]) == 0
     assert main(["calibrate", str(tmp_path / "sim" / "poses.csv"), "--machine", "hexapod", "--no-loop", "--check",
                  str(tmp_path / "sim" / "checks.csv"), "--out", str(tmp_path / "cal")]) == 0
-    new = tmp_path / "cal" / "calibration.json"
+    new = tmp_path / "cal" / "model.json"
     doc = json.loads(new.read_text())
     assert doc["format"] == MODEL_FORMAT and doc["family"] == "parallel"
     old = _old_of(new, tmp_path / "old.json")
@@ -202,3 +230,4 @@ def test_hexapod_calibration_predicts_the_same_through_model_json_and_the_old_fi
                  capsys, str(p), key)
     _refused(["predict", tmp_path / "pts.csv", "--machine", "ur5", "--model", new, "--out", tmp_path / "o.csv"],
              capsys, str(new), "key 'family'")
+    _refused(["report", tmp_path / "cal"], capsys, str(new), "key 'family'")

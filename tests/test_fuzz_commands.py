@@ -26,8 +26,8 @@ from compensation.app.cli import main
 from errormap.io import read_table
 from errormap.machine import builtin_machine_path, load_machine
 from test_fuzz_inputs import (TALLY, TOL_PREDICT_ABS_UM, TOL_PREDICT_REL, _check_output, _head, _tally_outcome,
-from compensation.calibration_models import calibration_section
                               hostile_bytes, mangled_toml, report_tally, run_main)
+from compensation.calibration_models import calibration_section
 
 EXAMPLES = int(os.environ.get("VOLCOMP_FUZZ_EXAMPLES", "0")) or None
 
@@ -168,7 +168,7 @@ def test_fuzz_register_poses(files, data):
         argv = ["register", str(p), "--machine", "ur5", "--model", str(files / "arm.json"), "--out", str(Path(d) / "r")]
         rc, err = run_main(argv)
         if _tally_outcome(argv, rc, err, [str(p)]):
-            doc = calibration_section(Path(d) / "r" / "calibration.json", "arm")[0]
+            doc = calibration_section(Path(d) / "r" / "model.json", "arm")[0]
             old = {q["name"]: q["value"] for q in json.loads((files / "arm.json").read_text())["geometric"]["parameters"]}
             new = {q["name"]: q["value"] for q in doc["geometric"]["parameters"]}
             links = [k for k in old if not k.startswith(("base.", "tool."))]

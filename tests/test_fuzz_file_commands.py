@@ -28,8 +28,8 @@ from errormap.io import read_table
 from errormap.machine import builtin_machine_path, load_machine
 from test_fuzz_commands import fuzz
 from test_fuzz_inputs import (TALLY, TOL_LANDING_MM, TOL_PREDICT_ABS_UM, TOL_PREDICT_REL, _check_output, _head,
-from compensation.calibration_models import calibration_section
                               _tally_outcome, hostile_bytes, mangled_toml, report_tally, run_main)
+from compensation.calibration_models import calibration_section
 
 TOL_TRAIN_RMS_REL = 1e-5
 """train's metrics.json RMS against the written network re-evaluated on the same rows: the network runs in float64
@@ -183,10 +183,10 @@ def test_fuzz_calibrate_arm_poses(arm, data, holdout):
         argv = ["calibrate", str(p), "--machine", "ur5", "--no-learned", "--folds", "2", "--holdout", holdout,
                 "--out", str(out)]
         rc, err = run_main(argv)
-        if rc == 1 and "Traceback" not in err and (out / "calibration.json").is_file():
+        if rc == 1 and "Traceback" not in err and (out / "model.json").is_file():
             rc = 0   # a failed verdict, written: its counts are checked like an exit 0's
         if _tally_outcome(argv, rc, err, [str(p), "--holdout"]):
-            doc = calibration_section(out / "calibration.json", "arm")[0]
+            doc = calibration_section(out / "model.json", "arm")[0]
             n = len(read_arm_poses(p, ur5).q)
             _check_output("calibrate", doc["n_fit_poses"] + doc["n_check_poses"] == n, (argv, n))
 
@@ -202,7 +202,7 @@ def test_fuzz_predict_arm_program(arm, data):
     from compensation.arm_compensation import model_point
     from errormap.arm_frames import to_base_frame
     ur5 = load_machine("ur5")
-    cal = arm / "cal" / "calibration.json"
+    cal = arm / "cal" / "model.json"
     cols = ur5.joint_columns
     rows = [",".join(f"{(-1) ** j * (5 + 3 * i + 7 * j)}" for j in range(len(cols))) for i in range(8)]
     raw = data.draw(hostile_bytes(",".join(cols) + "\n" + "\n".join(rows) + "\n", table=True))

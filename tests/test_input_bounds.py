@@ -28,7 +28,7 @@ the command's imports, about a second on the loaded test machine)."""
 
 @pytest.fixture(scope="module")
 def made(tmp_path_factory):
-    """A grinder and a mill simulated (their element sets are the models), and a UR5 calibration.json (the plain
+    """A grinder and a mill simulated (their element sets are the models), and a UR5 model.json (the plain
     LSQ fit of 40 simulated poses: what register needs before it reads the session's poses)."""
     from compensation.fields import ARM_FORMAT as MODEL_FORMAT
     from errormap.arm_calibration import fit_plain_lsq

@@ -13,7 +13,7 @@ if TYPE_CHECKING:
 
 
 def calibration_to_dict(result: CalibrationResult) -> dict:
-    """The machine-readable part of ``calibration.json`` (see docs/explanation/parallel-kinematics.md)."""
+    """The machine-readable part of ``model.json``'s ``calibration`` section (see docs/explanation/parallel-kinematics.md)."""
     rot = Rotation.from_matrix(result.frame_rotation)
     m = result.machine
     return {

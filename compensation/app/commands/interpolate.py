@@ -29,7 +29,7 @@ def register(subparsers):
     p.add_argument("path", nargs="?",
                    help="'sphere', 'hyperboloid' or a waypoint CSV (px_mm py_mm pz_mm [nx ny nz] [move cx_mm ..])")
     p.add_argument("--machine", help="machine file (default: the built-in hexapod)")
-    p.add_argument("--calibration", help="calibration folder or calibration.json (compensated commands)")
+    p.add_argument("--calibration", help="calibration folder or model.json (compensated commands)")
     p.add_argument("--out", help="output CSV (required with PATH)")
     p.add_argument("--report", metavar="PAGE", help="also write an HTML page of the program (legs against their "
                    "limits, steps, the calibration's corrections, figures)")

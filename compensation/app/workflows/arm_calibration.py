@@ -47,7 +47,7 @@ FRAMES = {"poses, stages": "the measuring instrument's (tracker's) frame of the 
           "across_sessions": "poses with a session column: every session moved into the frame of the reference "
                              "session (the most poses; frames[].base its registered base); held-out figures each in its "
                              "own session's frame"}
-"""Which frame every block of ``calibration.json`` is in (its key ``frames``)."""
+"""Which frame every block of ``model.json`` is in (its key ``frames``)."""
 DECIDE_MAX_POSES = 500
 """Every decision of :func:`calibrate_arm` (CVs, learned stages, band) runs on at most this many fit poses (a seeded
 subset, :func:`decision_subset`); the geometric fits use all. Its cost grows with the GPs' n³ and the CV's refits;

@@ -1,4 +1,4 @@
-"""``volcomp compensate PROGRAM.csv --machine ur5 --model DIR/calibration.json --out DIR``: arm joint commands.
+"""``volcomp compensate PROGRAM.csv --machine ur5 --model DIR/model.json --out DIR``: arm joint commands.
 
 Each input is a measured-pose-style CSV of the arm: the joint columns (``q1_deg …``: the joint program,
 also Newton's starting point) and optionally target tool points ``x_mm, y_mm, z_mm`` in the ROBOT'S BASE FRAME;
@@ -81,7 +81,7 @@ def overridden_verdict(verdict) -> list[str]:
 
 @dataclass(frozen=True)
 class ArmCompensateSettings:
-    """How ``volcomp compensate`` runs on a serial arm: ``model`` (its ``calibration.json``, ``volcomp
+    """How ``volcomp compensate`` runs on a serial arm: ``model`` (its ``model.json``, ``volcomp
     calibrate``), ``out_dir`` (each program written there under its own name), ``force`` (replace outputs that
     exist), ``allow_failed_verdict`` (use a calibration whose verdict failed; recorded in each output's header)."""
     model: str

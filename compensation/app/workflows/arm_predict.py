@@ -1,4 +1,4 @@
-"""``volcomp predict program.csv --machine ur5 --model DIR/calibration.json --out pred.csv``: an arm's
+"""``volcomp predict program.csv --machine ur5 --model DIR/model.json --out pred.csv``: an arm's
 calibrated tool-point error at joint configurations.
 
 Input: a CSV with the chain's joint columns (``q1_deg â€¦``; other columns are ignored), or a measured-pose
@@ -13,7 +13,7 @@ and its error against the nominal chain in that frame, ``dx_mm, dy_mm, dz_mm`` â
 meant the nominal point (the negative of what ``compensate`` corrects). With ``--band 95`` (or ``1sigma``) also
 ``dx_band95_mm, dy_band95_mm, dz_band95_mm``: the half-width per component of the band of a new measurement about
 the kept stage (:data:`BAND_RULES`; its 95 % coverage is checked by CV and on the held-out poses in
-``calibration.json``). Written whole.
+``model.json``). Written whole.
 """
 from __future__ import annotations
 
@@ -58,7 +58,7 @@ def read_points(path, chain):
 
 @dataclass(frozen=True)
 class ArmPredictSettings:
-    """How ``volcomp predict`` runs on a serial arm: ``model`` (its ``calibration.json``), ``out`` (the CSV
+    """How ``volcomp predict`` runs on a serial arm: ``model`` (its ``model.json``), ``out`` (the CSV
     written), ``band`` (None, ``"95"`` or ``"1sigma"``: the band columns), ``allow_failed_verdict`` (use a
     calibration whose verdict failed; recorded in the header)."""
     model: str
@@ -112,7 +112,7 @@ def run_arm_predict(chain, points, settings: ArmPredictSettings) -> int:
         cols.update({f"{c}_band{tag}_mm": k * sd[:, j] for j, c in enumerate(("dx", "dy", "dz"))})
         meta.append(f"band: {'1-sigma' if band == '1sigma' else '95 %'} half-width per component of a new measurement "
                     f"about the kept stage ({BAND_RULES[stage_kind(learner)]}), times {band_c:.4g}: the blocked band "
-                    "factor (calibration.json band_calibration: 95 % on blocked inner CVs of the fit poses, at most 98 % "
+                    "factor (model.json band_calibration: 95 % on blocked inner CVs of the fit poses, at most 98 % "
                     "on the interleaved one; 1 for a file without it)")
     path = write_csv(settings.out, cols, header_comments=meta, float_fmt="%.10g")
     n = np.linalg.norm(d, axis=1)

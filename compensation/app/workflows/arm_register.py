@@ -1,9 +1,9 @@
-"""``volcomp register poses.csv --machine ur5 --model DIR/calibration.json --out DIR2``: a calibrated arm in a new
+"""``volcomp register poses.csv --machine ur5 --model DIR/model.json --out DIR2``: a calibrated arm in a new
 measurement session. Only the tracker → base frame (``--tool``: and the tool point) is fitted on the session's
 poses (:func:`errormap.arm_register.register_frame`); every link parameter, joint slot and learned stage of the
 calibration is kept. With ``--fit-poses N`` the first N poses (file order) register and the rest are held out:
 their measured residual (measured − model, position norm) is reported for the registered model and, beside it,
-for the calibration as it was. Writes ``DIR2/calibration.json``: the calibration with the registered frame and a
+for the calibration as it was. Writes ``DIR2/model.json``: the calibration with the registered frame and a
 ``registration`` key (the frame's slots with standard errors, the poses that would pin it best, the figures)."""
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ def _temperature_change(doc, data) -> float | None:
 
 
 PLAIN = "plain geometric LSQ"
-"""Name of the plain calibration (``calibration.json`` key ``plain_geometric``) among the candidates register weighs."""
+"""Name of the plain calibration (``model.json`` key ``plain_geometric``) among the candidates register weighs."""
 
 
 def plain_of(chain, doc, model):
@@ -89,7 +89,7 @@ def session_candidates(cands, geo, carried: dict, term, data) -> list:
 
 def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: int | None = None, seed: int = 0,
                      log=None, allow_failed_verdict: bool = False) -> dict:
-    """Register the calibration ``model`` on the poses file ``poses``; write ``out/calibration.json``; returns its
+    """Register the calibration ``model`` on the poses file ``poses``; write ``out/model.json``; returns its
     ``registration`` dict. The model kept for the session is weighed against the plain calibration inside the
     registration poses (:func:`errormap.arm_register.choose_candidate`, :func:`candidates_of`). A calibration whose
     verdict failed is refused (InputError naming it and the reasons) unless ``allow_failed_verdict``
@@ -157,6 +157,6 @@ def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: in
                          "position norm, mm"}
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    write_json(out / "calibration.json", calibration_model_document(
+    write_json(out / "model.json", calibration_model_document(
         "arm", chain, out_doc, {"written_by": "volcomp register", "poses": str(poses), "model": str(model)}))
     return out_doc["registration"]

@@ -1,4 +1,4 @@
-"""``volcomp predict --machine hexapod|tripod --model calibration.json``: the calibrated parallel machine's
+"""``volcomp predict --machine hexapod|tripod --model model.json``: the calibrated parallel machine's
 tool-tip error at commanded poses.
 
 A pose (``x_mm, y_mm, z_mm`` in the machine frame; on a hexapod optionally ``rx_deg, ry_deg, rz_deg``, the
@@ -23,7 +23,7 @@ ANGLES = ("rx_deg", "ry_deg", "rz_deg")
 
 def run_pkm_predict(machine, points, model, out) -> int:
     """``volcomp predict`` of the commanded poses in the CSV ``points`` on a parallel machine, with its
-    ``calibration.json`` ``model`` (``volcomp calibrate``); the CSV ``out`` written whole."""
+    ``model.json`` ``model`` (``volcomp calibrate``); the CSV ``out`` written whole."""
     from ...model_file import read_model
     from errormap.pkm.hexapod import KinematicsError, angles_to_rotation, forward_kinematics, inverse_kinematics
     calibrated = read_model(model, machine, family="parallel").calibration
