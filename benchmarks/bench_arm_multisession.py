@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
-import json
 import sys
 import tempfile
 import time
@@ -115,9 +114,9 @@ def register_true(chain, cal_json, sess, truth_xyz, d: Path) -> dict:
         with contextlib.redirect_stderr(io.StringIO()):
             r = run_arm_register(chain, f, cal_json, out, fit_poses=n)
         rest = sess.subset(np.arange(n, len(sess)))
-        doc = json.loads((out / "model.json").read_text())
-        plain = GeometricResult.from_dict(chain, doc["plain_geometric"])
-        geo, lrn = read_model(out / "model.json", chain, family="arm").calibration.stages
+        m = read_model(out / "model.json", chain, family="arm")
+        plain = GeometricResult.from_dict(chain, m.doc["plain_geometric"])
+        geo, lrn = m.calibration.stages
         kept = geo.predict(rest.q) + (0.0 if lrn is None else lrn.predict(rest.q))
         t = truth_xyz[n:]
         row[n] = {"kept": r["kept"], "plain": float(np.linalg.norm(t - plain.predict(rest.q), axis=1).mean()),

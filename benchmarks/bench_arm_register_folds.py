@@ -31,9 +31,8 @@ DUMP = None
 
 
 def pair_rows(chain, cal_json, sess, truth=None) -> list:
-    import json
-    geo, learner = read_model(cal_json, chain, family="arm").calibration.stages
-    doc = json.loads(Path(cal_json).read_text())
+    m = read_model(cal_json, chain, family="arm")
+    (geo, learner), doc = m.calibration.stages, m.doc
     if (doc.get("across_blocks") or {}).get("learned_carried") is False:
         learner = None
     cands = [(n, g.chain, g.params, lr) for n, g, lr in

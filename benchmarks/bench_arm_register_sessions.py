@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
-import json
 import tempfile
 import time
 from pathlib import Path
@@ -66,9 +65,9 @@ def register_row(chain, cal_json, sess: ArmPoses, d: Path, truth_xyz=None) -> di
         cell = {"kept": r["kept"], "meas": {k: v["mean_mm"] for k, v in r["heldout_by_candidate"].items()}}
         if truth_xyz is not None:
             rest = sess.subset(np.arange(n, len(sess)))
-            doc = json.loads((out / "model.json").read_text())
-            plain = GeometricResult.from_dict(chain, doc["plain_geometric"])
-            geo, lrn = read_model(out / "model.json", chain, family="arm").calibration.stages
+            m = read_model(out / "model.json", chain, family="arm")
+            plain = GeometricResult.from_dict(chain, m.doc["plain_geometric"])
+            geo, lrn = m.calibration.stages
             kept = geo.predict(rest.q) + (0.0 if lrn is None else lrn.predict(rest.q))
             t = truth_xyz[n:]
             cell["true_plain"] = float(np.linalg.norm(t - plain.predict(rest.q), axis=1).mean())
