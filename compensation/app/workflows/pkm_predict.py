@@ -26,9 +26,11 @@ def run_pkm_predict(machine, points, model, out) -> int:
     ``model.json`` ``model`` (``volcomp calibrate``); the CSV ``out`` written whole."""
     from ...model_file import read_model
     from errormap.pkm.hexapod import KinematicsError, angles_to_rotation, forward_kinematics, inverse_kinematics
-    calibrated = read_model(model, machine, family="parallel").calibration
+    m = read_model(model, machine, family="parallel")
+    calibrated = m.calibration
     if calibrated.extra.get("leg_terms"):
-        raise UsageError(f"{model}: key 'leg_terms': the loop's leg terms are applied to commands "
+        key = "calibration.leg_terms" if m.source.kind == "pkm-model" else "leg_terms"
+        raise UsageError(f"{m.source.path}: key '{key}': the loop's leg terms are applied to commands "
                          "(interpolate --calibration), not yet predicted at poses; predict takes a calibration "
                          "without them (calibrate --no-loop)")
     t = read_table(points, "points")
