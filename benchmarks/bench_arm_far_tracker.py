@@ -1,5 +1,5 @@
 """A joint program compensated without tracker targets: a simulated UR5 (link + base + tool errors, 150 poses at
-20 µm) measured by a tracker 1.8 m away and turned 0.53 rad, its geometric stage written as a calibration.json,
+20 µm) measured by a tracker 1.8 m away and turned 0.53 rad, its geometric stage written as a model.json,
 and `volcomp compensate` of a 40-point joint program with no target columns. TRUE residual: the hidden truth at the
 compensated joints against the nominal points, both in the robot's base frame (the truth's base with link 1's offsets
 along and about its axis absorbed — the slots calibration holds). Self-contained, so it runs on an earlier revision
@@ -15,7 +15,7 @@ from errormap.arm_simulate import ArmTruth, draw_truth, measure, random_joints
 from errormap.machine import load_machine
 from errormap.io import read_table
 from compensation.app.cli import main
-from compensation.app.workflows.arm_calibration import MODEL_FORMAT
+from compensation.fields import ARM_FORMAT as MODEL_FORMAT
 c = load_machine("ur5")
 LO = np.array([-60.0, -150.0, -150.0, -180.0, -120.0, -180.0]); HI = np.array([60.0, -30.0, 150.0, 0.0, 120.0, 180.0])
 PL = np.array([-55.0, -115.0, 35.0, -115.0, 45.0, -25.0]); PH = np.array([55.0, -35.0, 135.0, 25.0, 145.0, 25.0])

@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
-import json
 import sys
 import tempfile
 import time
@@ -36,7 +35,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 from bench_arm_register_sessions import LO, HI, MOVES, moved, session_effect_mm  # noqa: E402
 from bench_arm_sessions import NOISE_MM, T_CAL_C, thermal_truth  # noqa: E402
 
-from compensation.app.workflows.arm_calibration import ArmCalibrationSettings, load_arm_model
+from compensation.app.workflows.arm_calibration import ArmCalibrationSettings
+from compensation.model_file import read_model
 from compensation.app.workflows.arm_run import run_arm_calibration
 from compensation.app.workflows.arm_register import run_arm_register
 from errormap.arm_calibration import GeometricResult
@@ -114,9 +114,9 @@ def register_true(chain, cal_json, sess, truth_xyz, d: Path) -> dict:
         with contextlib.redirect_stderr(io.StringIO()):
             r = run_arm_register(chain, f, cal_json, out, fit_poses=n)
         rest = sess.subset(np.arange(n, len(sess)))
-        doc = json.loads((out / "calibration.json").read_text())
-        plain = GeometricResult.from_dict(chain, doc["plain_geometric"])
-        geo, lrn = load_arm_model(chain, out / "calibration.json")
+        m = read_model(out / "model.json", chain, family="arm")
+        plain = GeometricResult.from_dict(chain, m.doc["plain_geometric"])
+        geo, lrn = m.calibration.stages
         kept = geo.predict(rest.q) + (0.0 if lrn is None else lrn.predict(rest.q))
         t = truth_xyz[n:]
         row[n] = {"kept": r["kept"], "plain": float(np.linalg.norm(t - plain.predict(rest.q), axis=1).mean()),
@@ -153,7 +153,7 @@ def run_sim(seed, amp_mm):
             for name in ("multi", "single"):
                 d = Path(td) / f"{name}{lab}"
                 d.mkdir()
-                rows[name] = register_true(chain, Path(td) / name / "cal" / "calibration.json", new,
+                rows[name] = register_true(chain, Path(td) / name / "cal" / "model.json", new,
                                            tr.tool_point(chain, q), d)
             g = (lambda nm, key: " / ".join(f"{rows[nm][n][key]:.4f}" for n in REGISTER_POSES))
             print(f"| {lab} {temp - T_CAL_C:+.1f} °C | {g('multi', 'plain')} | **{g('multi', 'shipped')}** | "

@@ -19,7 +19,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from bench_arm_register_sessions import HI, LO, MOVES, SESSIONS, calibrate, moved, session_effect_mm  # noqa: E402
 from bench_arm_sessions import NOISE_MM, T_CAL_C, thermal_truth  # noqa: E402
 
-from compensation.app.workflows.arm_calibration import load_arm_model
+from compensation.model_file import read_model
 from compensation.app.workflows.arm_register import candidates_of, plain_of
 from errormap.arm_poses import read_arm_poses
 from errormap.arm_register import FOLD_KINDS, choose_candidate, fit_frame, registered_point
@@ -31,9 +31,8 @@ DUMP = None
 
 
 def pair_rows(chain, cal_json, sess, truth=None) -> list:
-    import json
-    geo, learner = load_arm_model(chain, cal_json)
-    doc = json.loads(Path(cal_json).read_text())
+    m = read_model(cal_json, chain, family="arm")
+    (geo, learner), doc = m.calibration.stages, m.doc
     if (doc.get("across_blocks") or {}).get("learned_carried") is False:
         learner = None
     cands = [(n, g.chain, g.params, lr) for n, g, lr in

@@ -23,14 +23,14 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
-import json
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from compensation.app.workflows.arm_calibration import ArmCalibrationSettings, load_arm_model
+from compensation.app.workflows.arm_calibration import ArmCalibrationSettings
+from compensation.model_file import read_model
 from compensation.app.workflows.arm_run import run_arm_calibration
 from compensation.app.workflows.arm_register import run_arm_register
 from errormap.arm_calibration import GeometricResult
@@ -65,9 +65,9 @@ def register_row(chain, cal_json, sess: ArmPoses, d: Path, truth_xyz=None) -> di
         cell = {"kept": r["kept"], "meas": {k: v["mean_mm"] for k, v in r["heldout_by_candidate"].items()}}
         if truth_xyz is not None:
             rest = sess.subset(np.arange(n, len(sess)))
-            doc = json.loads((out / "calibration.json").read_text())
-            plain = GeometricResult.from_dict(chain, doc["plain_geometric"])
-            geo, lrn = load_arm_model(chain, out / "calibration.json")
+            m = read_model(out / "model.json", chain, family="arm")
+            plain = GeometricResult.from_dict(chain, m.doc["plain_geometric"])
+            geo, lrn = m.calibration.stages
             kept = geo.predict(rest.q) + (0.0 if lrn is None else lrn.predict(rest.q))
             t = truth_xyz[n:]
             cell["true_plain"] = float(np.linalg.norm(t - plain.predict(rest.q), axis=1).mean())
@@ -81,7 +81,7 @@ def calibrate(chain, cal: ArmPoses, d: Path) -> dict:
     with contextlib.redirect_stderr(io.StringIO()):
         doc = run_arm_calibration(chain, ArmCalibrationSettings(poses=str(d / "cal.csv")), d / "cal")
     own = {s["name"]: s["mean_mm"] for s in doc["stages"] + doc["baselines"]}
-    return {"json": d / "cal" / "calibration.json", "kept": doc["kept_stage"], "own_kept": own[doc["kept_stage"]],
+    return {"json": d / "cal" / "model.json", "kept": doc["kept_stage"], "own_kept": own[doc["kept_stage"]],
             "own_plain": own["plain geometric LSQ"],
             "carried": (doc.get("across_blocks") or {}).get("learned_carried")}
 

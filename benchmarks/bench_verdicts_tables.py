@@ -32,7 +32,7 @@ def _calibrate(argv, out: Path) -> None:
     t0 = time.process_time()
     with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
         rc = main([str(a) for a in argv])
-    v = json.loads((out / "calibration.json").read_text())["verdict"]
+    v = json.loads((out / "model.json").read_text())["verdict"]
     h = v["held_out"]
     print(f"{out.name}: exit {rc}, {v['status']}, kept {h['kept_rms_mm']:.4f} mm, plain LSQ {h['plain_lsq_rms_mm']:.4f} "
           f"mm, paired z {h['paired_z_plain_over_kept']:.2f}, RMS(r/sigma) {h.get('noise_ratio')}, "

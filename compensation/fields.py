@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from errormap.io import InputError, read_document_text
+from errormap.pkm.calibration_file import CALIBRATION_FORMAT as PKM_FORMAT   # a parallel machine's calibration
 
 MODEL_FORMAT = "volcomp-model/1"         # model.json (errormap/diagnosis/loop_model.py writes it)
 ELEMENTS_FORMAT = "volcomp-elements/1"
@@ -24,6 +25,12 @@ DIAGNOSED_FORMAT = "volcomp-diagnosed-model/1"
 CHAIN_MODEL_FORMAT = "volcomp-chain-model/1"  # model.json of diagnose on a machine-tool chain (errormap/diagnosis/loop_model.py)
 NETWORK_FORMAT = "volcomp-mlpfield/1"      # config.json of a trained model folder (training/model.py)
 CHAIN_NETWORK_FORMAT = "volcomp-chain-mlpfield/1"  # the same over a machine-tool chain (training/chain_model.py)
+ARM_FORMAT = "volcomp-arm-calibration/4"  # an arm model.json's calibration section (compensation/calibration_models.py)
+ARM_READ_FORMATS = (ARM_FORMAT, "volcomp-arm-calibration/3", "volcomp-arm-calibration/2")
+"""Arm calibrations read, bare (an older ``calibration.json``) or as a model.json's section (/2: before the stacked
+stage; /3: before the base frame was kept apart from the link parameters; their stages are all readable as /4's)."""
+FAMILY_KINDS = {"arm": "arm-model", "parallel": "pkm-model"}
+"""A model.json's key ``family`` (absent: a machine tool's) → its kind."""
 DRIFT_SCHEMA = "volcomp.drift_model"       # the drift model's key 'schema' (errormap/diagnosis/drift_models.py)
 _RUN_ID = re.compile(r"^[0-9a-f]{32}$")    # an MLflow run id (training/tracking.py RUN_ID_RE)
 
@@ -31,6 +38,10 @@ KIND_NAMES = {"model": f"model ({MODEL_FORMAT})",
               "elements": f"element set ({ELEMENTS_FORMAT})",
               "diagnosed": f"diagnosed model ({DIAGNOSED_FORMAT})",
               "chain-model": f"diagnosed chain model ({CHAIN_MODEL_FORMAT})",
+              "arm-model": f"arm calibration model ({MODEL_FORMAT})",
+              "pkm-model": f"parallel machine calibration model ({MODEL_FORMAT})",
+              "arm-calibration": "arm calibration (volcomp-arm-calibration/2 to /4)",
+              "pkm-calibration": f"parallel machine calibration ({PKM_FORMAT})",
               "drift": f"drift model ({DRIFT_SCHEMA})",
               "network": f"trained model folder ({NETWORK_FORMAT})",
               "chain-network": f"trained chain model folder ({CHAIN_NETWORK_FORMAT})",
@@ -68,7 +79,14 @@ def _json_format(path: Path) -> str | None:
         raise InputError(f"{path}: not a model file (JSON {type(d).__name__}, no key 'format'); expected {_EXPECTED}")
     fmt = d.get("format")
     if fmt == MODEL_FORMAT:
-        return "model"
+        if d.get("family") is not None and d.get("family") not in FAMILY_KINDS:
+            raise InputError(f"{path}: key 'family': {d.get('family')!r}; expected one of "
+                             f"{', '.join(FAMILY_KINDS)} (absent: a machine tool's model)")
+        return FAMILY_KINDS.get(d.get("family"), "model")
+    if fmt in ARM_READ_FORMATS:
+        return "arm-calibration"
+    if fmt == PKM_FORMAT or (fmt is None and "identified_machine" in d and "kind" in d):
+        return "pkm-calibration"
     if fmt == ELEMENTS_FORMAT:
         return "elements"
     if fmt == DIAGNOSED_FORMAT:
@@ -86,7 +104,12 @@ def _json_format(path: Path) -> str | None:
 
 
 _EXPECTED = (f"a model.json ({MODEL_FORMAT!r}) or an older model file: an element set, a closed loop's model.json, "
-             "a drift model or a trained model folder")
+             "an arm's or PKM's calibration.json, a drift model or a trained model folder")
+
+
+MODEL_FILES_IN_FOLDER = ("model.json", "calibration.json")
+"""A folder named as a model is read as the model file in it (``calibrate --out DIR``: an arm's or parallel
+machine's), after a trained model folder's ``config.json``."""
 
 
 def resolve_model(spec) -> ModelSource:
@@ -103,8 +126,11 @@ def resolve_model(spec) -> ModelSource:
                 kind = _json_format(d / "config.json")
                 if kind in ("network", "chain-network"):
                     return ModelSource(kind, spec, d)
+        for name in MODEL_FILES_IN_FOLDER:      # the folder a command wrote its model file in
+            if (p / name).is_file():
+                return resolve_model(p / name)
         raise InputError(f"{p}: a folder, but not a trained model folder (no config.json of format "
-                         f"{NETWORK_FORMAT!r} in it or in {p / 'model'}); expected {_EXPECTED}")
+                         f"{NETWORK_FORMAT!r} in it or in {p / 'model'}) and no model.json in it; expected {_EXPECTED}")
     if _RUN_ID.match(spec) or spec.startswith(("runs:/", "models:/")):
         return ModelSource("mlflow", spec, None)
     raise InputError(f"{spec}: no such file or folder, and not an MLflow run id (32 hex digits), runs:/ or "
@@ -139,8 +165,10 @@ def verdict_of(path) -> dict | None:
     ``updated_elements.json``, a drift model). ``{"status", "reasons", "file"}``; None: no verdict."""
     from errormap.io import read_json
     path = Path(path)
-    if path.is_dir():   # a trained model folder: no diagnosis verdict
-        return None
+    if path.is_dir():   # the model file in the folder (a trained model folder: none, no diagnosis verdict)
+        path = next((path / n for n in MODEL_FILES_IN_FOLDER if (path / n).is_file()), None)
+        if path is None:
+            return None
     for f in (path, path.parent / DIAGNOSIS_NAME):
         if not f.is_file():
             continue

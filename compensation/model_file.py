@@ -10,7 +10,10 @@
 * the grinder file's old closed-loop ``model.json`` (``volcomp-diagnosed-model/1``): elements + the grinder's
   effect terms (+ learned residual), whose conditions a compensated path gives per point
   (:attr:`Model.per_point`, :mod:`compensation.conditions`);
-* a trained network folder (``volcomp-mlpfield/1``, ``volcomp-chain-mlpfield/1``) or an MLflow reference.
+* a trained network folder (``volcomp-mlpfield/1``, ``volcomp-chain-mlpfield/1``) or an MLflow reference;
+* a serial arm's or parallel machine's ``model.json`` (key ``family``; its ``calibration`` section), or their older
+  ``calibration.json`` (``volcomp-arm-calibration/2`` … ``/4``, ``volcomp-pkm-calibration/1``):
+  :mod:`compensation.calibration_models`; :attr:`Model.calibration` holds what was calibrated.
 
 Every command that evaluates a model (``predict``, ``compensate``, ``export``, ``report``) calls
 :func:`read_model` and asks the :class:`Model` what it holds (elements, covariance, terms, learned residual,
@@ -26,11 +29,16 @@ from pathlib import Path
 
 from errormap.io import InputError, companion_path, read_document_text
 
+from .calibration_models import read_arm_model, read_pkm_model
 from .fields import (CHAIN_MODEL_FORMAT, DIAGNOSED_FORMAT, MODEL_FORMAT, ModelSource, require_kind,
                      resolve_model)
 
-FIELD_KINDS = ("model", "chain-model", "diagnosed", "elements", "chain-network", "network", "mlflow")
-"""What :func:`resolve_model` recognises that :func:`read_model` reads as an error field."""
+FIELD_KINDS = ("model", "chain-model", "diagnosed", "elements", "chain-network", "network", "mlflow", "arm-model",
+               "arm-calibration", "pkm-model", "pkm-calibration")
+"""What :func:`resolve_model` recognises that :func:`read_model` reads."""
+KIND_FAMILY = {"arm-model": "arm", "arm-calibration": "arm", "pkm-model": "parallel", "pkm-calibration": "parallel"}
+"""The family of each kind of model file that is not a machine tool's."""
+_A_FAMILY = {"machine tool": "a machine tool", "arm": "a serial arm", "parallel": "a parallel machine"}
 LEARNED_KEYS = ("learned_residual", "base_stage", "base_terms_replaced", "loop_alone", "learned_family",
                 "mlflow_run_id")
 """The keys of ``model.json`` that only a kept learned residual writes."""
@@ -50,7 +58,11 @@ class Model:
     * ``terms`` — the accepted effect terms; ``learned`` — the kept learned residual
       (:class:`compensation.hybrid.LearnedResidual`) or None; ``network`` — the surrogate network's folder or
       MLflow reference (None: none); ``stage`` — the kept stage; ``provenance`` — what wrote it;
-    * ``doc`` — the model.json's content (None for an element set or a network).
+    * ``doc`` — the model.json's content (None for an element set or a network; an arm's or parallel machine's:
+      its calibration section, with the file's verdict);
+    * ``family`` — ``machine tool``, ``arm`` or ``parallel``; ``calibration`` — an arm's
+      :class:`compensation.calibration_models.ArmCalibration` or a parallel machine's identified machine (``field``
+      is then None: the family's own workflows evaluate it).
     """
 
     field: object
@@ -66,6 +78,8 @@ class Model:
     per_point: bool = False
     provenance: dict = dc_field(default_factory=dict)
     doc: dict | None = None
+    family: str = "machine tool"
+    calibration: object = None
 
     @property
     def needs(self) -> tuple:
@@ -89,13 +103,19 @@ class Model:
                                ("network", self.network)) if v]
 
 
-def read_model(spec, machine, tracking_uri: str | None = None, source: ModelSource | None = None) -> Model:
+def read_model(spec, machine, tracking_uri: str | None = None, source: ModelSource | None = None,
+               family: str | None = None) -> Model:
     """The :class:`Model` of ``spec`` (a model file, trained-network folder or MLflow reference, recognised by
-    content) for the machine tool ``machine`` (a chain, or a ``kind = "grinder"`` file: its chain, except the
-    grinder's own old closed-loop model and trained network of x, z, a). InputError naming the file and key for
-    anything else (a foreign or garbled file, another machine's model, a drift model)."""
+    content) for ``machine``: a machine tool (a chain, or a ``kind = "grinder"`` file: its chain, except the
+    grinder's own old closed-loop model and trained network of x, z, a), a serial arm or a parallel machine.
+    ``family``: the family the caller evaluates (None: any). InputError naming the file and key for anything else
+    (a foreign or garbled file, another machine's or family's model, a drift model)."""
     src = source or resolve_model(spec)
     require_kind(src, FIELD_KINDS, "this command evaluates")
+    got = KIND_FAMILY.get(src.kind, "machine tool")
+    if family is not None and got != family:
+        raise InputError(f"{src.path or src.spec}: key 'family': a model of {_A_FAMILY[got]}, not of "
+                         f"{_A_FAMILY.get(family, family)} (--machine {getattr(machine, 'name', machine)})")
     return _READERS[src.kind](src, machine, tracking_uri)
 
 
@@ -306,9 +326,19 @@ def loop_alone_model(doc: dict) -> dict:
     return out
 
 
+def _read_calibration(src: ModelSource, machine, tracking_uri) -> Model:
+    """A serial arm's or parallel machine's ``model.json`` or older ``calibration.json``
+    (:mod:`compensation.calibration_models`): what was calibrated, and the calibration section."""
+    family = KIND_FAMILY[src.kind]
+    calibration, doc = {"arm": read_arm_model, "parallel": read_pkm_model}[family](src, machine)
+    return Model(None, src, str(doc.get("format")), stage=doc.get("kept_stage"), doc=doc, family=family,
+                 calibration=calibration)
+
+
 _READERS = {"model": _read_model_json, "chain-model": _read_model_json, "diagnosed": _read_diagnosed,
             "elements": _read_elements, "chain-network": _read_network, "network": _read_network,
-            "mlflow": _read_network}
+            "mlflow": _read_network, "arm-model": _read_calibration,
+            "arm-calibration": _read_calibration, "pkm-model": _read_calibration, "pkm-calibration": _read_calibration}
 """The reader of each recognised format: the one place a model file's format decides anything."""
 
 __all__ = ["Model", "read_model", "save_model_file", "LEARNED_KEYS", "loop_alone_model", "CHAIN_MODEL_FORMAT", "MODEL_FORMAT"]

@@ -274,7 +274,7 @@ class PKMCalibration(Estimator):
 
     ``fit(poses)``: a :class:`errormap.pkm.poses.PoseData` (:func:`errormap.read_poses`). Learned: ``result_``
     (:class:`errormap.pkm.calibration.CalibrationResult`: parameters, standard errors, λ, conditioning, residuals),
-    ``machine_`` (the identified machine: what ``calibration.json`` holds), ``frame_`` (instrument ← machine:
+    ``machine_`` (the identified machine: what ``model.json``'s ``calibration`` section holds), ``frame_`` (instrument ← machine:
     translation (3,) mm, rotation (3, 3)).
     """
 

@@ -14,6 +14,7 @@ from errormap.arm_poses import convert_tracker_grid, read_arm_poses, write_arm_p
 from errormap.arm_simulate import draw_truth, measure, random_joints
 from errormap.io import read_table
 from errormap.machine import load_machine
+from compensation.calibration_models import calibration_section
 
 SHARED = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "serial-arms"
 # a UR5-like workspace box (deg) inside which the simulated poses are drawn (the real grid's ranges)
@@ -30,7 +31,7 @@ PIPELINE_CV_ATOL_MM = 1e-9
 # a soft arm (10x draw_truth's default compliance, ~1 mm of sag at full reach): the plain LSQ fit leaves a
 # smooth residual far above the 0.02 mm noise, which the plain GP's CV keeps
 SOFT_COMPLIANCE_RAD_PER_MM = 3e-7
-# the learner handed on through calibration.json predicts as the fitted one up to round-off (measured 9e-16 mm)
+# the learner handed on through model.json predicts as the fitted one up to round-off (measured 9e-16 mm)
 ROUNDTRIP_ATOL_MM = 1e-12
 # compliance recovery: the identified compliance of the two shoulder/elbow joints (q2, q3: the large gravity
 # moments) within this relative error of the truth (3e-5 rad/m) on 400 poses at 0.02 mm noise. Measured on seed 0
@@ -138,7 +139,7 @@ def test_simulated_arm_cli_learned_stage_and_compensation(tmp_path, ur5):
     r = cli("calibrate", tmp_path / "fit.csv", "--check", tmp_path / "check.csv", "--machine", "ur5", "--out",
             tmp_path / "cal")
     assert r.returncode == 0, r.stderr
-    doc = json.loads((tmp_path / "cal" / "calibration.json").read_text())
+    doc = calibration_section(tmp_path / "cal" / "model.json", "arm")[0]
     st = {s["name"]: s for s in doc["stages"]}
     base = {s["name"]: s for s in doc["baselines"]}
     kept = st[doc["kept_stage"]]
@@ -163,7 +164,7 @@ def test_simulated_arm_cli_learned_stage_and_compensation(tmp_path, ur5):
     qp = random_joints(UR5_LO + 5, UR5_HI - 5, 50, [7, 9])
     prog = tmp_path / "prog.csv"
     prog.write_text(",".join(ur5.joint_columns) + "\n" + "\n".join(",".join(f"{v:.10g}" for v in row) for row in qp))
-    r = cli("compensate", prog, "--machine", "ur5", "--model", tmp_path / "cal" / "calibration.json", "--out",
+    r = cli("compensate", prog, "--machine", "ur5", "--model", tmp_path / "cal" / "model.json", "--out",
             tmp_path / "comp")
     assert r.returncode == 0, r.stdout + r.stderr
     out = read_table(tmp_path / "comp" / "prog.csv")
@@ -213,10 +214,11 @@ def test_a_plain_pipeline_that_wins_the_pipeline_cv_is_kept_and_handed_on(ur5, m
     """Wiring of the nested decision: where the plain GP on the plain LSQ residual has the lowest pipeline CV
     (rigged here by halving its figure), it is the kept stage: the plain calibration is the geometric model,
     the plain GP the learner, the stage is a row of ``stages`` with the baseline's figures, and the
-    ``calibration.json`` hands the plain GP on to compensation."""
+    ``model.json`` hands the plain GP on to compensation."""
     import training.arm_residual as ar
-    from compensation.app.workflows.arm_calibration import (ArmCalibrationSettings, calibrate_arm, load_arm_model,
+    from compensation.app.workflows.arm_calibration import (ArmCalibrationSettings, calibrate_arm,
                                                             model_document)
+    from compensation.model_file import read_model
     real = ar.cv_pipelines
 
     def rigged(*a, **k):
@@ -237,8 +239,8 @@ def test_a_plain_pipeline_that_wins_the_pipeline_cv_is_kept_and_handed_on(ur5, m
     assert core["plain_gp"].chosen_ == "gp"           # the large sag leaves a residual the plain GP learns
     assert core["kept_learner"] is core["plain_gp"]
     doc = model_document(ur5, core, ArmCalibrationSettings(poses="fit.csv"), len(fit), len(check))
-    (tmp_path / "calibration.json").write_text(json.dumps(doc))
-    geo, learner = load_arm_model(ur5, tmp_path / "calibration.json")
+    (tmp_path / "model.json").write_text(json.dumps(doc))
+    geo, learner = read_model(tmp_path / "model.json", ur5, family="arm").calibration.stages
     assert learner is not None and learner.inputs == "sincos"
     assert np.allclose(learner.predict(check.q), core["plain_gp"].predict(check.q), rtol=0, atol=ROUNDTRIP_ATOL_MM)
     assert np.array_equal(geo.predict(check.q), core["plain_model"].predict(check.q))
@@ -332,7 +334,7 @@ def test_real_ur5_grid_blocked_sector_through_the_cli(tmp_path, ur5):
     write_arm_poses(tmp_path / "check.csv", ur5, poses.subset(np.flatnonzero(held)))
     assert main(["calibrate", str(tmp_path / "fit.csv"), "--machine", "ur5", "--check", str(tmp_path / "check.csv"),
                  "--out", str(tmp_path / "cal"), "--no-learned"]) == 0
-    doc = json.loads((tmp_path / "cal" / "calibration.json").read_text(encoding="utf-8"))
+    doc = calibration_section(tmp_path / "cal" / "model.json", "arm")[0]
     assert doc["n_check_poses"] == held.sum() and doc["n_fit_poses"] == (~held).sum()
     assert q1[held].min() >= q1[~held].max()          # blocked: the held-out poses lie beyond every fit pose
     from errormap.arm_calibration import choose_model
@@ -352,7 +354,7 @@ def test_real_ur5_grid_blocked_sector_through_the_cli(tmp_path, ur5):
         rows = list(csv.reader(fh))
     with open(tmp_path / "check_grid.csv", "w", newline="", encoding="utf-8") as fh:
         csv.writer(fh).writerows([rows[0]] + [r for r, h in zip(rows[1:], held) if h])
-    assert main(["predict", "--machine", "ur5", "--model", str(tmp_path / "cal" / "calibration.json"),
+    assert main(["predict", "--machine", "ur5", "--model", str(tmp_path / "cal" / "model.json"),
                  str(tmp_path / "check_grid.csv"), "--out", str(tmp_path / "pred.csv")]) == 0
     from errormap.io import read_table
     t = read_table(tmp_path / "pred.csv")

@@ -110,7 +110,7 @@ def test_joint_program_compensated_in_the_base_frame(ur5, far, tmp_path):
     from compensation.app.cli import main
     tf, _, p = far
     geo = fit_model(ur5, p, "dh")
-    cal = tmp_path / "calibration.json"
+    cal = tmp_path / "model.json"
     cal.write_text(json.dumps(_doc(ur5, geo)))
     qp = random_joints(PROG_LO, PROG_HI, 40, [5, 9])
     prog = tmp_path / "prog.csv"
@@ -137,7 +137,7 @@ def test_targets_given_in_the_base_frame(ur5, far, tmp_path):
     from compensation.app.cli import main
     _, _, p = far
     geo = fit_model(ur5, p, "dh")
-    cal = tmp_path / "calibration.json"
+    cal = tmp_path / "model.json"
     cal.write_text(json.dumps(_doc(ur5, geo)))
     qp = random_joints(PROG_LO, PROG_HI, 10, [5, 10])
     tgt = ur5.tool_point(qp) + np.array([0.5, -0.3, 0.2])

@@ -152,7 +152,7 @@ def test_calibrate_on_three_sessions_and_register_follows(ur5, tmp_path):
     new = measure(ur5, _truth(ur5, {"base.y_mm": 900.0, "base.rz_rad": 0.3}), random_joints(LO, HI, 40, [6, 20]),
                   NOISE_MM, [6, 21])
     write_arm_poses(tmp_path / "new.csv", ur5, new)
-    r = run_arm_register(ur5, tmp_path / "new.csv", tmp_path / "cal" / "calibration.json", tmp_path / "reg",
+    r = run_arm_register(ur5, tmp_path / "new.csv", tmp_path / "cal" / "model.json", tmp_path / "reg",
                          fit_poses=20)
     assert r["across_sessions"]["carried"] == a["carried"]
     assert (r["heldout_registered"]["mean_mm"] <= HELDOUT_TOL_MM)

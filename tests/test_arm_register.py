@@ -7,6 +7,7 @@ from errormap.arm_register import BASE_SLOTS, register_frame
 from errormap.arm_simulate import ArmTruth, draw_truth, measure, random_joints
 from errormap.io import InputError
 from errormap.machine import load_machine
+from compensation.calibration_models import calibration_section
 
 UR5_LO = np.array([-60.0, -150.0, -150.0, -180.0, -120.0, -180.0])
 UR5_HI = np.array([60.0, -30.0, 150.0, 0.0, 120.0, 180.0])
@@ -84,12 +85,12 @@ def test_register_through_the_cli_then_predict(tmp_path, ur5, sessions):
     r = cli("calibrate", tmp_path / "cal.csv", "--check", tmp_path / "chk.csv", "--machine", "ur5", "--no-learned",
             "--folds", "2", "--out", tmp_path / "c")
     assert r.returncode == 0, r.stderr
-    own = json.loads((tmp_path / "c" / "calibration.json").read_text())
+    own = calibration_section(tmp_path / "c" / "model.json", "arm")[0]
     own_mean = {s["name"]: s for s in own["stages"]}[own["kept_stage"]]["mean_mm"]
-    r = cli("register", tmp_path / "new.csv", "--machine", "ur5", "--model", tmp_path / "c" / "calibration.json",
+    r = cli("register", tmp_path / "new.csv", "--machine", "ur5", "--model", tmp_path / "c" / "model.json",
             "--fit-poses", 20, "--out", tmp_path / "s")
     assert r.returncode == 0, r.stderr
-    reg = json.loads((tmp_path / "s" / "calibration.json").read_text())["registration"]
+    reg = calibration_section(tmp_path / "s" / "model.json", "arm")[0]["registration"]
     assert reg["n_fit_poses"] == 20 and reg["heldout_registered"]["n"] == 100
     assert reg["heldout_registered"] == reg["heldout_by_candidate"][reg["kept"]]   # the model shipped, beside plain
     assert "plain geometric LSQ" in reg["heldout_by_candidate"] and reg["kept_why"]
@@ -97,14 +98,14 @@ def test_register_through_the_cli_then_predict(tmp_path, ur5, sessions):
     prog = tmp_path / "prog.csv"
     rest = new.subset(np.arange(20, len(new)))
     prog.write_text(",".join(ur5.joint_columns) + "\n" + "\n".join(",".join(f"{v:.10g}" for v in row) for row in rest.q))
-    r = cli("predict", prog, "--machine", "ur5", "--model", tmp_path / "s" / "calibration.json", "--out",
+    r = cli("predict", prog, "--machine", "ur5", "--model", tmp_path / "s" / "model.json", "--out",
             tmp_path / "p.csv")
     assert r.returncode == 0, r.stderr
     p = read_table(tmp_path / "p.csv")
     xyz = np.stack([p.float(c) for c in ("x_mm", "y_mm", "z_mm")], 1)         # the robot's base frame
-    from compensation.app.workflows.arm_calibration import load_arm_model
+    from compensation.model_file import read_model
     from errormap.arm_frames import from_base_frame
-    geo, _ = load_arm_model(ur5, tmp_path / "s" / "calibration.json")
+    geo, _ = read_model(tmp_path / "s" / "model.json", ur5, family="arm").calibration.stages
     e = np.linalg.norm(from_base_frame(ur5, geo.params, xyz) - rest.xyz_mm, axis=1).mean()
     assert e == pytest.approx(reg["heldout_registered"]["mean_mm"], rel=1e-6)   # predict reads the registered frame
 
@@ -158,7 +159,7 @@ def test_learned_residual_turns_with_the_registered_base(ur5, sessions):
 
 
 def test_a_registered_files_rotation_is_checked_and_applied():
-    from compensation.app.workflows.arm_calibration import registered_learner
+    from compensation.calibration_models import registered_learner
     from training.arm_residual import RotatedResidual
     lr = _LinearResidual([0.3, -0.4, 0.0])
     assert registered_learner(lr, {}, "c.json") is lr                    # a calibration as written: as learned

@@ -6,13 +6,15 @@ import numpy as np
 import pytest
 
 from compensation.app.cli import main
-from compensation.app.workflows.arm_calibration import STACKED, load_arm_model
+from compensation.calibration_models import STACKED
+from compensation.model_file import read_model
 from errormap.arm_calibration import fit_model, fit_plain_lsq
 from errormap.arm_poses import read_arm_poses, write_arm_poses
 from errormap.arm_simulate import draw_truth, measure, random_joints
 from errormap.io import InputError, read_table
 from errormap.machine import load_machine
 from training.arm_residual import ArmResidualRegressor, StackedResidual, pipeline_std_mm, stack_cv, stack_weight
+from compensation.calibration_models import calibration_section
 
 # a UR5-like workspace box (deg), the real grid's ranges
 UR5_LO = np.array([-60.0, -120.0, 30.0, -120.0, 40.0, -30.0])
@@ -166,7 +168,7 @@ def test_bad_stacked_files_refused_in_one_line(ur5, geo_pair, tmp_path, capsys):
     good = _doc(ur5, StackedResidual(0.6, a, b))
     p = tmp_path / "cal.json"
     p.write_text(json.dumps(good))
-    geo, st = load_arm_model(ur5, p)
+    geo, st = read_model(p, ur5, family="arm").calibration.stages
     assert isinstance(st, StackedResidual) and geo is st.geometric
     prog = tmp_path / "prog.csv"
     prog.write_text(",".join(ur5.joint_columns) + "\n" + "\n".join(",".join(f"{v:.10g}" for v in r) for r in fit.q[:5]))
@@ -179,7 +181,7 @@ def test_bad_stacked_files_refused_in_one_line(ur5, geo_pair, tmp_path, capsys):
     for name, (doc, words) in bad.items():
         p.write_text(json.dumps(doc))
         with pytest.raises(InputError, match=words.replace("[", r"\[").replace("]", r"\]")):
-            load_arm_model(ur5, p)
+            read_model(p, ur5, family="arm").calibration.stages
         assert main(["predict", "--machine", "ur5", "--model", str(p), str(prog), "--out", str(tmp_path / "o.csv")]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and str(p) in err and words in err, (name, err)
@@ -220,7 +222,7 @@ def test_old_files_load_and_their_geometric_band_is_refused(ur5, geo_pair, tmp_p
     p = tmp_path / "old.json"
     p.write_text(json.dumps({"format": "volcomp-arm-calibration/2", "kept_stage": "geometric+compliance",
                              "machine": {"name": ur5.name, "joints": ur5.joint_columns}, "geometric": g, "learned": None}))
-    geo, learner = load_arm_model(ur5, p)
+    geo, learner = read_model(p, ur5, family="arm").calibration.stages
     assert learner is None and not geo.full_covariance
     assert np.array_equal(geo.predict(fit.q), a[0].predict(fit.q))
     prog = tmp_path / "prog.csv"
@@ -258,7 +260,7 @@ def test_compensation_with_a_blend_lands_on_the_simulated_arm(ur5, learned_pair)
 @pytest.mark.slow
 def test_the_command_keeps_the_stack_by_its_rule_and_hands_it_on(ur5, tmp_path, monkeypatch, capsys):
     """calibrate → the stacked stage kept where the pipeline rule picks it (rigged here: the rule returns it, and the
-    weight is set to 0.6, a real blend: on this arm volcomp's pipeline alone is best, weight 1) → calibration.json →
+    weight is set to 0.6, a real blend: on this arm volcomp's pipeline alone is best, weight 1) → model.json →
     predict (point and band) and compensate through the CLI reproduce the kept blend."""
     import compensation.app.workflows.arm_calibration as ac
     import training.arm_residual as ar
@@ -270,13 +272,13 @@ def test_the_command_keeps_the_stack_by_its_rule_and_hands_it_on(ur5, tmp_path, 
     write_arm_poses(tmp_path / "check.csv", ur5, check)
     assert main(["calibrate", str(tmp_path / "fit.csv"), "--check", str(tmp_path / "check.csv"), "--machine", "ur5",
                  "--folds", "3", "--out", str(tmp_path / "cal")]) == 0
-    doc = json.loads((tmp_path / "cal" / "calibration.json").read_text(encoding="utf-8"))
+    doc = calibration_section(tmp_path / "cal" / "model.json", "arm")[0]
     assert doc["kept_stage"] == STACKED and doc["stacked_summary"]["kept"]
     assert "stacked pipeline" in doc["kept_why"]
     row = {s["name"]: s for s in doc["stages"]}[STACKED]
     w = doc["stacked"]["weight"]
     assert w == doc["stacked_summary"]["weight"] == RIGGED_WEIGHT and 0 <= doc["stacked_summary"]["coverage95_cv"] <= 1
-    geo, st = load_arm_model(ur5, tmp_path / "cal" / "calibration.json")
+    geo, st = read_model(tmp_path / "cal" / "model.json", ur5, family="arm").calibration.stages
     assert isinstance(st, StackedResidual) and st.weight == w
     # the stage row is the reloaded blend's held-out error (on the check file as the command read it)
     check = read_arm_poses(tmp_path / "check.csv", ur5)
@@ -286,7 +288,7 @@ def test_the_command_keeps_the_stack_by_its_rule_and_hands_it_on(ur5, tmp_path, 
     prog = tmp_path / "prog.csv"
     prog.write_text(",".join(ur5.joint_columns) + "\n" + "\n".join(",".join(f"{v:.10g}" for v in r) for r in qp))
     capsys.readouterr()
-    assert main(["predict", "--machine", "ur5", "--model", str(tmp_path / "cal" / "calibration.json"), str(prog),
+    assert main(["predict", "--machine", "ur5", "--model", str(tmp_path / "cal" / "model.json"), str(prog),
                  "--out", str(tmp_path / "pred.csv"), "--band", "95"]) == 0
     pred = read_table(tmp_path / "pred.csv")
     q_in = np.stack([pred.float(c) for c in ur5.joint_columns], 1)
@@ -299,7 +301,7 @@ def test_the_command_keeps_the_stack_by_its_rule_and_hands_it_on(ur5, tmp_path, 
     R = base_rotation(ur5, st.geometric.params)     # the band's components turned into the base frame
     sd = np.sqrt((st.predict(q_in, return_std=True)[1] ** 2) @ (R ** 2))
     assert np.allclose(band, 1.959963984540054 * c * sd, rtol=1e-9, atol=0)
-    assert main(["compensate", str(prog), "--machine", "ur5", "--model", str(tmp_path / "cal" / "calibration.json"),
+    assert main(["compensate", str(prog), "--machine", "ur5", "--model", str(tmp_path / "cal" / "model.json"),
                  "--out", str(tmp_path / "comp")]) == 0
     comp = read_table(tmp_path / "comp" / "prog.csv")
     qn = np.stack([comp.float(c) for c in ur5.joint_columns], 1)

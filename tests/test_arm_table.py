@@ -110,7 +110,7 @@ def _cyclic_poses(ur5, truth, n, seed):
 def test_table_learns_a_cyclic_joint_error_and_round_trips(ur5):
     """A simulated UR5 (draw_truth: link errors + sag) with a 50-arcsec, 6-per-turn joint-1 error, 800 fit poses (slow:
     10-40 s): the table slot set
-    predicts held-out poses at the noise floor, the harmonic one does not; calibration.json's geometric stage
+    predicts held-out poses at the noise floor, the harmonic one does not; model.json's geometric stage
     written and read back predicts bit for bit; outside the data the table is zero."""
     truth = draw_truth(ur5, 11)
     fit, check = _cyclic_poses(ur5, truth, N_FIT, 11), _cyclic_poses(ur5, truth, 200, 12)

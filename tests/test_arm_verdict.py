@@ -17,6 +17,7 @@ from errormap.arm_simulate import draw_truth, measure, random_joints
 from errormap.diagnosis.plausibility import ARM_NOISE_EXCESS, BASELINE_Z, arm_verdict
 from errormap.machine import load_machine
 from errormap.io import read_table
+from compensation.calibration_models import calibration_section
 
 UR5_LO = np.array([-60.0, -120.0, 30.0, -120.0, 40.0, -30.0])
 UR5_HI = np.array([60.0, -30.0, 140.0, 30.0, 150.0, 30.0])
@@ -64,9 +65,9 @@ def test_verdict_fails_residuals_the_stated_noise_cannot_explain():
 
 @pytest.fixture(scope="module")
 def models(tmp_path_factory):
-    """Two calibration.json of a UR5 (the plain LSQ fit of 60 simulated poses, fast), one with a passed verdict and
+    """Two model.json of a UR5 (the plain LSQ fit of 60 simulated poses, fast), one with a passed verdict and
     one with the failed verdict an understated tracker noise gives, and a 5-point joint program."""
-    from compensation.app.workflows.arm_calibration import MODEL_FORMAT
+    from compensation.fields import ARM_FORMAT as MODEL_FORMAT
     from errormap.arm_calibration import fit_plain_lsq
     ur5 = load_machine("ur5")
     d = tmp_path_factory.mktemp("armmodel")
@@ -110,7 +111,7 @@ def test_calibrate_writes_the_verdict_and_exits_1_when_it_fails(calibrated):
     d, runs = calibrated
     rc, out, err = runs["true"]
     assert rc == 0, err
-    doc = json.loads((d / "true" / "calibration.json").read_text())
+    doc = calibration_section(d / "true" / "model.json", "arm")[0]
     v = doc["verdict"]
     assert v["status"] == "passed" and "calibrate: verdict: passed" in out
     kept = next(s for s in doc["stages"] if s["name"] == doc["kept_stage"])
@@ -119,7 +120,7 @@ def test_calibrate_writes_the_verdict_and_exits_1_when_it_fails(calibrated):
     assert abs(v["held_out"]["noise_ratio"] - 1.0) < RATIO_TOL
     rc, out, err = runs["understated"]
     assert rc == 1, err
-    doc = json.loads((d / "understated" / "calibration.json").read_text())
+    doc = calibration_section(d / "understated" / "model.json", "arm")[0]
     assert doc["verdict"]["status"] == "failed" and "calibrate: verdict: FAILED" in out
     assert doc["verdict"]["held_out"]["noise_ratio"] > ARM_NOISE_EXCESS
     assert "Verdict on the held-out poses: <b>FAILED</b>" in (d / "understated" / "report.html").read_text()
@@ -210,10 +211,10 @@ def test_register_refuses_a_failed_calibration_unless_allowed_and_records_it(mod
     rc, out, err = run_cli(["register", d / "session.csv", "--machine", "ur5", "--model", d / "failed.json",
                             "--out", d / "r2", "--allow", "failed-verdict"])
     assert rc == 0, err
-    doc = json.loads((d / "r2" / "calibration.json").read_text())
+    doc = calibration_section(d / "r2" / "model.json", "arm")[0]
     assert doc["registration"]["allowed"].startswith("failed-verdict (") and "stated tracker" in doc["registration"]["allowed"]
     assert doc["verdict"]["status"] == "failed" and "register: failed-verdict" in out
     rc, out, err = run_cli(["register", d / "session.csv", "--machine", "ur5", "--model", d / "passed.json",
                             "--out", d / "r3"])
     assert rc == 0, err
-    assert json.loads((d / "r3" / "calibration.json").read_text())["registration"]["allowed"] is None
+    assert calibration_section(d / "r3" / "model.json", "arm")[0]["registration"]["allowed"] is None

@@ -124,7 +124,7 @@ def test_an_arm_joint_file_without_rows_is_refused(tmp_path):
     """predict / compensate on an arm with a joint file that is a header alone: was a ValueError traceback (a max over
     zero rows) for both. The calibration: a plain geometric LSQ on 40 simulated UR5 poses (as tests/test_fuzz_commands)."""
     import numpy as np
-    from compensation.app.workflows.arm_calibration import MODEL_FORMAT
+    from compensation.fields import ARM_FORMAT as MODEL_FORMAT
     from errormap.arm_calibration import fit_plain_lsq
     from errormap.arm_simulate import draw_truth, measure, random_joints
     from errormap.machine import load_machine
@@ -132,12 +132,12 @@ def test_an_arm_joint_file_without_rows_is_refused(tmp_path):
     lo, hi = np.array([-60.0, -120.0, 30.0, -120.0, 40.0, -30.0]), np.array([60.0, -30.0, 140.0, 30.0, 150.0, 30.0])
     geo = fit_plain_lsq(ur5, measure(ur5, draw_truth(ur5, 7), random_joints(lo, hi, 40, [7, 0]), 0.02, [7, 1]))
     (tmp_path / "cal").mkdir()
-    (tmp_path / "cal" / "calibration.json").write_text(json.dumps(
+    (tmp_path / "cal" / "model.json").write_text(json.dumps(
         {"format": MODEL_FORMAT, "machine": {"name": ur5.name, "joints": ur5.joint_columns},
          "kept_stage": "plain geometric LSQ", "geometric": geo.to_dict(), "plain_geometric": geo.to_dict(), "learned": None}))
     q = tmp_path / "q.csv"
     q.write_text("q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg\n")
-    cal = str(tmp_path / "cal" / "calibration.json")
+    cal = str(tmp_path / "cal" / "model.json")
     for argv in (["predict", str(q), "--machine", "ur5", "--model", cal, "--allow", "failed-verdict",
                   "--out", str(tmp_path / "o.csv")],
                  ["compensate", str(q), "--machine", "ur5", "--model", cal, "--allow", "failed-verdict",

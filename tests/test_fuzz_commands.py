@@ -27,6 +27,7 @@ from errormap.io import read_table
 from errormap.machine import builtin_machine_path, load_machine
 from test_fuzz_inputs import (TALLY, TOL_PREDICT_ABS_UM, TOL_PREDICT_REL, _check_output, _head, _tally_outcome,
                               hostile_bytes, mangled_toml, report_tally, run_main)
+from compensation.calibration_models import calibration_section
 
 EXAMPLES = int(os.environ.get("VOLCOMP_FUZZ_EXAMPLES", "0")) or None
 
@@ -55,7 +56,7 @@ def tally():
 def files(tmp_path_factory):
     """Valid inputs to mangle: a grinder's and a mill's sweeps (the first rows of each), a mill's element set and
     checks, a UR5 calibration and a session's poses."""
-    from compensation.app.workflows.arm_calibration import MODEL_FORMAT
+    from compensation.fields import ARM_FORMAT as MODEL_FORMAT
     from errormap.arm_calibration import fit_plain_lsq
     from errormap.arm_poses import write_arm_poses
     from errormap.arm_simulate import draw_truth, measure, random_joints
@@ -167,7 +168,7 @@ def test_fuzz_register_poses(files, data):
         argv = ["register", str(p), "--machine", "ur5", "--model", str(files / "arm.json"), "--out", str(Path(d) / "r")]
         rc, err = run_main(argv)
         if _tally_outcome(argv, rc, err, [str(p)]):
-            doc = json.loads((Path(d) / "r" / "calibration.json").read_text())
+            doc = calibration_section(Path(d) / "r" / "model.json", "arm")[0]
             old = {q["name"]: q["value"] for q in json.loads((files / "arm.json").read_text())["geometric"]["parameters"]}
             new = {q["name"]: q["value"] for q in doc["geometric"]["parameters"]}
             links = [k for k in old if not k.startswith(("base.", "tool."))]

@@ -29,6 +29,7 @@ from errormap.machine import builtin_machine_path, load_machine
 from test_fuzz_commands import fuzz
 from test_fuzz_inputs import (TALLY, TOL_LANDING_MM, TOL_PREDICT_ABS_UM, TOL_PREDICT_REL, _check_output, _head,
                               _tally_outcome, hostile_bytes, mangled_toml, report_tally, run_main)
+from compensation.calibration_models import calibration_section
 
 TOL_TRAIN_RMS_REL = 1e-5
 """train's metrics.json RMS against the written network re-evaluated on the same rows: the network runs in float64
@@ -182,10 +183,10 @@ def test_fuzz_calibrate_arm_poses(arm, data, holdout):
         argv = ["calibrate", str(p), "--machine", "ur5", "--no-learned", "--folds", "2", "--holdout", holdout,
                 "--out", str(out)]
         rc, err = run_main(argv)
-        if rc == 1 and "Traceback" not in err and (out / "calibration.json").is_file():
+        if rc == 1 and "Traceback" not in err and (out / "model.json").is_file():
             rc = 0   # a failed verdict, written: its counts are checked like an exit 0's
         if _tally_outcome(argv, rc, err, [str(p), "--holdout"]):
-            doc = json.loads((out / "calibration.json").read_text())
+            doc = calibration_section(out / "model.json", "arm")[0]
             n = len(read_arm_poses(p, ur5).q)
             _check_output("calibrate", doc["n_fit_poses"] + doc["n_check_poses"] == n, (argv, n))
 
@@ -196,12 +197,12 @@ def test_fuzz_calibrate_arm_poses(arm, data, holdout):
 def test_fuzz_predict_arm_program(arm, data):
     """predict --machine ur5 on a hostile joint program: exit 0 writes the calibrated tool point of every joint row the
     library reads from the same file, or one line naming the file."""
-    from compensation.app.workflows.arm_calibration import load_arm_model
+    from compensation.model_file import read_model
     from compensation.app.workflows.arm_predict import read_points
     from compensation.arm_compensation import model_point
     from errormap.arm_frames import to_base_frame
     ur5 = load_machine("ur5")
-    cal = arm / "cal" / "calibration.json"
+    cal = arm / "cal" / "model.json"
     cols = ur5.joint_columns
     rows = [",".join(f"{(-1) ** j * (5 + 3 * i + 7 * j)}" for j in range(len(cols))) for i in range(8)]
     raw = data.draw(hostile_bytes(",".join(cols) + "\n" + "\n".join(rows) + "\n", table=True))
@@ -212,7 +213,7 @@ def test_fuzz_predict_arm_program(arm, data):
                 "--out", str(o)]
         rc, err = run_main(argv)
         if _tally_outcome(argv, rc, err, [str(p)]):
-            geo, learner, _ = load_arm_model(ur5, str(cal), band_scale=True, base_frame=True)
+            geo, learner = read_model(str(cal), ur5, family="arm").calibration.require_base_frame(cal).stages
             q = read_points(p, ur5)[0]
             want = to_base_frame(ur5, geo.params, model_point(geo.chain, geo.params, learner, q))
             t = read_table(o)

@@ -56,7 +56,7 @@ def test_fuzz_calibrate_poses(calibration, data):
         rc = _exit_0_or_one_line_2(["calibrate", str(Path(d) / "p.csv"), "--out", str(out),
                                     "--noise-um", str(NOISE_UM)], [out])
         if rc == 0:
-            assert (out / "calibration.json").is_file()
+            assert (out / "model.json").is_file()
 
 
 @PKM_FUZZ
@@ -75,11 +75,11 @@ def test_fuzz_interpolate_waypoints_and_machine(calibration, data):
 @PKM_FUZZ
 @given(data=st.data())
 def test_fuzz_interpolate_calibration_file(calibration, data):
-    doc = json.loads((calibration / "cal" / "calibration.json").read_text(encoding="utf-8"))
+    doc = json.loads((calibration / "cal" / "model.json").read_text(encoding="utf-8"))
     text = json.dumps(doc, indent=0)
     raw = data.draw(mangled(text))
     with tempfile.TemporaryDirectory() as d:
-        (Path(d) / "calibration.json").write_bytes(raw)
+        (Path(d) / "model.json").write_bytes(raw)
         out = Path(d) / "prog.csv"
-        _exit_0_or_one_line_2(["interpolate", "sphere", "--calibration", str(Path(d) / "calibration.json"),
+        _exit_0_or_one_line_2(["interpolate", "sphere", "--calibration", str(Path(d) / "model.json"),
                                "--out", str(out)], [out])

@@ -28,9 +28,9 @@ the command's imports, about a second on the loaded test machine)."""
 
 @pytest.fixture(scope="module")
 def made(tmp_path_factory):
-    """A grinder and a mill simulated (their element sets are the models), and a UR5 calibration.json (the plain
+    """A grinder and a mill simulated (their element sets are the models), and a UR5 model.json (the plain
     LSQ fit of 40 simulated poses: what register needs before it reads the session's poses)."""
-    from compensation.app.workflows.arm_calibration import MODEL_FORMAT
+    from compensation.fields import ARM_FORMAT as MODEL_FORMAT
     from errormap.arm_calibration import fit_plain_lsq
     from errormap.arm_simulate import draw_truth, measure, random_joints
     d = tmp_path_factory.mktemp("bounds")

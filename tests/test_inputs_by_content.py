@@ -338,17 +338,19 @@ def test_every_csv_example_in_the_schemas_parses(machine, tmp_path, capsys):
 
 
 def test_pkm_calibration_file_is_known_by_its_format_key(tmp_path):
-    from errormap.pkm.calibration_file import CALIBRATION_FORMAT, load_calibrated_machine
+    from compensation.model_file import read_model
+    from errormap.pkm.calibration_file import CALIBRATION_FORMAT
     m = load_machine(ROOT / "errormap" / "machines" / "hexapod.toml")
     im = {"base_joints_mm": m.base_joints_mm.tolist(), "platform_joints_mm": (m.platform_joints_mm * 1.001).tolist(),
           "leg_offset_mm": np.asarray(m.leg_offset_mm).tolist(), "leg_scale": np.asarray(m.leg_scale).tolist()}
     cal = tmp_path / "cal"                                             # no suffix
     cal.write_text(json.dumps({"format": CALIBRATION_FORMAT, "kind": m.kind, "identified_machine": im}))
-    got = load_calibrated_machine(cal, m)
+    got = read_model(cal, m, family="parallel").calibration
     assert np.array_equal(got.platform_joints_mm, m.platform_joints_mm * 1.001)
     el = ChainElementSet.zeros(load_machine()).save(tmp_path / "calibration.json")  # the right name, the wrong content
-    with pytest.raises(InputError, match=r"key 'format': 'volcomp-elements/1'; not a PKM calibration file"):
-        load_calibrated_machine(el, m)
+    with pytest.raises(InputError, match=r"calibration.json: key 'family': a model of a machine tool, not of a "
+                                         r"parallel machine"):
+        read_model(el, m, family="parallel")
 
 
 def test_a_stale_covariance_companion_is_refused(machine, tmp_path):

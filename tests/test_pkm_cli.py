@@ -7,6 +7,7 @@ from compensation.app.cli import main
 from errormap.io import read_table
 from errormap.machine import load_machine
 from errormap.pkm.simulate import simulate_hexapod_poses
+from compensation.calibration_models import calibration_section
 
 NOISE_UM = 5.0
 HELDOUT_RMS_FACTOR = 3.0  # held-out measured residual includes the check poses' own 3-D noise (~1.7x)
@@ -20,7 +21,7 @@ def test_calibrate_then_interpolate(tmp_path, capsys):
     out = tmp_path / "cal"
     assert main(["calibrate", str(poses), "--out", str(out), "--holdout", "0.25", "--noise-um", str(NOISE_UM),
                  "--scales"]) == 0
-    doc = json.loads((out / "calibration.json").read_text())
+    doc = calibration_section(out / "model.json", "parallel")[0]
     for key in ("parameters", "condition_number", "lambda", "rms_before_um", "rms_after_um", "max_before_um",
                 "max_after_um"):
         assert key in doc
@@ -43,7 +44,7 @@ def test_bad_input_exit_code(tmp_path, capsys):
     bad.write_text("q1,q2\n1,2\n")
     assert main(["calibrate", str(bad), "--out", str(tmp_path / "o")]) == 2
     assert "missing leg columns" in capsys.readouterr().err
-    assert not (tmp_path / "o" / "calibration.json").exists()
+    assert not (tmp_path / "o" / "model.json").exists()
 
 
 def test_calibrate_unknown_noise_compares_lambda_rules(tmp_path):
@@ -53,7 +54,7 @@ def test_calibrate_unknown_noise_compares_lambda_rules(tmp_path):
     sim.write_csv(poses)
     out = tmp_path / "cal"
     assert main(["calibrate", str(poses), "--out", str(out), "--scales"]) == 0
-    doc = json.loads((out / "calibration.json").read_text())
+    doc = calibration_section(out / "model.json", "parallel")[0]
     assert doc["delta_estimated"] and doc["n_gauge"] == 6
     assert doc["condition_number_raw"] is None or doc["condition_number_raw"] > doc["condition_number"]
     rules = {r["rule"]: r for r in doc["lambda_comparison"]["rules"]}

@@ -12,6 +12,7 @@ from errormap.machine import load_machine
 from errormap.pkm.calibration import PKMCalibrator
 from errormap.pkm.legspace import fit_leg_terms, plain_leg_fit
 from errormap.pkm.simulate import MachineErrors, simulate_hexapod_poses
+from compensation.calibration_models import calibration_section
 
 NOISE_UM = 5.0
 # scale recovery: 5 um noise over ~300 mm of leg travel gives a standard error of ~1e-5 per scale; the
@@ -121,7 +122,7 @@ def test_wrong_conventions_refused(sims, tmp_path, capsys, case, expect):
     assert main(["calibrate", p, "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and p in err[0] and expect in err[0]
-    assert not (tmp_path / "o" / "calibration.json").exists()
+    assert not (tmp_path / "o" / "model.json").exists()
 
 
 def test_noise_far_below_residual_is_not_success(sims, tmp_path):
@@ -130,7 +131,7 @@ def test_noise_far_below_residual_is_not_success(sims, tmp_path):
     out = tmp_path / "o"
     # the data carry 5 um noise; a user claiming 0.5 um must not get success
     assert main(["calibrate", p, "--out", str(out), "--noise-um", "0.5", "--no-loop"]) == 1
-    doc = json.loads((out / "calibration.json").read_text())
+    doc = calibration_section(out / "model.json", "parallel")[0]
     assert doc["success"] is False and any("noise you gave" in r for r in doc["success_reasons"])
 
 
@@ -140,7 +141,7 @@ def test_heldout_not_better_is_not_success(sims, tmp_path):
     p, c = _write(tmp_path / "poses.csv", sim_q.columns), _write(tmp_path / "check.csv", other.columns)
     out = tmp_path / "o"
     assert main(["calibrate", p, "--check", c, "--out", str(out), "--no-loop"]) == 1
-    doc = json.loads((out / "calibration.json").read_text())
+    doc = calibration_section(out / "model.json", "parallel")[0]
     assert doc["success"] is False and any("not better than the nominal" in r for r in doc["success_reasons"])
 
 
@@ -149,7 +150,7 @@ def test_cli_reports_baseline_and_never_returns_a_worse_model(sims, tmp_path):
     p = _write(tmp_path / "poses.csv", sim_q.columns)
     out = tmp_path / "o"
     assert main(["calibrate", p, "--out", str(out), "--noise-um", str(NOISE_UM)]) == 0
-    doc = json.loads((out / "calibration.json").read_text())
+    doc = calibration_section(out / "model.json", "parallel")[0]
     assert doc["success"] and doc["scales_estimated"]
     assert doc["baseline"]["objective"] == "leg" and doc["baseline"]["rms_um"] > 0
     assert doc["rms_after_um"] <= doc["baseline"]["rms_um"]
@@ -200,4 +201,4 @@ def test_degenerate_pose_set_refused(tmp_path, capsys):
     assert main(["calibrate", p, "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()   # progress lines, then the one error line
     assert p in err[-1] and "degenerate pose set" in err[-1]
-    assert not (tmp_path / "o" / "calibration.json").exists()
+    assert not (tmp_path / "o" / "model.json").exists()

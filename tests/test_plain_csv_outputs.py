@@ -130,12 +130,12 @@ def test_every_csv_of_the_arm_parallel_and_chain_commands_opens_in_pandas(tmp_pa
     _ok("simulate", "--machine", "ur5", "--seed", "0", "--out", tmp_path / "arm")
     _ok("calibrate", tmp_path / "arm" / "poses.csv", "--check", tmp_path / "arm" / "checks.csv", "--machine", "ur5",
         "--no-learned", "--out", tmp_path / "cal")
-    _ok("predict", "--machine", "ur5", "--model", tmp_path / "cal" / "calibration.json", tmp_path / "arm" / "program.csv",
+    _ok("predict", "--machine", "ur5", "--model", tmp_path / "cal" / "model.json", tmp_path / "arm" / "program.csv",
         "--out", tmp_path / "ap.csv")
-    _ok("register", tmp_path / "arm" / "checks.csv", "--machine", "ur5", "--model", tmp_path / "cal" / "calibration.json",
+    _ok("register", tmp_path / "arm" / "checks.csv", "--machine", "ur5", "--model", tmp_path / "cal" / "model.json",
         "--out", tmp_path / "reg")
     _ok("compensate", tmp_path / "arm" / "program.csv", "--machine", "ur5", "--model",
-        tmp_path / "cal" / "calibration.json", "--out", tmp_path / "ac")
+        tmp_path / "cal" / "model.json", "--out", tmp_path / "ac")
     _ok("simulate", "--machine", "hexapod", "--seed", "0", "--poses", "60", "--checks", "40", "--out", tmp_path / "hex")
     _ok("calibrate", tmp_path / "hex" / "poses.csv", "--check", tmp_path / "hex" / "checks.csv", "--machine", "hexapod",
         "--out", tmp_path / "hcal")
@@ -143,7 +143,7 @@ def test_every_csv_of_the_arm_parallel_and_chain_commands_opens_in_pandas(tmp_pa
     checks = pd.read_csv(tmp_path / "hex" / "checks.csv")
     checks[[c for c in checks.columns if c in ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg")]].iloc[:5].to_csv(
         tmp_path / "in" / "hex_pts.csv", index=False)
-    _ok("predict", "--machine", "hexapod", "--model", tmp_path / "hcal" / "calibration.json",
+    _ok("predict", "--machine", "hexapod", "--model", tmp_path / "hcal" / "model.json",
         tmp_path / "in" / "hex_pts.csv", "--out", tmp_path / "hp.csv")
     _ok("interpolate", "sphere", "--out", tmp_path / "i.csv")
     _ok("simulate", "--machine", "mill-xyz", "--seed", "2", "--checks", "20", "--out", tmp_path / "mill")

@@ -19,6 +19,7 @@ from chromium_cdp import CHROMIUM, Browser
 from compensation.app.cli import main
 from errormap.io import write_csv
 from shared_runs import private_copy
+from compensation.calibration_models import calibration_section
 
 pytestmark = pytest.mark.skipif(not CHROMIUM.exists(), reason="headless Chromium not installed (apt-get install chromium)")
 
@@ -218,7 +219,7 @@ def test_the_report_page_escapes_its_setting(pages):
 def test_the_calibration_page_escapes_names(pages):
     """Names from the user's files are printed escaped (the calibration page printed them raw)."""
     from compensation.app.reports.calibration import render_html
-    doc = json.loads((pages("calibrate").parent / "calibration.json").read_text())
+    doc = calibration_section(pages("calibrate").parent / "model.json", "parallel")[0]
     hostile = '<script>alert("x")</script>'
     doc["machine"]["name"] = hostile
     doc["parameters"] = {hostile: next(iter(doc["parameters"].values()))}
@@ -235,7 +236,7 @@ def test_the_arm_calibration_page_escapes_names_and_shows_every_section(pages):
     page = pages("calibrate-arm").read_text(encoding="utf-8")
     for section in ("stages", "identifiability", "band-calibration", "learned", "figures", "parameters"):
         assert f'<h2 id="{section}">' in page
-    doc = json.loads((pages("calibrate-arm").parent / "calibration.json").read_text())
+    doc = calibration_section(pages("calibrate-arm").parent / "model.json", "arm")[0]
     assert f'{doc["band_calibration"]["factor"]:.3f}' in page   # the factor predict --band applies, on the page
     hostile = '<script>alert("x")</script>'
     doc["machine"]["name"] = hostile

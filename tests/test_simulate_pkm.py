@@ -11,6 +11,7 @@ import pytest
 from compensation.app.cli import main
 from errormap.io import read_table
 from provenance import text_and_provenance
+from compensation.calibration_models import calibration_section
 
 NOISE_UM = 5.0
 FLOOR_RATIO = 1.25
@@ -29,7 +30,7 @@ def test_simulated_hexapod_runs_the_users_calibration_to_its_floor(tmp_path):
     assert truth["kind"] == "hexapod" and len(truth["truth"]["leg_scale"]) == 6
     assert main(["calibrate", str(tmp_path / "sim" / "poses.csv"), "--machine", "hexapod", "--check",
                  str(tmp_path / "sim" / "checks.csv"), "--out", str(tmp_path / "cal")]) == 0
-    cal = json.loads((tmp_path / "cal" / "calibration.json").read_text())
+    cal = calibration_section(tmp_path / "cal" / "model.json", "parallel")[0]
     assert cal["residual_kind"] and cal["n_check_poses"] == 40 and cal["success"]
     before, after = cal["rms_before_um"], cal["rms_after_um"]     # on the 40 check poses
     floor = np.sqrt(3.0) * NOISE_UM
@@ -63,7 +64,7 @@ landing equals calibrate's model to far below this."""
 
 @pytest.mark.slow  # a hexapod calibration: over 5 CPU s
 def test_predict_on_a_hexapod_lands_where_the_calibration_says(tmp_path):
-    """``predict --machine hexapod --model calibration.json``: at the check poses' commanded tips the predicted
+    """``predict --machine hexapod --model model.json``: at the check poses' commanded tips the predicted
     landing, in the instrument frame of the calibration, leaves against the measured checks exactly calibrate's
     held-out RMS."""
     from scipy.spatial.transform import Rotation
@@ -76,7 +77,7 @@ def test_predict_on_a_hexapod_lands_where_the_calibration_says(tmp_path):
                  "--out", str(tmp_path / "sim")]) == 0
     assert main(["calibrate", str(tmp_path / "sim" / "poses.csv"), "--machine", "hexapod", "--no-loop", "--check",
                  str(tmp_path / "sim" / "checks.csv"), "--out", str(tmp_path / "cal")]) == 0
-    cal = json.loads((tmp_path / "cal" / "calibration.json").read_text())
+    cal = calibration_section(tmp_path / "cal" / "model.json", "parallel")[0]
     chk = read_poses(tmp_path / "sim" / "checks.csv", m)
     nom = forward_kinematics(m, m.drive_to_legs(chk.q))            # the commanded poses
     a = rotation_to_angles(nom.platform2base)

@@ -13,6 +13,7 @@ from compensation.app.workflows.simulate_serial import (PROGRAM_MAX_COND, load_s
 from errormap.arm_poses import read_arm_poses
 from errormap.io import read_table
 from errormap.machine import load_machine
+from compensation.calibration_models import calibration_section
 
 NOISE_MM = 0.02                               # the simulated tracker's σ per component (the default 20 μm)
 NOISE_FLOOR_MM = np.sqrt(3) * NOISE_MM        # RMS 3-D error of a perfect model against noisy measurements
@@ -80,7 +81,7 @@ def test_cli_refusals(tmp_path, capsys):
     assert "does not run on a serial arm" in err and "other path:" in err and "inside calibrate" in err
     assert main(["predict", "--machine", "ur5", "--model", str(tmp_path / "cal.json"), str(tmp_path / "p.csv"),
                  "--out", str(tmp_path / "o.csv"), "--band", "95"]) == 2   # an arm's band: its stage's (no file here)
-    assert "not a readable calibration.json" in capsys.readouterr().err
+    assert "cal.json: no such file or folder" in capsys.readouterr().err
 
 
 @pytest.mark.slow
@@ -92,11 +93,11 @@ def test_users_path_simulate_calibrate_compensate_lands_within_the_noise(tmp_pat
                  "--out", str(d)]) == 0
     assert main(["calibrate", str(d / "poses.csv"), "--machine", "ur5", "--check", str(d / "checks.csv"),
                  "--out", str(d / "cal"), "--no-learned"]) == 0
-    doc = json.loads((d / "cal" / "calibration.json").read_text(encoding="utf-8"))
+    doc = calibration_section(d / "cal" / "model.json", "arm")[0]
     kept = {s["name"]: s for s in doc["stages"]}[doc["kept_stage"]]
     assert kept["rms_mm"] <= FLOOR_FACTOR * NOISE_FLOOR_MM
     assert main(["compensate", str(d / "program.csv"), "--machine", "ur5", "--model",
-                 str(d / "cal" / "calibration.json"), "--out", str(d / "comp")]) == 0
+                 str(d / "cal" / "model.json"), "--out", str(d / "comp")]) == 0
     truth = load_serial_truth(d / "truth.json", ur5)
     prog, comp = read_table(d / "program.csv"), read_table(d / "comp" / "program.csv")
     q0 = np.stack([prog.float(c) for c in ur5.joint_columns], 1)
@@ -111,7 +112,7 @@ def test_users_path_simulate_calibrate_compensate_lands_within_the_noise(tmp_pat
     turned = np.arccos(np.clip((np.trace(D, axis1=1, axis2=2) - 1) / 2, -1, 1))
     assert np.median(turned) <= ORIENTATION_MEDIAN_RAD and turned.max() <= ORIENTATION_MAX_RAD
     # predict: the calibrated tool-point error at the program's joints against the truth's, both in the robot's base frame
-    assert main(["predict", "--machine", "ur5", "--model", str(d / "cal" / "calibration.json"), str(d / "program.csv"),
+    assert main(["predict", "--machine", "ur5", "--model", str(d / "cal" / "model.json"), str(d / "program.csv"),
                  "--out", str(d / "pred.csv")]) == 0
     pred = read_table(d / "pred.csv")
     dp = np.stack([pred.float(c) for c in ("dx_mm", "dy_mm", "dz_mm")], 1)

@@ -286,7 +286,7 @@ def arm_held_out(work: Path, args) -> None:
     a = work / "ur5"
     volcomp(f"volcomp simulate --machine ur5 --seed 0 --poses 60 --checks 40 --out {a}/sim")
     volcomp(f"volcomp calibrate {a}/sim/poses.csv --machine ur5 --check {a}/sim/checks.csv --no-learned --out {a}/cal")
-    cal = json.loads((a / "cal" / "calibration.json").read_text())
+    cal = json.loads((a / "cal" / "model.json").read_text())["calibration"]
     rows = {s["name"]: s for s in cal["stages"] + cal["baselines"]}
     kept = rows[cal["kept_stage"]]
     pick = [("nominal", "nominal\nchain", "0.6"), ("nominal + base/tool", "nominal +\nbase/tool", "#999999"),
@@ -301,7 +301,7 @@ def hexapod_held_out(work: Path, args) -> None:
     h = work / "hexapod"
     volcomp(f"volcomp simulate --machine hexapod --seed 0 --out {h}/sim")
     volcomp(f"volcomp calibrate {h}/sim/poses.csv --machine hexapod --check {h}/sim/checks.csv --out {h}/cal")
-    cal = json.loads((h / "cal" / "calibration.json").read_text())
+    cal = json.loads((h / "cal" / "model.json").read_text())["calibration"]
     rows = [("nominal\ngeometry", cal["rms_before_um"], cal["max_before_um"], "0.6"),
             ("plain\nleast squares", cal["baseline"]["rms_um"], cal["baseline"]["max_um"], "#999999"),
             (f"volcomp\n({cal['lambda_rule']} λ)", cal["rms_after_um"], cal["max_after_um"], "#3182bd")]

@@ -420,7 +420,7 @@ BAND_RULE_BLOCKED = ("the kept stage's band std (its own rule) times one factor 
                      "the factor at which it would hold 98 % on the interleaved inner CV (none where that CV was not "
                      "run): never wider than that where the data are dense, never narrower than the stage's own "
                      "interleaved calibration")
-"""The blocked band rule of the arm calibration's kept stage (``calibration.json`` ``band_calibration.rule``)."""
+"""The blocked band rule of the arm calibration's kept stage (``model.json`` ``calibration.band_calibration.rule``)."""
 
 
 def band_z(y_mm, pred_mm, std_mm) -> np.ndarray:

@@ -265,7 +265,7 @@ PARALLEL = Family(
                 _CALIBRATE_OTHER.replace("{what}", "a {kind}")),
         Refusal("predict", (Opt("--band", NOT_YET), Opt("--allow", PHYSICS), Opt("--tracking-uri", NOT_YET),
                             Opt("--units", NOT_YET, default="check")),
-                "{given}: not on a parallel machine yet (its calibration.json holds no prediction band; poses outside "
+                "{given}: not on a parallel machine yet (its model.json holds no prediction band; poses outside "
                 "the leg ranges are refused); leave it out"),
         Refusal("interpolate", (Opt("--sensitivity-plot", NOT_YET),),
                 "{path}: --sensitivity-plot needs a tripod machine file, got {kind!r}", kinds=("hexapod",))))

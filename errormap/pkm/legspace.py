@@ -132,7 +132,7 @@ class LegTerms:
 
     @classmethod
     def from_list(cls, items, k: int, source="") -> "LegTerms":
-        """Inverse of :meth:`to_list` (``calibration.json``'s ``leg_terms``); errors name ``source``."""
+        """Inverse of :meth:`to_list` (the calibration's ``leg_terms``); errors name ``source``."""
         terms = []
         for i, t in enumerate(items or []):
             try:

@@ -7,7 +7,7 @@ fits the plain baseline (scipy least squares in leg space, no regularisation) an
 residual* on held-out poses: nominal, volcomp, baseline. Never returns a model that loses to the
 baseline on the held-out poses; ``success`` is false, with the reasons, when the held-out residual is
 not better than before or far above the noise.
-Writes ``DIR/calibration.json``, ``DIR/report.html`` (PNG plots embedded) and the PNGs
+Writes ``DIR/model.json``, ``DIR/report.html`` (PNG plots embedded) and the PNGs
 (:mod:`compensation.app.workflows.calibration`).
 """
 from __future__ import annotations
@@ -122,7 +122,7 @@ def run_parallel(machine, args) -> int:
         print(f"calibrate: note: {n}")
     if not cal.success:
         print("calibrate: success: false: " + "; ".join(doc["success_reasons"]))
-    print(f"calibrate: wrote {out / 'calibration.json'}, {out / 'report.html'} and {len(cal.pngs)} PNGs")
+    print(f"calibrate: wrote {out / 'model.json'}, {out / 'report.html'} and {len(cal.pngs)} PNGs")
     return 0 if cal.success else 1
 
 
@@ -143,7 +143,7 @@ def run_serial(chain, args) -> int:
         print(f"calibrate: across sessions, {role}: {why}")
     v = doc["verdict"]
     print("calibrate: verdict: passed" if v["status"] == "passed" else "calibrate: verdict: FAILED: " + "; ".join(v["reasons"]))
-    print(f"calibrate: wrote {out / 'calibration.json'} and {out / 'report.html'}")
+    print(f"calibrate: wrote {out / 'model.json'} and {out / 'report.html'}")
     return 1 if v["status"] == "failed" else 0
 
 

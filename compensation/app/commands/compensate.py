@@ -49,7 +49,7 @@ def register(sub):
     p.add_argument("--force", action="store_true",
                    help="write into a DIR that already holds files (removing the previous run's outputs)")
     p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name; default: the built-in "
-                   "grinder; a serial chain (e.g. ur5) compensates joint programs with its calibration.json")
+                   "grinder; a serial chain (e.g. ur5) compensates joint programs with its model.json")
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for run ids")
     p.add_argument("--seed", type=int, default=0, help="seed of the stochastic solvers (ga, batched-ga)")
     p.add_argument("--allow", nargs="?", const="all", default=None, metavar="GUARDS",

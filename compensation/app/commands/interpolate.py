@@ -13,9 +13,9 @@ from pathlib import Path
 
 from errormap.io import InputError
 from errormap.machine import builtin_machine_path, load_machine
-from errormap.pkm.calibration_file import load_calibrated_machine
 from errormap.pkm.hexapod import KinematicsError
 
+from compensation.model_file import read_model
 from compensation.pkm_interpolation import builtin_path, contour_step_mm, leg_program, read_waypoints
 
 from compensation.app.validate import UsageError
@@ -29,7 +29,7 @@ def register(subparsers):
     p.add_argument("path", nargs="?",
                    help="'sphere', 'hyperboloid' or a waypoint CSV (px_mm py_mm pz_mm [nx ny nz] [move cx_mm ..])")
     p.add_argument("--machine", help="machine file (default: the built-in hexapod)")
-    p.add_argument("--calibration", help="calibration folder or calibration.json (compensated commands)")
+    p.add_argument("--calibration", help="calibration folder or model.json (compensated commands)")
     p.add_argument("--out", help="output CSV (required with PATH)")
     p.add_argument("--report", metavar="PAGE", help="also write an HTML page of the program (legs against their "
                    "limits, steps, the calibration's corrections, figures)")
@@ -43,6 +43,11 @@ def register(subparsers):
 
 DEFAULT_MACHINE = "hexapod"
 """The built-in machine interpolated without ``--machine``."""
+
+
+def _calibrated(given, machine):
+    """The identified machine of the calibration ``given`` (a model file, or the folder ``calibrate`` wrote it in)."""
+    return read_model(given, machine, family="parallel").calibration
 
 
 def run(args) -> int:
@@ -70,7 +75,7 @@ def run(args) -> int:
         path = builtin_path(args.path, step)
     else:
         path = read_waypoints(args.path, step)
-    calibrated = load_calibrated_machine(args.calibration, machine) if args.calibration else None
+    calibrated = _calibrated(args.calibration, machine) if args.calibration else None
     print(f"interpolate: {len(path)} steps of f = {step:.4g} mm ({args.feed_mm_min:g} mm/min x {args.period_ms:g} ms)"
           f"{', compensated' if calibrated is not None else ''}", file=sys.stderr)
     try:

@@ -24,7 +24,7 @@ def register(sub):
                    "grinder; a machine-tool chain (mill-xyz, five-axis-ac ...) takes its own axis columns")
     p.add_argument("--model", required=True, help="element-set file (JSON), a diagnosed DIR/model.json (volcomp "
                    "diagnose: the kept stage, the hybrid's learned residual included), MLflow run id or runs:/ URI; "
-                   "an arm (--machine ur5 ...): its DIR/calibration.json (volcomp calibrate)")
+                   "an arm (--machine ur5 ...): its DIR/model.json (volcomp calibrate)")
     p.add_argument("--tracking-uri", default=None)
     p.add_argument("points", help="CSV with x_mm, z_mm, a_deg (a chain machine: its axis columns, e.g. "
                    "x_mm, y_mm, z_mm; an arm: its joint columns q1_deg ..., output the calibrated tool point and "
@@ -182,13 +182,13 @@ def run(args) -> int:
 
 
 def _run_arm(machine, args) -> int:
-    """An arm: its calibration.json at joint configurations."""
+    """An arm: its model.json at joint configurations."""
     from ..workflows.arm_predict import arm_predict_settings_of, run_arm_predict
     return run_arm_predict(machine, args.points, arm_predict_settings_of(args.model, args.out, args.band, args.allow))
 
 
 def _run_parallel(machine, args) -> int:
-    """A parallel machine: its calibration.json at commanded poses."""
+    """A parallel machine: its model.json at commanded poses."""
     from ..workflows.pkm_predict import run_pkm_predict
     return run_pkm_predict(machine, args.points, args.model, args.out)
 

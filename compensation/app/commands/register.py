@@ -1,4 +1,4 @@
-"""``volcomp register POSES --machine ur5 --model DIR/calibration.json --out DIR2``: re-register a calibrated arm's
+"""``volcomp register POSES --machine ur5 --model DIR/model.json --out DIR2``: re-register a calibrated arm's
 base frame (and with ``--tool`` its tool point) in a new measurement session, keeping every link parameter and
 learned stage, and keeps for the session whichever of the plain calibration, the geometric stage alone and the kept
 stage did best in a CV inside the registration poses (:mod:`compensation.app.workflows.arm_register`; docs/explanation/serial-arms.md)."""
@@ -18,8 +18,8 @@ def register(subparsers):
                                                "measurement session from a few poses")
     p.add_argument("poses", help="the session's measured poses (arm pose CSV, as calibrate reads)")
     p.add_argument("--machine", required=True, help="the serial machine (file or built-in name, e.g. ur5)")
-    p.add_argument("--model", required=True, help="calibration.json of the arm (volcomp calibrate)")
-    p.add_argument("--out", required=True, help="output folder: the session's calibration.json")
+    p.add_argument("--model", required=True, help="model.json of the arm (volcomp calibrate)")
+    p.add_argument("--out", required=True, help="output folder: the session's model.json")
     p.add_argument("--tool", action="store_true", help="also fit the tool point (default: the base frame only)")
     p.add_argument("--fit-poses", type=int, default=None, help="register on the first N poses (at least 6) and "
                    "report the held-out error on the rest (default: all poses register)")
@@ -40,7 +40,7 @@ def run(args) -> int:
         print(f"register: {s['name']} = {s['value']:.6g} ± {s['std']:.2g}")
     print(f"register: fit RMS {r['fit_rms_mm']:.4f} mm on {r['n_fit_poses']} poses")
     best = r["poses_that_pin_it_best"]
-    print(f"register: {len(best['q'])} poses that would pin the frame best (in calibration.json, "
+    print(f"register: {len(best['q'])} poses that would pin the frame best (in model.json, "
           f"registration.poses_that_pin_it_best); with them the standard errors would be "
           + ", ".join(f"{s['name']} {v:.2g}" for s, v in zip(r["slots"], best["std_with_them"])))
     print(f"register: kept {r['kept']}" + (" (the plain fallback)" if r["kept_is_plain_fallback"] else "")
@@ -66,5 +66,5 @@ def run(args) -> int:
                  "not in the frame)"))
     if r.get("allowed"):
         print(f"register: {r['allowed']}")
-    print(f"register: wrote {Path(args.out) / 'calibration.json'}")
+    print(f"register: wrote {Path(args.out) / 'model.json'}")
     return 0

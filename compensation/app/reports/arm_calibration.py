@@ -87,7 +87,7 @@ def fixed_slots_text(names) -> str:
 
 
 def render_html(doc: dict, figures=()) -> str:
-    """The page of an arm calibration document (``calibration.json``) with the given figures."""
+    """The page of an arm calibration document (``model.json``) with the given figures."""
     rows = [[("stage: " if i < len(doc["stages"]) else "baseline: ") + r["name"], r["mean_mm"], r["rms_mm"],
              r["max_mm"], r["what"]] for i, r in enumerate(doc["stages"] + doc["baselines"])]
     # css "notes": the last column (what each row is, a sentence) wraps instead of running off the page

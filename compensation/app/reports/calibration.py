@@ -111,12 +111,12 @@ def write_plots(result, before, after, out: Path) -> list[Path]:
 
 
 def render_html(doc: dict, figures: list[Figure]) -> str:
-    """The page of ``calibration.json``'s document with ``figures`` embedded."""
+    """The page of ``model.json``'s document with ``figures`` embedded."""
     return render_page("calibrate.html", title=f"PKM calibration: {doc['machine']['name']}", doc=doc,
                        figures=figures, **_tables(doc))
 
 
 def write_html(doc: dict, pngs: list[Path], out: Path) -> Path:
-    """``out/report.html`` (atomic) from ``calibration.json``'s document and the PNGs (embedded)."""
+    """``out/report.html`` (atomic) from ``model.json``'s document and the PNGs (embedded)."""
     figures = [Figure.from_png(p, *CAPTIONS.get(Path(p).name, (Path(p).stem, None))) for p in pngs]
     return write_page(Path(out) / "report.html", render_html(doc, figures))

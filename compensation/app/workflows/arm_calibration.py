@@ -12,7 +12,8 @@ better in that CV (never return a model that loses to the plain baseline), the l
 top only if the ResidualRegressor's CV says it beats the geometric stage, and then among whole pipelines
 (volcomp's choice, the plain LSQ fit, the plain GP on its residual, and ``stacked``: volcomp's choice and
 the plain GP blended with the weight their out-of-fold predictions choose) the lowest CV mean error.
-``calibration.json``'s document (:func:`model_document`); the run end to end, with its report:
+The calibration document (:func:`model_document`; ``model.json``'s ``calibration`` section,
+:mod:`compensation.calibration_models`); the run end to end, with its report:
 :mod:`compensation.app.workflows.arm_run`.
 """
 from __future__ import annotations
@@ -25,19 +26,10 @@ import numpy as np
 
 from errormap.arm_calibration import GeometricResult, fit_base_tool, fit_plain_lsq
 from errormap.arm_poses import read_arm_poses, temperature_summary
-from errormap.io import InputError, read_document_text
-
+from ...calibration_models import STACKED
+from ...fields import ARM_FORMAT
 from .calibration import holdout_split
 
-MODEL_FORMAT = "volcomp-arm-calibration/4"
-READ_FORMATS = (MODEL_FORMAT, "volcomp-arm-calibration/3", "volcomp-arm-calibration/2")
-"""Formats :func:`load_arm_model` reads (/2: before the stacked stage; /3: before the base frame was kept apart from
-the link parameters; their stages are all readable as /4's)."""
-BASE_FRAME_FORMATS = (MODEL_FORMAT,)
-"""Formats whose base slots are the instrument → robot base transform: the only ones a joint program is compensated
-or predicted with in the robot's base frame (before /4 a link slot could carry the instrument's placement)."""
-STACKED = "stacked"
-"""Stage name of the blend of volcomp's pipeline and the plain GP (:class:`training.arm_residual.StackedResidual`)."""
 Z95 = 1.959963984540054
 FRAMES = {"poses, stages": "the measuring instrument's (tracker's) frame of the calibration poses",
           "compensate targets, predict x_mm and dx_mm": "the robot's base frame (after the base.* transform)",
@@ -55,13 +47,11 @@ FRAMES = {"poses, stages": "the measuring instrument's (tracker's) frame of the 
           "across_sessions": "poses with a session column: every session moved into the frame of the reference "
                              "session (the most poses; frames[].base its registered base); held-out figures each in its "
                              "own session's frame"}
-"""Which frame every block of ``calibration.json`` is in (its key ``frames``)."""
+"""Which frame every block of ``model.json`` is in (its key ``frames``)."""
 DECIDE_MAX_POSES = 500
 """Every decision of :func:`calibrate_arm` (CVs, learned stages, band) runs on at most this many fit poses (a seeded
 subset, :func:`decision_subset`); the geometric fits use all. Its cost grows with the GPs' n³ and the CV's refits;
 docs/decisions/020-benchmark-notebook.md ("Arm calibration at scale") measures the held-out error with and without the subset."""
-KEPT_WITH_LEARNER = ("learned", "plain GP on plain LSQ residual")
-"""Kept stages that carry a learned residual (``calibration.json`` key ``learned``)."""
 
 
 @dataclass
@@ -436,7 +426,7 @@ def across_blocks(band_cal, kept: str, has_learner: bool) -> dict | None:
 def model_document(chain, core, s, n_fit, n_check) -> dict:
     geo: GeometricResult = core["geometric_model"]
     learner = core["learner"]
-    doc = {"format": MODEL_FORMAT, "machine": {"name": chain.name, "kind": chain.kind, "path": chain.path,
+    doc = {"format": ARM_FORMAT, "machine": {"name": chain.name, "kind": chain.kind, "path": chain.path,
                                                "sha256": chain.sha256, "joints": chain.joint_columns},
            "residual_kind": "measured residual (measured − model) on the held-out poses, position norm, mm",
            "poses_file": str(s.poses), "check_file": s.check, "n_fit_poses": n_fit, "n_check_poses": n_check,
@@ -464,78 +454,6 @@ def model_document(chain, core, s, n_fit, n_check) -> dict:
     doc["temperature_c"] = core.get("temperature_c")
     doc["band_calibration"] = core.get("band_calibration")
     return doc
-
-
-def band_scale_of(d: dict, path) -> float:
-    """The kept stage's band factor of a read ``calibration.json`` (``band_calibration.factor``; 1 for a file written
-    before the blocked band rule, or one calibrated without it); InputError on anything but a finite factor ≥ 1."""
-    bc = d.get("band_calibration")
-    if bc is None:
-        return 1.0
-    c = bc.get("factor") if isinstance(bc, dict) else None
-    if isinstance(c, bool) or not isinstance(c, (int, float)) or not np.isfinite(c) or c < 1.0:
-        raise InputError(f"{path}: key 'band_calibration.factor': expected a finite factor ≥ 1, got {c!r}")
-    return float(c)
-
-
-ROTATION_ATOL = 1e-9
-"""A registered file's ``learned_rotation`` must be orthonormal to this (it is written from an exact rotation)."""
-
-
-def registered_learner(learner, d: dict, path):
-    """The learner of a ``calibration.json`` written by ``volcomp register``, turned into the session's frame
-    (:class:`training.arm_residual.RotatedResidual` by ``registration.learned_rotation``); as read otherwise."""
-    reg = d.get("registration")
-    if not isinstance(reg, dict):
-        return learner
-    from training.arm_residual import RotatedResidual
-    R = np.asarray(reg.get("learned_rotation", np.nan), float)
-    if R.shape != (3, 3) or not np.allclose(R @ R.T, np.eye(3), atol=ROTATION_ATOL, rtol=0):
-        raise InputError(f"{path}: key 'registration.learned_rotation': expected a 3 × 3 rotation matrix")
-    return RotatedResidual(learner, R)
-
-
-def load_arm_model(chain, path, band_scale: bool = False, base_frame: bool = False):
-    """(GeometricResult, learner or None) of a ``calibration.json`` written for ``chain``; with ``band_scale`` also
-    the kept stage's band factor (:func:`band_scale_of`). ``base_frame``: the caller works in the robot's base frame
-    (:mod:`errormap.arm_frames`): a file of a format before the base frame was kept apart is refused."""
-    import json
-    try:
-        d = json.loads(read_document_text(path, "an arm calibration"))
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: not a readable calibration.json ({exc})") from None
-    if not isinstance(d, dict) or d.get("format") not in READ_FORMATS:
-        raise InputError(f"{path}: key 'format': expected {MODEL_FORMAT!r} (an arm calibration.json)")
-    if base_frame and d["format"] not in BASE_FRAME_FORMATS:
-        raise InputError(f"{path}: key 'format': {d['format']!r} was written before the robot's base frame was kept "
-                         "apart from the link parameters (a link slot may carry the tracker's placement), so points "
-                         f"in the base frame cannot be told; calibrate again ({MODEL_FORMAT!r})")
-    m = d.get("machine")
-    if not isinstance(m, dict) or m.get("name") != chain.name or m.get("joints") != chain.joint_columns:
-        raise InputError(f"{path}: key 'machine': calibrated for "
-                         f"{m.get('name') if isinstance(m, dict) else None!r}, not {chain.name!r}")
-    if d.get("kept_stage") == STACKED:
-        from training.arm_residual import StackedResidual
-        if not isinstance(d.get("stacked"), dict):
-            raise InputError(f"{path}: key 'stacked': missing (the kept stage is {STACKED!r})")
-        try:
-            st = StackedResidual.from_dict(chain, d["stacked"])
-        except (ValueError, KeyError, TypeError, InputError) as exc:
-            raise InputError(f"{path}: key 'stacked': {exc}") from None
-        return (st.geometric, st, band_scale_of(d, path)) if band_scale else (st.geometric, st)
-    try:
-        geo = GeometricResult.from_dict(chain, d["geometric"])
-    except (KeyError, TypeError, InputError) as exc:
-        raise InputError(f"{path}: key 'geometric': {exc}") from None
-    learner = None
-    if d.get("kept_stage") in KEPT_WITH_LEARNER and d.get("learned"):
-        from training.arm_residual import ArmResidualRegressor
-        try:
-            learner = ArmResidualRegressor.from_dict(chain, d["learned"])
-        except (ValueError, KeyError) as exc:
-            raise InputError(f"{path}: key 'learned': {exc}") from None
-        learner = registered_learner(learner, d, path)
-    return (geo, learner, band_scale_of(d, path)) if band_scale else (geo, learner)
 
 
 def held_out_verdict(core, check, sigma_mm=None) -> dict:

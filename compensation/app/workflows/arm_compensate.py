@@ -1,4 +1,4 @@
-"""``volcomp compensate PROGRAM.csv --machine ur5 --model DIR/calibration.json --out DIR``: arm joint commands.
+"""``volcomp compensate PROGRAM.csv --machine ur5 --model DIR/model.json --out DIR``: arm joint commands.
 
 Each input is a measured-pose-style CSV of the arm: the joint columns (``q1_deg …``: the joint program,
 also Newton's starting point) and optionally target tool points ``x_mm, y_mm, z_mm`` in the ROBOT'S BASE FRAME;
@@ -24,7 +24,7 @@ from compensation.app.validate import UsageError
 
 from ...arm_compensation import solve_joints
 from ...fields import FAILED_VERDICT, check_verdict
-from .arm_calibration import load_arm_model
+from ...model_file import read_model
 
 EXIT_REFUSED = 3
 
@@ -81,7 +81,7 @@ def overridden_verdict(verdict) -> list[str]:
 
 @dataclass(frozen=True)
 class ArmCompensateSettings:
-    """How ``volcomp compensate`` runs on a serial arm: ``model`` (its ``calibration.json``, ``volcomp
+    """How ``volcomp compensate`` runs on a serial arm: ``model`` (its ``model.json``, ``volcomp
     calibrate``), ``out_dir`` (each program written there under its own name), ``force`` (replace outputs that
     exist), ``allow_failed_verdict`` (use a calibration whose verdict failed; recorded in each output's header)."""
     model: str
@@ -103,7 +103,8 @@ def run_arm_compensate(chain, files, settings: ArmCompensateSettings) -> int:
     """``volcomp compensate`` of the joint programs ``files`` on a serial arm (the options it does not take were
     refused by the family registry, :mod:`compensation.app.families`) → exit status (3: a file refused)."""
     model = settings.model
-    geo, learner = load_arm_model(chain, model, base_frame=True)
+    cal = read_model(model, chain, family="arm").calibration.require_base_frame(model)
+    geo, learner = cal.geometric, cal.learner
     verdict = check_verdict(model, settings.allow_failed_verdict)   # a failed calibration: refused unless allowed
     out = Path(settings.out_dir)
     srcs = [Path(f) for f in files]

@@ -1,4 +1,4 @@
-"""``volcomp predict program.csv --machine ur5 --model DIR/calibration.json --out pred.csv``: an arm's
+"""``volcomp predict program.csv --machine ur5 --model DIR/model.json --out pred.csv``: an arm's
 calibrated tool-point error at joint configurations.
 
 Input: a CSV with the chain's joint columns (``q1_deg …``), or a measured-pose file in the tracker grid layout
@@ -21,7 +21,7 @@ from errormap.io import read_table, write_csv
 from compensation.app.validate import UsageError
 
 from ...arm_compensation import model_point
-from .arm_calibration import load_arm_model
+from ...model_file import read_model
 from .arm_compensate import joint_values, nominal_base_points, read_program
 
 
@@ -51,7 +51,7 @@ def read_points(path, chain):
 
 @dataclass(frozen=True)
 class ArmPredictSettings:
-    """How ``volcomp predict`` runs on a serial arm: ``model`` (its ``calibration.json``), ``out`` (the CSV
+    """How ``volcomp predict`` runs on a serial arm: ``model`` (its ``model.json``), ``out`` (the CSV
     written), ``band`` (None, ``"95"`` or ``"1sigma"``: the band columns), ``allow_failed_verdict`` (use a
     calibration whose verdict failed; recorded in the header)."""
     model: str
@@ -74,7 +74,8 @@ def run_arm_predict(chain, points, settings: ArmPredictSettings) -> int:
     """``volcomp predict`` of the joint configurations (or tracker-grid poses) in ``points`` on a serial arm."""
     from ...fields import FAILED_VERDICT, check_verdict
     model, band = settings.model, settings.band
-    geo, learner, band_c = load_arm_model(chain, model, band_scale=True, base_frame=True)
+    cal = read_model(model, chain, family="arm").calibration.require_base_frame(model)
+    geo, learner, band_c = cal.geometric, cal.learner, cal.band_scale
     verdict = check_verdict(model, settings.allow_failed_verdict)   # a failed calibration: refused
     q, measured = read_points(points, chain)
     if band and (learner is None or learner.chosen_ == "none") and not geo.full_covariance:
@@ -104,7 +105,7 @@ def run_arm_predict(chain, points, settings: ArmPredictSettings) -> int:
         cols.update({f"{c}_band{tag}_mm": k * sd[:, j] for j, c in enumerate(("dx", "dy", "dz"))})
         meta.append(f"band: {'1-sigma' if band == '1sigma' else '95 %'} half-width per component of a new measurement "
                     f"about the kept stage ({BAND_RULES[stage_kind(learner)]}), times {band_c:.4g}: the blocked band "
-                    "factor (calibration.json band_calibration: 95 % on blocked inner CVs of the fit poses, at most 98 % "
+                    "factor (model.json band_calibration: 95 % on blocked inner CVs of the fit poses, at most 98 % "
                     "on the interleaved one; 1 for a file without it)")
     path = write_csv(settings.out, cols, header_comments=meta, float_fmt="%.10g")
     n = np.linalg.norm(d, axis=1)

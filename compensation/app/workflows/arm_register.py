@@ -1,26 +1,27 @@
-"""``volcomp register poses.csv --machine ur5 --model DIR/calibration.json --out DIR2``: a calibrated arm in a new
+"""``volcomp register poses.csv --machine ur5 --model DIR/model.json --out DIR2``: a calibrated arm in a new
 measurement session. Only the tracker → base frame (``--tool``: and the tool point) is fitted on the session's
 poses (:func:`errormap.arm_register.register_frame`); every link parameter, joint slot and learned stage of the
 calibration is kept. With ``--fit-poses N`` the first N poses (file order) register and the rest are held out:
 their measured residual (measured − model, position norm) is reported for the registered model and, beside it,
-for the calibration as it was. Writes ``DIR2/calibration.json``: the calibration with the registered frame and a
+for the calibration as it was. Writes ``DIR2/model.json``: the calibration with the registered frame and a
 ``registration`` key (the frame's slots with standard errors, the poses that would pin it best, the figures)."""
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import numpy as np
 
 from errormap.arm_poses import read_arm_poses, temperature_summary
 from errormap.arm_register import MIN_POSES, choose_candidate, fit_frame, register_frame, registered_point
-from errormap.io import InputError, read_document_text, write_json
+from errormap.io import InputError, write_json
 from training.arm_residual import RotatedResidual
 
 from compensation.app.validate import UsageError
 
-from .arm_calibration import errors_mm, load_arm_model, stage_name
+from ...calibration_models import calibration_model_document
+from ...model_file import read_model
+from .arm_calibration import errors_mm, stage_name
 
 
 def _row(e) -> dict | None:
@@ -38,7 +39,7 @@ def _temperature_change(doc, data) -> float | None:
 
 
 PLAIN = "plain geometric LSQ"
-"""Name of the plain calibration (``calibration.json`` key ``plain_geometric``) among the candidates register weighs."""
+"""Name of the plain calibration (``model.json`` key ``plain_geometric``) among the candidates register weighs."""
 
 
 def plain_of(chain, doc, model):
@@ -88,16 +89,16 @@ def session_candidates(cands, geo, carried: dict, term, data) -> list:
 
 def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: int | None = None, seed: int = 0,
                      log=None, allow_failed_verdict: bool = False) -> dict:
-    """Register the calibration ``model`` on the poses file ``poses``; write ``out/calibration.json``; returns its
+    """Register the calibration ``model`` on the poses file ``poses``; write ``out/model.json``; returns its
     ``registration`` dict. The model kept for the session is weighed against the plain calibration inside the
     registration poses (:func:`errormap.arm_register.choose_candidate`, :func:`candidates_of`). A calibration whose
     verdict failed is refused (InputError naming it and the reasons) unless ``allow_failed_verdict``
     (``--allow failed-verdict``): then ``registration.allowed`` records it, and the calibration's own failed verdict
     stays in the output (every later use refuses it again unless allowed)."""
     from ...fields import FAILED_VERDICT, check_verdict
-    geo, learner = load_arm_model(chain, model)          # refuses what is not an arm calibration of this chain
+    m = read_model(model, chain, family="arm")          # refuses what is not an arm calibration of this chain
+    geo, learner, doc = m.calibration.geometric, m.calibration.learner, m.doc
     verdict = check_verdict(model, allow_failed_verdict)
-    doc = json.loads(read_document_text(model, "an arm calibration"))
     plain = plain_of(chain, doc, model)
     across = doc.get("across_blocks") if isinstance(doc.get("across_blocks"), dict) else {}
     sessions = doc.get("across_sessions") if isinstance(doc.get("across_sessions"), dict) else None
@@ -156,5 +157,6 @@ def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: in
                          "position norm, mm"}
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    write_json(out / "calibration.json", out_doc)
+    write_json(out / "model.json", calibration_model_document(
+        "arm", chain, out_doc, {"written_by": "volcomp register", "poses": str(poses), "model": str(model)}))
     return out_doc["registration"]

@@ -1,7 +1,7 @@
 """``volcomp calibrate POSES --machine ur5``: the arm calibration run end to end — the poses read (several sessions
 in one file moved into one frame, :func:`errormap.arm_sessions.align_sessions`), split into fit and held-out poses,
 calibrated (:func:`compensation.app.workflows.arm_calibration.calibrate_arm`), what carries across sessions decided
-(:func:`compensation.app.workflows.arm_sessions.session_document`), the verdict; writes ``calibration.json`` and
+(:func:`compensation.app.workflows.arm_sessions.session_document`), the verdict; writes ``model.json`` and
 ``report.html``."""
 from __future__ import annotations
 
@@ -15,6 +15,8 @@ from errormap.arm_poses import read_arm_poses
 from errormap.arm_sessions import align_sessions, apply_alignment
 from errormap.io import write_json
 
+from ...calibration_models import calibration_model_document
+
 from ..reports.arm_calibration import write_report
 from .arm_calibration import (ArmCalibrationSettings, calibrate_arm, held_out_verdict, model_document, split,
                               stated_sigma_mm)
@@ -22,7 +24,7 @@ from .arm_sessions import session_document
 
 
 def run_arm_calibration(chain, s: ArmCalibrationSettings, out, log=None) -> dict:
-    """Calibrate ``chain`` from ``s.poses``; write ``out/calibration.json`` and ``out/report.html``."""
+    """Calibrate ``chain`` from ``s.poses``; write ``out/model.json`` and ``out/report.html``."""
     log = sys.stderr if log is None else log
     data = read_arm_poses(s.poses, chain)
     moves, frames = None, None
@@ -48,6 +50,7 @@ def run_arm_calibration(chain, s: ArmCalibrationSettings, out, log=None) -> dict
     doc["verdict"] = held_out_verdict(core, check, stated_sigma_mm(s, check))   # failed: calibrate exits 1
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    write_json(out / "calibration.json", doc)
+    write_json(out / "model.json", calibration_model_document(
+        "arm", chain, doc, {"written_by": "volcomp calibrate", "poses": str(s.poses), "check": s.check}))
     write_report(doc, chain, core, check, out)
     return doc

@@ -150,7 +150,7 @@ def _mean(v):
 
 
 def session_document(chain, fit, core, rows, settings, say) -> dict:
-    """``calibration.json`` key ``across_sessions`` of a calibration on poses from several sessions: the sessions'
+    """``model.json`` key ``across_sessions`` of a calibration on poses from several sessions: the sessions'
     frames (``rows`` of :func:`errormap.arm_sessions.align_sessions`), the blocked CV over them
     (:func:`across_sessions`) and the temperature term fitted on every fit pose (where the sessions' temperatures
     span :data:`THERMAL_MIN_SPAN_C`)."""

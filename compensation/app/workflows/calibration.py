@@ -3,7 +3,7 @@
 The poses are split into fit and held-out poses (or a separate check file is used);
 :func:`errormap.pkm.pipeline.validated_calibration` identifies, runs the loop on leg residuals and
 fits the plain baseline; the *measured residual* on the held-out poses decides what is returned
-(never a model that loses to the baseline). :func:`run_calibration` writes ``calibration.json``,
+(never a model that loses to the baseline). :func:`run_calibration` writes ``model.json``,
 ``report.html`` and the PNGs (:mod:`compensation.app.reports.calibration`).
 """
 from __future__ import annotations
@@ -22,6 +22,8 @@ from errormap.pkm.hexapod import KinematicsError
 from errormap.pkm.pipeline import rms_um, validated_calibration
 
 from compensation.app.validate import UsageError
+
+from ...calibration_models import calibration_model_document
 
 from ..families import family_of
 
@@ -48,7 +50,7 @@ class CalibrationSettings:
 
 @dataclass
 class CalibrationRun:
-    """What :func:`run_calibration` did: the ``calibration.json`` document, the PNGs written and
+    """What :func:`run_calibration` did: the ``model.json`` document, the PNGs written and
     the held-out measured residual (RMS, max; μm) before, of volcomp's model and of the baseline."""
 
     doc: dict
@@ -105,7 +107,7 @@ def compare_rules(machine, s: CalibrationSettings, fit, check, res, after, log=N
 
 
 def calibration_document(v, s: CalibrationSettings, check, comparison) -> dict:
-    """The ``calibration.json`` document of a :func:`validated_calibration` result ``v``."""
+    """The ``model.json`` document of a :func:`validated_calibration` result ``v``."""
     res, base, before, after = v.result, v.baseline, v.before, v.after
     b_rms, b_max = rms_um(before)
     a_rms, a_max = rms_um(after)
@@ -146,7 +148,7 @@ def calibration_document(v, s: CalibrationSettings, check, comparison) -> dict:
 
 
 def run_calibration(machine, s: CalibrationSettings, out, log=None) -> CalibrationRun:
-    """Calibrate ``machine`` (hexapod or tripod) from ``s.poses``; write ``out/calibration.json``,
+    """Calibrate ``machine`` (hexapod or tripod) from ``s.poses``; write ``out/model.json``,
     ``out/report.html`` and the PNGs. Progress goes to ``log`` (stderr)."""
     log = sys.stderr if log is None else log
     data = read_poses(s.poses, machine)
@@ -172,7 +174,8 @@ def run_calibration(machine, s: CalibrationSettings, out, log=None) -> Calibrati
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     doc = calibration_document(v, s, check, comparison)
-    write_json(out / "calibration.json", doc)
+    write_json(out / "model.json", calibration_model_document(
+        "parallel", machine, doc, {"written_by": "volcomp calibrate", "poses": str(s.poses), "check": s.check}))
     pngs = write_plots(v.result, v.before["position_um"], v.after["position_um"], out)
     write_html(doc, pngs, out)
     return CalibrationRun(doc, pngs, rms_um(v.before), rms_um(v.after), rms_um(v.baseline_e))

@@ -1,4 +1,4 @@
-"""``volcomp predict --machine hexapod|tripod --model calibration.json``: the calibrated parallel machine's
+"""``volcomp predict --machine hexapod|tripod --model model.json``: the calibrated parallel machine's
 tool-tip error at commanded poses.
 
 A pose (``x_mm, y_mm, z_mm`` in the machine frame; on a hexapod optionally ``rx_deg, ry_deg, rz_deg``, the
@@ -23,12 +23,14 @@ ANGLES = ("rx_deg", "ry_deg", "rz_deg")
 
 def run_pkm_predict(machine, points, model, out) -> int:
     """``volcomp predict`` of the commanded poses in the CSV ``points`` on a parallel machine, with its
-    ``calibration.json`` ``model`` (``volcomp calibrate``); the CSV ``out`` written whole."""
-    from errormap.pkm.calibration_file import load_calibrated_machine
+    ``model.json`` ``model`` (``volcomp calibrate``); the CSV ``out`` written whole."""
+    from ...model_file import read_model
     from errormap.pkm.hexapod import KinematicsError, angles_to_rotation, forward_kinematics, inverse_kinematics
-    calibrated = load_calibrated_machine(model, machine)
+    m = read_model(model, machine, family="parallel")
+    calibrated = m.calibration
     if calibrated.extra.get("leg_terms"):
-        raise UsageError(f"{model}: key 'leg_terms': the loop's leg terms are applied to commands "
+        key = "calibration.leg_terms" if m.source.kind == "pkm-model" else "leg_terms"
+        raise UsageError(f"{m.source.path}: key '{key}': the loop's leg terms are applied to commands "
                          "(interpolate --calibration), not yet predicted at poses; predict takes a calibration "
                          "without them (calibrate --no-loop)")
     t = read_table(points, "points")
