@@ -76,7 +76,7 @@ def run_chain_diagnosis(args) -> int:
     head = read_json(run_dir / "model.json", "model.json of volcomp diagnose --machine")
     if head.get("family") is not None:    # an arm's or parallel machine's calibrate run: its page is written with it
         raise InputError(f"{run_dir / 'model.json'}: key 'family': {head.get('family')!r}, a calibrate run, whose page "
-                         f"is {run_dir / 'report.html'}; report RUN shows a diagnose --machine run")
+                         "is report.html beside it; report RUN shows a diagnose --machine run")
     if head.get("format") not in (MODEL_FORMAT, CHAIN_MODEL_FORMAT):
         what = ("a grinder's diagnose run writes its own page (report.html) there"
                 if (run_dir / "report.html").is_file() else "not a diagnose --machine run")
