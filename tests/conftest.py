@@ -74,7 +74,7 @@ UNIT_CPU_S = {
     "bump user path": 200.0,
     "tests/test_hybrid.py": 100.0,
     "tests/test_mt_loop_terms.py::test_cli_term_the_joint_fit_does_not_support_is_dropped": 100.0,
-    "tests/test_hybrid_backfit.py::test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt": 105.0,
+    "tests/test_hybrid_backfit.py::test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt": 40.0,
     "tests/test_cluster.py": 100.0,
 }
 """The slow tier's longest units of work (CPU s, about their wall time on a quiet core; the slowest tests
