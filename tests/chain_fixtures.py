@@ -1,5 +1,4 @@
-"""Seeded inputs shared by the machine-tool chain tests and benchmarks (tests and
-``benchmarks/bench_lathe_solve.py``, which puts ``tests/`` on its path to import them)."""
+"""Seeded inputs shared by the machine-tool chain tests."""
 from __future__ import annotations
 
 import numpy as np

@@ -72,14 +72,14 @@ while the other idles."""
 
 UNIT_CPU_S = {
     "bump user path": 200.0,
-    "tests/test_hybrid.py": 220.0,
-    "tests/test_mt_loop_terms.py::test_cli_term_the_joint_fit_does_not_support_is_dropped": 210.0,
-    "tests/test_hybrid_backfit.py::test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt": 105.0,
+    "tests/test_hybrid.py": 100.0,
+    "tests/test_mt_loop_terms.py::test_cli_term_the_joint_fit_does_not_support_is_dropped": 100.0,
+    "tests/test_hybrid_backfit.py::test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt": 40.0,
     "tests/test_cluster.py": 100.0,
 }
 """The slow tier's longest units of work (CPU s, about their wall time on a quiet core; the slowest tests
-of the last full slow-tier run plus the fixtures they build; test_hybrid.py's measured alone, one BLAS thread:
-222), handed out first: with the longest units
+of the last full slow-tier run plus the fixtures they build; test_hybrid.py's and the five-axis term test's
+measured alone, one BLAS thread, with the batched GA on 10 hybrid points: 101 and 98), handed out first: with the longest units
 last, one worker would run one of them alone at the end. Units not named follow, most tests first."""
 
 

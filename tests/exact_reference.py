@@ -20,7 +20,7 @@ SEED = 20261124
 CASES = {"grinder": 4000, "mill-xyz": 2000, "five-axis-ac": 2000}
 """Points per case: the grinder (HTM field, ``solve_exact``) and two chain files (``ChainField``,
 ``solve_exact_chain``, rotary axes kept)."""
-ELEMENT_SCALE_UM = 20.0  # chain element values ±20 μm / μrad (bench_mt_solve's scale)
+ELEMENT_SCALE_UM = 20.0  # chain element values ±20 μm / μrad
 
 
 def chain_elements(mt, seed, scale=ELEMENT_SCALE_UM, n_stations=11):

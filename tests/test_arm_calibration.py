@@ -180,7 +180,7 @@ def test_compliance_slots_recover_sag(ur5):
     """Link errors + joint-stiffness sag: with the compliance slots, the compliance of the load-carrying
     joints is recovered. (That the link errors then lie within their 95 % bands of the truth's identifiable
     equivalent, pooled over 20 seeds, and the DH-only stage's do not, is a sweep over seeds: arm_compliance_bands
-    in benchmarks/bench_statistical.py, its first seeds in tests/test_bench_statistical.py; so is the no-sag
+    in benchmarks/suite/statistical.py, its first seeds in the suite's quick run; so is the no-sag
     sweep arm_link_bands.)"""
     t, p = _sim(ur5, 400, 0)
     r = fit_model(ur5, p, "dh+compliance")

@@ -217,22 +217,32 @@ def test_chain_ga_runs_the_fused_fitness_on_the_grinder_chain(machine):
                       ChainAxisFitness)
 
 
+class _Hidden:
+    """``field`` without the ``offset_fitness`` capability: the GA falls back to the generic float64 chain fitness."""
+
+    def __init__(self, field):
+        from errormap.field import OFFSET_FITNESS
+        self._f = field
+        self.capabilities = field.capabilities - {OFFSET_FITNESS}
+        self.calibrated_volume = field.calibrated_volume
+
+    def predict(self, axes, *a, **k):
+        return self._f.predict(axes, *a, **k)
+
+    def __getattr__(self, name):
+        return getattr(self._f, name)
+
+
 @pytest.mark.slow   # ~15 s: two batched-GA solves of 40 points (the network compiles on first use)
 def test_chain_ga_fused_results_equal_float64_within_ga_tolerance(machine):
     """Same targets, same seed: the batched GA with the fused float32 fitness against the generic float64 chain
     fitness (the capability hidden): both succeed, and their commands agree within the paper's GA_TOL_UM."""
-    import importlib.util
-    from pathlib import Path
     from compensation.solvers.chain_ga import solve_batched_ga_chain
-    spec = importlib.util.spec_from_file_location(
-        "bench_fused_fitness", Path(__file__).resolve().parents[1] / "benchmarks" / "bench_fused_fitness.py")
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
     mt = machine
     axes = turn_axes(40, seed=6)
     targets = forward(machine, axes)
     field = make_model()
     fused = solve_batched_ga_chain(field, targets, mt, target_axes=axes, seed=0, progress=False)
-    plain = solve_batched_ga_chain(bench.Hidden(field), targets, mt, target_axes=axes, seed=0, progress=False)
+    plain = solve_batched_ga_chain(_Hidden(field), targets, mt, target_axes=axes, seed=0, progress=False)
     assert fused.success.all() and plain.success.all()
     assert np.abs(fused.commands_mm - plain.commands_mm).max() * 1e3 <= GA_TOL_UM

@@ -66,3 +66,17 @@ def test_the_whole_suite_runs_quick(tmp_path):
         rec = json.loads((tmp_path / f"{name}.json").read_text(encoding="utf-8"))
         assert rec["quick"] is True
         suite.check_result(name, rec)
+    _statistical_quick_record(json.loads((tmp_path / "statistical.json").read_text(encoding="utf-8")))
+    assert json.loads((tmp_path / "demo.json").read_text(encoding="utf-8"))["figures"][0]["value"] is None
+
+
+def _statistical_quick_record(rec):
+    """The statistical sweeps' quick run: every sweep ran once on its first seeds, with the sweep's own code (its
+    per-repetition invariants asserted inside), at its quick size; each rate is a share over at least one unit
+    (nan would fail) and is recorded, not judged."""
+    from benchmarks.suite import statistical
+    assert {f["sweep"] for f in rec["figures"]} == set(statistical.SWEEPS)
+    for f in rec["figures"]:
+        assert f["size"] == statistical.SWEEPS[f["sweep"]][2], f["sweep"]
+        assert 0.0 <= f["value"] <= 1.0, f["sweep"]
+    assert any("not judged" in n for n in rec["notes"])

@@ -4,29 +4,22 @@ Each repetition is "simulate with a known truth → estimate → report a 95 % b
 grinder's chain (``volcomp diagnose``'s one loop, errormap/diagnosis/chain_loop.py): the element parameters'
 deviation from the sweep estimate drawn from the update's own prior, one known effect, check noise; the estimate
 is the loop's joint fit of the term with the element update and the band that fit's posterior covariance
-(:func:`benchmarks.bench_statistical.effect_sweep`). The range asked is 90–98 %.
+(:func:`benchmarks.suite.statistical.effect_sweep`). The range asked is 90–98 %.
 
 The rate needs the full sweep (300 repetitions per effect: binomial SE 1.3 %), about 0.25 CPU s a repetition,
-so it is judged by ``python benchmarks/bench_statistical.py --only effect_band_coverage`` (figures in
-docs/decisions/020-benchmark-notebook.md); here each effect runs its first repetitions with the sweep's own code and seeds, and what
+so it is judged by the full sweep, ``python -m benchmarks.run statistical`` (figures in BENCHMARKS.md); here each effect runs its first repetitions with the sweep's own code and seeds, and what
 must hold on every repetition is asserted. The joint refit of two accepted terms and the smoothed
-identification's prediction band are sweeps of the same benchmark (tests/test_bench_statistical.py).
+identification's prediction band are sweeps of the same benchmark (its quick run: tests/test_benchmarks_suite.py).
 
 Gone with the grinder's own loop: the GLS joint screen (the one loop has no screen: its search is the
 held-out gated forward search) and the bands of a period or an order (the one loop reports the coefficients'
 band given the shape; the searched shape's effect on coverage is recorded by the sweep, not judged).
 """
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 from threadpoolctl import threadpool_limits  # comes with scikit-learn (a dependency)
 
-SPEC = importlib.util.spec_from_file_location(
-    "bench_statistical", Path(__file__).resolve().parents[1] / "benchmarks" / "bench_statistical.py")
-bench = importlib.util.module_from_spec(SPEC)
-SPEC.loader.exec_module(bench)
+from benchmarks.suite import statistical as bench
 
 N_FIRST = 4
 """Repetitions per effect here (about 1 CPU s with the shape search); the rate is the benchmark's (300)."""

@@ -21,8 +21,8 @@ from provenance import text_and_provenance
 SEED = 0
 MACHINE = "mill-xyz"
 BUMP_UM = 6.0
-"""Peak of the local bump of the first linear axis's positioning error (benchmarks/bench_hybrid_chain.py's
-``bump`` case): six times the 1 μm check noise."""
+"""Peak of the local bump of the first linear axis's positioning error (the chain hybrid
+benchmark's ``bump`` case, docs/decisions/008-learned-residual-measurements.md): six times the 1 μm check noise."""
 N_SMALL, N_SMALL_FIT = 150, 90
 """The fast tests' synthetic learned residual: 150 checks, the first 60 % fitting (≥ MIN_FIT_CHECKS = 50 and
 ≥ MIN_HELD_CHECKS = 10 held out), enough for a GP to learn a 6 μm bump at 1 μm noise."""

@@ -16,7 +16,7 @@ parameters up to products of μrad-sized angles (relative 1e-10), far below the 
 FD_REL_TOL = 1e-5
 """Band from the finite-difference Jacobian vs the command's (written with 9 significant digits): 1e-5 relative."""
 # The band's coverage of the hidden truth through the user's path (8 seeds of mill-xyz) is a sweep over seeds:
-# mt_band_coverage in benchmarks/bench_statistical.py, its first seed in tests/test_bench_statistical.py.
+# mt_band_coverage in benchmarks/suite/statistical.py, its first seed in the suite's quick run.
 
 
 def _random_covariance(n, seed):

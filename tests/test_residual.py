@@ -19,7 +19,7 @@ JAC_TOL_REL = 1e-6
 relative, plus rounding ε/h ≈ 1e-11; 1e-6 relative to the largest entry is far from both."""
 
 # Pure noise declined ("none") in at least 19 of 20 seeds (the issue's figure): a sweep over seeds, in
-# benchmarks/bench_statistical.py (residual_declines_noise; its first seeds run in tests/test_bench_statistical.py).
+# benchmarks/suite/statistical.py (residual_declines_noise; its first seeds run in the suite's quick run).
 
 FAR_ABS_TOL = 1e-6
 """At ≥ 50 standardised units from every training point the zero-mean GP's kernel is at most

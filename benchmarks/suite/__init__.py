@@ -19,5 +19,7 @@ REGISTRY = [
     "arms",
     "pkm",
     "cluster",
+    "statistical",
+    "demo",
     "cli_startup",
 ]

@@ -6,7 +6,7 @@ seed-to-seed spread::
 
     volcomp benchmark --quick --seed S --no-track --out before_sS   # in the old checkout, S = 0..4
     volcomp benchmark --quick --seed S --no-track --out after_sS    # in the new one
-    python benchmarks/compare_benchmark_runs.py --before before_s* --after after_s*
+    python tools/compare_benchmark_runs.py --before before_s* --after after_s*
 """
 import argparse
 import json

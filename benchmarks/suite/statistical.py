@@ -2,15 +2,13 @@
 
 Each sweep repeats "simulate with a known truth → estimate → report a 95 % band (or a decision)" and
 compares the rate over its seeds with the range the project states for it. These sweeps were slow-tier
-tests; they live here so that the test suite runs each of them once on its first seeds
-(``--quick``, tests/test_bench_statistical.py) while the full sweep, whose rate is the figure, runs here.
+tests; the full sweep, whose rate is the figure, runs here, and CI runs each once on its first seeds through
+the suite's quick run (tests/test_benchmarks_suite.py, which also checks the quick record's sizes).
 
-    python benchmarks/bench_statistical.py                 # every sweep, full: exit 1 if a rate is outside its range
-    python benchmarks/bench_statistical.py --quick         # the same code on the first seeds (a smoke run: rates recorded, not judged)
-    python benchmarks/bench_statistical.py --only joint_refit_coverage --out /tmp/stat.json
+    python -m benchmarks.run statistical            # every sweep, full: each rate beside its range
+    python -m benchmarks.run statistical --quick    # the same code on the first seeds (rates recorded, not judged)
 
-Writes ``statistical_results.json`` (and ``.md``) beside this file unless ``--out`` is given. The
-per-repetition invariants (an identifiable set that matches the truth's, a reference fit that reproduces
+The per-repetition invariants (an identifiable set that matches the truth's, a reference fit that reproduces
 the truth) are asserted in both modes. Ranges and seeds are those the tests used:
 
 * arm link bands (20 seeds of a simulated UR5 without sag; share of identifiable slots inside their 95 %
@@ -18,25 +16,18 @@ the truth) are asserted in both modes. Ranges and seeds are those the tests used
 * the one loop's 95 % bands of effect coefficients (errormap/diagnosis/chain_loop.py, the grinder through its
   chain): one known term at a time (300 repetitions per term, 90–98 %, :func:`effect_band_coverage`) and two
   accepted terms refitted jointly with the update (100 repetitions, 90–98 %, :func:`joint_refit_coverage`);
-  the smoothed identification's prediction band (3 truths of each family, 90–98 %). The grinder loop's GLS
-  joint screen had a sweep here; the one loop has no screen (its search is held-out gated), so it is gone;
+  the smoothed identification's prediction band (3 truths of each family, 90–98 %);
 * the learned residual declines pure noise in at least 19 of 20 seeds;
 * a machine-tool chain's ``predict --band 95`` through the user's path (8 seeds of mill-xyz, within 0.035 of
   0.95; the naive ±1.96 σ̂ band ≤ 0.75).
 """
 from __future__ import annotations
 
-import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
-
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
 
 Z95 = 1.959963984540054
 COVERAGE_LO, COVERAGE_HI = 0.90, 0.98   # "contain the truth 90–98 % of the time"
@@ -361,7 +352,24 @@ SWEEPS = {   # name -> (function, full size, quick size)
 }
 
 
-def run(names=None, quick: bool = False) -> dict:
+TITLE = "Statistical sweeps: 95 % band coverage and decline rates over fixed seeds"
+DATA = ("simulated UR5 arms (200 poses, 20 μm tracker noise), the grinder's chain with known effect terms on 480 "
+        "checks at 1 μm, smoothed identifications of both truth families, pure noise for the learned residual, "
+        "mill-xyz's user's path (simulate → sweeps → identify → predict --band 95); seeds fixed per sweep")
+
+WHAT = {
+    "arm_link_bands": ("UR5 link slots inside their 95 % band (no sag)", "true"),
+    "arm_compliance_bands": ("UR5 link slots inside their 95 % band (sag, compliance slots fitted)", "true"),
+    "prediction_coverage": ("smoothed identification's 95 % prediction band holds the truth", "true"),
+    "effect_band_coverage": ("one loop's 95 % band of a known effect term's coefficients, lowest of 5 effects", "true"),
+    "joint_refit_coverage": ("95 % bands of two terms refitted jointly with the update, lowest coefficient", "true"),
+    "residual_declines_noise": ("learned residual declines pure noise (share of seeds)", "none"),
+    "mt_band_coverage": ("mill-xyz `predict --band 95` holds the truth", "true"),
+}
+"""Per sweep: the figure's words and its residual kind (a band judged against the hidden truth, or a decision)."""
+
+
+def run_sweeps(names=None, quick: bool = False) -> dict:
     """Run the named sweeps (all by default) → {"quick": bool, "sweeps": {name: result + size, cpu_s}}.
     One BLAS thread: the repetitions' matrices are small (several threads spin on a shared machine)."""
     from threadpoolctl import threadpool_limits
@@ -375,34 +383,23 @@ def run(names=None, quick: bool = False) -> dict:
     return out
 
 
-def _markdown(doc) -> str:
-    lines = ["## Statistical sweeps (`python benchmarks/bench_statistical.py" + (" --quick" if doc["quick"] else "")
-             + "`)", "", "| sweep | size | rate | range | within | CPU s (this process) |", "|---|---|---|---|---|---|"]
+def run(quick: bool, seed: int) -> dict:
+    """The suite's entry: every sweep (its own fixed seeds; ``seed`` is not used) → figures, one per sweep: the
+    rate beside the range stated for it; quick rates are recorded, not judged."""
+    doc = run_sweeps(quick=quick)
+    figures, out_of_range = [], []
     for name, r in doc["sweeps"].items():
-        within = "not judged (quick)" if doc["quick"] else ("yes" if r["within"] else "**no**")
-        lines.append(f"| {name} | {r['size']} | {r['rate']:.3f} | {r['range'][0]:.2f}–{r['range'][1]:.2f} | "
-                     f"{within} | {r['cpu_s']} |")
-    return "\n".join(lines) + "\n"
-
-
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="each sweep on its first seeds (a smoke run; rates not judged)")
-    ap.add_argument("--only", action="append", choices=sorted(SWEEPS), help="run only this sweep (repeatable)")
-    ap.add_argument("--out", type=Path, default=Path(__file__).with_name("statistical_results.json"))
-    a = ap.parse_args(argv)
-    doc = run(a.only, a.quick)
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    for path, text in ((a.out, json.dumps(doc, indent=2, default=float) + "\n"),
-                       (a.out.with_suffix(".md"), _markdown(doc))):
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(text)
-        tmp.replace(path)
-    print(_markdown(doc))
-    if a.quick:
-        return 0
-    return 0 if all(r["within"] for r in doc["sweeps"].values()) else 1
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+        what, residual = WHAT[name]
+        lo, hi = r["range"]
+        n = r.get("seeds", r.get("repetitions"))
+        count = f"{n} {'seed' if 'seeds' in r else 'repetition'}{'s' if n != 1 else ''}"
+        figures.append({"what": f"{what} ({count})",
+                        "value": round(r["rate"], 3), "unit": "", "residual": residual,
+                        "anchor": f"range stated {lo:.3g}–{hi:.3g}", "anchor_value": None,
+                        "size": r["size"], "within": bool(r["within"]), "sweep": name})
+        if not r["within"]:
+            out_of_range.append(name)
+    notes = (["Quick: each sweep on its first seeds; rates recorded, not judged."] if quick else
+             ["Every rate within its range." if not out_of_range else
+              f"Outside its range: {', '.join(out_of_range)}."])
+    return {"figures": figures, "notes": notes}

@@ -1,6 +1,6 @@
 """Every figure of the default drift selection, to check that a change leaves the default unchanged.
 
-``python benchmarks/bench_drift_fingerprint.py --out A.json`` on one commit, ``--out B.json`` on the other, then
+``python tools/drift_fingerprint.py --out A.json`` on one commit, ``--out B.json`` on the other, then
 ``--compare A.json B.json``: the default ``DriftSelector(fit_fraction=0.6)`` on the shared real log (when present) and
 on a simulated rod log (seed 6, 24 h at 120 s) — chosen candidates, weights, scales, the ranking / horizon / novelty
 RMS of every candidate, the per-channel report and the coefficients — compared value by value to ``TOL`` (relative,

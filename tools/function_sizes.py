@@ -7,7 +7,7 @@ functions counted on their own, decorators not counted), measured with
 
 Usage::
 
-    python benchmarks/function_sizes.py [--root DIR] [--top N]
+    python tools/function_sizes.py [--root DIR] [--top N]
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ Used to check that a change of the code leaves the fit unchanged: run it in two 
 compare the rows (``iterations``, ``train_*`` must agree to the last digit; ``val_*`` also
 depends on how the validation points are drawn)::
 
-    PYTHONPATH=CHECKOUT python benchmarks/training_repro.py LABEL [MAX_ITER]
+    PYTHONPATH=CHECKOUT python tools/training_repro.py LABEL [MAX_ITER]
 
 Data: ``volcomp simulate --seed 0`` (default grinder, 1,331 feature points); the trainer's
 defaults (LM, raw A, Nguyen–Widrow init seed 0, 2 threads) with the paper's stop at 0.0267 μm max
