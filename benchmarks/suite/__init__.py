@@ -13,6 +13,7 @@ REGISTRY = [
     "solvers",
     "drift",
     "gcode_corpus",
+    "large_inputs",
     "lathe",
     "tcp",
     "work_offsets",

@@ -11,6 +11,18 @@ G54/G55 as machine zero), then run by the controller with the real offset and to
 ``compensate --work-offsets --tool-table``. Residual kind: TRUE (the truth machine's tool point at every
 vertex minus the programmed point), μm.
 
+Canned cycles (:func:`cycle_figures`): ``tests/data/cycles/drill_linuxcnc.ngc`` (G81 ×3 with modal repeats, G82,
+G83, G73, G85, G89 under G55 from ``tests/data/controller/offsets.csv``) compensated with the same model and
+``--truth``: the TRUE residual at the hole bottoms with the cycles kept, and at every vertex with
+``--expand-cycles --dialect linuxcnc``; the tilt along each kept hole in the notes (|XY correction at R − at the
+bottom|, model).
+
+No assumed zero (:func:`no_assumed_zero`): every program of ``tests/data/gcode_corpus`` the corpus expects
+compensated (``c*``, default grinder) and of ``tests/data/dialects`` plus ``tests/data/mill_pocket.nc``
+(``mill-xyz``) read as ``compensate`` reads it before solving, with no work-offset table and with
+``--work-offsets machine``: read or refused naming a line (a program that selects no work system is refused
+without a table, not read at machine zero).
+
     python -m benchmarks.run work_offsets
 """
 from __future__ import annotations
@@ -32,6 +44,8 @@ from errormap.chain_field import ChainField
 ROOT = Path(__file__).resolve().parents[2]
 PROGRAM = ROOT / "tests" / "data" / "controller" / "g55_tool_linuxcnc.ngc"
 OFFSETS = ROOT / "tests" / "data" / "controller" / "offsets.var"
+CYCLES = ROOT / "tests" / "data" / "cycles" / "drill_linuxcnc.ngc"
+CYCLE_OFFSETS = ROOT / "tests" / "data" / "controller" / "offsets.csv"
 NOISE_UM = 0.3
 
 
@@ -69,17 +83,82 @@ def run_program(prog, mt, truth, est, tools):
     return len(tp.axes), stats(before), stats(ignored), stats(tool_ignored), stats(used)
 
 
-TITLE = "Work offsets and tool lengths: compensated program with the controller's tables used vs ignored"
+TITLE = ("Work offsets and tool lengths: compensated program with the controller's tables used vs ignored; canned "
+         "cycles kept or expanded; programs read with no table")
 DATA = ("built-in `mill-xyz`, seeded truth with angular errors (every element ±10 μm / μrad 1 σ: pitch, yaw, roll "
         "and squareness; seed 101), model = truth + 0.3 μm / μrad noise (seed 102); "
-        "`tests/data/controller/g55_tool_linuxcnc.ngc` (G55, G43 H1), G55 = (200, 100, −150) mm, tool 1 of 0 or 150 mm")
+        "`tests/data/controller/g55_tool_linuxcnc.ngc` (G55, G43 H1), G55 = (200, 100, −150) mm, tool 1 of 0 or 150 mm; "
+        "`tests/data/cycles/drill_linuxcnc.ngc` (8 drilled holes, G55); the repository's corpus, dialect and mill "
+        "programs (`tests/data/gcode_corpus/c*`, `tests/data/dialects`, `tests/data/mill_pocket.nc`)")
 TOOL_LENGTHS_MM = (0.0, 150.0)
 """Tool 1's lengths shown: a gauge-line tool and a long one; ignoring the table runs either at the machine
 file's 120 mm tool, an Abbe arm 120 mm or 30 mm off."""
 
 
+def _compensate_cycles(d: Path, model: Path, truth: Path, *extra) -> dict:
+    """The ``compensate_summary.json`` file entry of :data:`CYCLES` compensated with ``model`` and ``--truth``."""
+    import contextlib
+    import io
+    import json
+    from compensation.app.cli import main
+    out = d / ("o" + "".join(extra).replace("-", ""))
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        rc = main(["compensate", str(CYCLES), "--machine", "mill-xyz", "--model", str(model), "--method", "exact",
+                   "--truth", str(truth), "--work-offsets", str(CYCLE_OFFSETS), "--out", str(out), "--force", *extra])
+    if rc != 0:
+        raise RuntimeError(f"compensate {CYCLES.name} {' '.join(extra)} exited {rc}")
+    return json.loads((out / "compensate_summary.json").read_text())["files"][0]
+
+
+def cycle_figures(truth, est) -> tuple:
+    """``(figures, notes)``: :data:`CYCLES` compensated with the estimate, cycles kept and expanded (TRUE, μm)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        tf, ef = truth.save(d / "truth.json"), est.save(d / "model.json")
+        c = _compensate_cycles(d, ef, tf)["cycles"]
+        ex = _compensate_cycles(d, ef, tf, "--expand-cycles", "--dialect", "linuxcnc")
+    figs = [{"what": f"canned cycles kept: TRUE at the {c['holes']} hole bottoms, max", "value":
+             c["true_bottom"]["max_um"], "unit": "μm", "residual": "true", "anchor": "uncompensated",
+             "anchor_value": c["true_bottom_uncompensated"]["max_um"]},
+            {"what": f"canned cycles expanded (`--expand-cycles`): TRUE at {ex['points']} vertices, max",
+             "value": ex["true"]["max_um"], "unit": "μm", "residual": "true", "anchor": "uncompensated",
+             "anchor_value": ex["true_uncompensated"]["max_um"]}]
+    notes = ["Kept cycles: the tilt along each hole (|XY correction at R − at the bottom|, model), per line: "
+             + ", ".join(f"{k}: {v:.1f} μm" for k, v in c["tilt_um"].items()) + "."]
+    return figs, notes
+
+
+def no_assumed_zero() -> dict:
+    """``{"no table" | "--work-offsets machine": (programs, read, refused)}`` (module docstring)."""
+    from compensation.app.workflows.compensate import CompensateSettings
+    from compensation.nc_state import MACHINE
+    from compensation.pathio import read_path
+    from errormap.io import InputError
+    data = ROOT / "tests" / "data"
+    grinder, mill = load_machine(), load_machine("mill-xyz")
+    corpus = sorted(p for p in (data / "gcode_corpus").iterdir() if p.name.startswith("c"))
+    mills = sorted((data / "dialects").iterdir()) + [data / "mill_pocket.nc"]
+    out = {}
+    for name, frame in (("no table", None), ("--work-offsets machine", read_work_offsets(MACHINE))):
+        read = refused = 0
+        for p in corpus + mills:
+            try:
+                if p in corpus:
+                    text = p.read_text("latin-1")
+                    opts = {"block_delete": v for v in ("off", "on") if f"block-delete={v}" in text}
+                    read_path(p, grinder, work_offsets=frame, **opts)
+                else:
+                    read_tool_path(p, mill, CompensateSettings("exact", "", Path("."), work_offsets=frame))
+                read += 1
+            except InputError:
+                refused += 1
+        out[name] = (len(corpus) + len(mills), read, refused)
+    return out
+
+
 def run(quick: bool, seed: int) -> dict:
-    """One program, both tool lengths: the same size quick and full (it takes a second)."""
+    """One program, both tool lengths; the drilling cycles; the repository's programs with and without a table:
+    the same size quick and full (a few seconds)."""
     mt = load_machine("mill-xyz")
     truth, est = models(mt)
     figs = []
@@ -94,4 +173,12 @@ def run(quick: bool, seed: int) -> dict:
                          used[0], "tables ignored (G55 as machine zero, the file's 120 mm tool)", ignored[0]),
                      fig(f"tool {length:g} mm: offset used, tool length ignored (the file's 120 mm), max",
                          tool_ignored[0], "uncompensated", before[0])]
-    return {"figures": figs, "notes": []}
+    cfigs, notes = cycle_figures(truth, est)
+    counts = no_assumed_zero()
+    n, read0, refused0 = counts["no table"]
+    _, read1, _ = counts["--work-offsets machine"]
+    figs += cfigs + [{"what": f"repository programs read with no work-offset table (of {n}; the rest refused)",
+                      "value": read0, "unit": "", "residual": "none", "anchor": "read with `--work-offsets machine`", "anchor_value": read1}]
+    notes.append(f"No table: {read0} of {n} repository programs read, {refused0} refused; with `--work-offsets "
+                 f"machine`: {read1} read.")
+    return {"figures": figs, "notes": notes}
