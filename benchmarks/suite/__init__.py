@@ -6,6 +6,7 @@ the whole suite quick (tests/test_benchmarks_suite.py)."""
 
 REGISTRY = [
     "identification",
+    "sweeps",
     "closed_loop",
     "hybrid",
     "surrogate",

@@ -11,15 +11,31 @@ Also, per slot of the shipped lathe file, the identified minus the noise-free id
 the identification's gauge) in units of the identification's standard error (z-score RMS) and the
 volume-grid field error of the identified model.
 
-    python -m benchmarks.run lathe
+Tool offsets (why a lathe tool's X and Z offsets must go through the chain): a LinuxCNC turning program with
+two tools (tool table ``T1 X-40 Z+120``, ``T2 X+25 Z+80``; ``G43`` after each tool change; G54 at Z 300;
+tests/test_lathe_tool_offsets.py's program) on ``lathe-xzc``, per seed a truth ``ChainElementSet.random(lathe,
+seed, 10.0, 11)`` (±10 μm / μrad). TRUE residual: the truth machine with its tool point at the tool's
+offsets, driven to the written axes, radial and axial deviation from the programmed surface of revolution,
+mean over one spindle turn (max over the turning points, μm), for the program as written (uncompensated),
+compensated at the machine file's own tool point (offsets ignored in the chain: the axes shift as the
+controller shifts them, the Abbe arm of the offset left out) and at each tool's offsets (``--tool-table``);
+the model the truth itself and a noisy model (the truth's values plus seeded 0.3 μm / μrad noise).
+
+    python -m benchmarks.run lathe           # seeds 0–2 (user path), 0–4 (tool offsets)
 """
 from __future__ import annotations
 
 import contextlib
 import io
 import json
+import sys
 import tempfile
 from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+NOISE = 0.3
 
 
 PROGRAM = ("%\nO1000 (LATHE X Z C)\nG18 G90 G21\nT1 M6\nG0 X80. Z350. C0.\n"
@@ -56,9 +72,56 @@ def grid_figure(machine_name, seeds):
     return out
 
 
+def _noisy(truth, lathe, seed):
+    from errormap.chain_elements import ChainElementSet
+    rng = np.random.default_rng(1000 + seed)
+    f = {k: v + rng.normal(0.0, NOISE, v.shape) for k, v in truth.functions.items()}
+    for k, v in truth.functions.items():  # a closed profile (C at 360° = at 0°) stays closed
+        if abs(v[-1] - v[0]) < 1e-12:
+            f[k][-1] = f[k][0]
+    return ChainElementSet(lathe, truth.stations, f, {k: v + rng.normal(0.0, NOISE) for k, v in truth.constants.items()})
+
+
+def tool_offsets(seed, d: Path) -> dict:
+    """TRUE max over the turn (μm) per (model, compensation) for one truth seed."""
+    sys.path.insert(0, str(HERE.parent.parent / "tests"))
+    from test_lathe_tool_offsets import PROGRAM as TURN_PROGRAM, TBL, WORK_Z_MM  # the test's program and tables
+    from compensation.app.workflows.compensate import CompensateSettings, solve_paths
+    from compensation.app.workflows.compensate_paths import read_tool_path
+    from compensation.nc_state import machine_with_lathe_tool, read_tool_table, read_work_offsets
+    from compensation.turning import solve_turning, surface_residual_um
+    from errormap.chain_elements import ChainElementSet
+    from errormap.chain_field import ChainField
+    from errormap.machine import load_machine
+    lathe = load_machine("lathe-xzc")
+    (d / "p.ngc").write_text(TURN_PROGRAM)
+    (d / "t.tbl").write_text(TBL)
+    (d / "o.csv").write_text(f"system,x_mm,y_mm,z_mm\nG54,0,0,{WORK_Z_MM}\n")
+    s = CompensateSettings("exact", "", d, work_offsets=read_work_offsets(d / "o.csv"),
+                           tool_table=read_tool_table(d / "t.tbl"), dialect="linuxcnc")
+    truth_els = ChainElementSet.random(lathe, seed, 10.0, 11)
+    truth = ChainField(lathe, truth_els)
+    out = {}
+    for model_name, els in (("truth", truth_els), ("noisy", _noisy(truth_els, lathe, seed))):
+        model = ChainField(lathe, els)
+        tp = read_tool_path(d / "p.ngc", lathe, s, model)
+        res = solve_paths([tp], model, model, lathe, s)[0][0]
+        ignored = solve_turning(model, lathe, tp.axes, ball_um=250.0)[0]
+        for name, q in (("uncompensated", tp.axes), ("ignored", ignored), ("used", res.axes)):
+            worst = 0.0
+            for x, z in {tuple(r) for r in tp.tool_xz}:
+                idx = np.flatnonzero((tp.tool_xz == (x, z)).all(axis=1))
+                mt = machine_with_lathe_tool(lathe, x, z)
+                tr = ChainField(mt, truth.elements)
+                worst = max(worst, float(np.abs(surface_residual_um(tr, mt, q[idx], tp.axes[idx])[0]).max()))
+            out[(model_name, name)] = worst
+    return out
+
+
 TITLE = "Lathe (`lathe-xzc`): identification from sweeps and a turning program compensated"
 DATA = ("simulated `lathe-xzc` (`volcomp simulate --seed S`), sweeps at 2 μm, a G18 turning program with C moves; "
-        "seeds 0–2 (quick: seed 0, no volume-grid figure)")
+        "seeds 0–2 (quick: seed 0, no volume-grid figure); tool offsets: LinuxCNC two-tool program, ±10 μm/μrad "
+        "truths, seeds 0–4 (quick: seed 0)")
 
 
 def run(quick: bool, seed: int) -> dict:
@@ -79,4 +142,24 @@ def run(quick: bool, seed: int) -> dict:
                      "value": float(np.median([x.grid_rms_um for x in g])), "unit": "μm", "residual": "true",
                      "anchor": "mill-xyz's identified model, the same figure",
                      "anchor_value": float(np.median([x.grid_rms_um for x in grid_figure("mill-xyz", seeds)]))})
+    figs += tool_offset_figures([seed] if quick else [seed + k for k in range(5)])
     return {"figures": figs, "notes": []}
+
+
+def tool_offset_figures(seeds) -> list:
+    """The tool-offset figures: offsets used in the chain beside ignored, ignored beside uncompensated."""
+    import numpy as np
+    rows = []
+    for s in seeds:
+        with tempfile.TemporaryDirectory() as td:
+            rows.append(tool_offsets(s, Path(td)))
+    mx = lambda k: float(max(r[k] for r in rows))  # noqa: E731
+    figs = []
+    for model, label in (("truth", "truth as the model"), ("noisy", "model 0.3 μm/μrad off the truth")):
+        figs += [{"what": f"tool offsets, {label}: ignored in the chain, TRUE max over the turn (max over seeds)",
+                  "value": mx((model, "ignored")), "unit": "μm", "residual": "true", "anchor": "uncompensated",
+                  "anchor_value": mx((model, "uncompensated"))},
+                 {"what": f"tool offsets, {label}: used in the chain (`--tool-table`), max over seeds",
+                  "value": mx((model, "used")), "unit": "μm", "residual": "true", "anchor": "offsets ignored",
+                  "anchor_value": mx((model, "ignored"))}]
+    return figs
