@@ -87,7 +87,7 @@ def _fmt(v) -> str:
 def section(rec: dict) -> list[str]:
     """The page's lines for one benchmark record."""
     flag = " (quick figures)" if rec["quick"] else ""
-    lines = [f"## {rec['title']}{flag}", "", f"Data: {rec['data']}", "",
+    lines = [f"## {rec['title']}{flag}", f"Data: {rec['data']}", "",
              "| figure | value | residual | anchor (paper or plain baseline) |", "|---|---|---|---|"]
     for f in rec["figures"]:
         unit = f" {f['unit']}" if f["unit"] else ""
