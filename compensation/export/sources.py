@@ -146,7 +146,7 @@ def backlash_from_diagnosis(path) -> tuple[dict, list[str]]:
         if spec.export != BACKLASH_EXPORT:
             left.append(f"{e.get('kind')}({e.get('axis')}) on {e.get('element')}")
             continue
-        j, el = e.get("axis"), e.get("element")
+        j, el = str(e.get("axis")).lower(), e.get("element")   # diagnose writes the axis word ('Z'); older files 'z'
         if j not in GRINDER_JOINT_ELEMENT or el != GRINDER_JOINT_ELEMENT[j]:
             raise InputError(f"{path}: key 'effects[{i}].element': a per-joint table carries a reversal on the "
                              f"joint's own element ({GRINDER_JOINT_ELEMENT}), got reversal({j}) on {el!r}")
