@@ -217,3 +217,25 @@ def test_diagnosis_reversal_is_the_models_term(tmp_path, capsys):
         err = [ln for ln in capsys.readouterr().err.strip().splitlines() if "error" in ln]
         assert len(err) == 1 and len(err[0]) < 300
         assert not (tmp_path / "c").exists()
+
+
+def test_the_grinders_diagnosis_of_today_is_read_as_every_chains(tmp_path):
+    """The grinder's ``volcomp diagnose`` runs the one closed loop and writes its ``diagnosis.json`` (the machine
+    key, the terms with coefficients): ``export --diagnosis`` reads its reversal as every chain's; the grinder's
+    older checks diagnosis (effects with ``parameters``) still gives a per-joint backlash."""
+    from compensation import export as ex
+    from errormap.chain_elements import ChainElementSet
+    from errormap.diagnosis.chain_loop import EffectTerm
+    from errormap.io import write_json
+    g = load_machine()
+    el = ChainElementSet.zeros(g)
+    rev = EffectTerm("reversal", ("Z",), "dz_z", {}, np.array([4.0]))
+    therm = EffectTerm("thermal", ("Z",), "dz_z", {}, np.array([1.0]))
+    write_json(tmp_path / "today.json", {"machine": g.name, "machine_sha256": g.sha256,
+                                         "effects": [rev.to_dict(), therm.to_dict()]})
+    model, left = ex.reversal_from_diagnosis(tmp_path / "today.json", ex.ModelError(g, el))
+    assert [t.kind for t in model.field.terms] == ["reversal"] and left == ["thermal(Z) on dz_z"]
+    write_json(tmp_path / "older.json", {"effects": [
+        {"kind": "reversal", "axis": "z", "element": "dz_z", "parameters": {"backlash_um": {"value": 4.0}}}]})
+    model, left = ex.reversal_from_diagnosis(tmp_path / "older.json", ex.ModelError(g, el))
+    assert model.reversal == {"Z": 4.0} and left == []

@@ -46,12 +46,15 @@ def _diagnosis(m, truth, el, seed):
     d = closed_loop_chain(m, el_chain, checks, cov=None)
     terms = d["_models"]["terms"] if d["kept_stage"].endswith("plus_effects") else []
     with tempfile.TemporaryDirectory() as tmp:
-        p = write_json(Path(tmp) / "diagnosis.json", {"effects": [t.to_dict() for t in terms]})
+        p = write_json(Path(tmp) / "diagnosis.json", {"machine": m.name, "machine_sha256": m.sha256,
+                                                       "effects": [t.to_dict() for t in terms]})   # as diagnose writes it
         try:
-            back, left = ex.backlash_from_diagnosis(p)
-            note = f"diagnosed backlash {back} (left out: {left})"
+            back, left = ex.reversal_from_diagnosis(p, ex.ModelError(m, el_chain))
+            kept = [t for t in terms if f"{t.kind}({'*'.join(t.axes)}) on {t.element}" not in left]
+            note = f"diagnosed terms a per-joint table carries: {len(kept)} (left out: {left})"
+            back = back if kept else None
         except ValueError as exc:  # the refusal itself is a result worth reporting
-            back, note = {}, f"diagnosis not usable by a per-joint table: {exc}"
+            back, note = None, f"diagnosis not usable by a per-joint table: {exc}"
     return el_chain, terms, back, note
 
 
@@ -75,9 +78,8 @@ def run_seed(seed: int, tolerances, n_volume: int) -> tuple[dict, list[str]]:
     one("linuxcnc", "linuxcnc whole", model, cache, seed=seed)
     one("linuxcnc", "linuxcnc flute", model, cache, region=FLUTE_REGION, seed=seed)
     el_chain, terms, back, note = _diagnosis(m, truth, el, seed)
-    if back:
-        one("linuxcnc", "linuxcnc flute + backlash", ex.ModelError(m, el, reversal={j.upper(): b for j, b in back.items()}),
-            {}, region=FLUTE_REGION, seed=seed)
+    if back is not None:
+        one("linuxcnc", "linuxcnc flute + backlash", back, {}, region=FLUTE_REGION, seed=seed)
     axis_only = [t for t in terms if t.kind not in ("thermal", "reversal")]
     if axis_only:
         one("grid", "grid + terms", ex.ModelError(m, field=ChainModelField(m, el_chain, axis_only)), {}, tolerances[-1])

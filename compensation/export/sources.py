@@ -99,12 +99,14 @@ def truth_tool_points(truth, machine):
 
 def reversal_from_diagnosis(path, model: ModelError) -> tuple:
     """``(model with the diagnosis' reversal terms, [labels of the effects a per-joint table cannot carry])``
-    from ``diagnosis.json`` ``path`` of ``model``'s machine (a grinder file's: reversal terms on a joint's own
-    element; a chain's: the registry's exportable terms)."""
+    from ``diagnosis.json`` ``path`` of ``model``'s machine, told by content: the closed loop's (``volcomp diagnose
+    --machine``, every machine tool, with its ``machine`` key): the registry's exportable terms; the grinder's older
+    checks diagnosis (effects with ``parameters``): reversal terms on a joint's own element."""
     machine = model.machine
     if model.elements is None or getattr(model.field, "elements", model.elements) is not model.elements:
         raise ValueError("--diagnosis needs an element-set model (the reversal is added to its elements)")
-    if is_grinder_chain(machine):
+    doc = _diagnosis_doc(path)
+    if is_grinder_chain(machine) and not (isinstance(doc, dict) and "machine" in doc):  # the grinder's older diagnosis
         back, left = backlash_from_diagnosis(path)
         return ModelError(machine, model.elements, reversal={j.upper(): b for j, b in back.items()}), left
     from errormap.diagnosis.loop_model import ChainModelField
