@@ -60,8 +60,8 @@ def chain_field(machine, elements):
 
 
 def load_elements(path, machine):
-    """The element set ``path`` of ``machine`` (its own format on a grinder file, refused when made for another
-    machine file; a chain's :class:`errormap.chain_elements.ChainElementSet`)."""
+    """The element set ``path`` of ``machine`` (:class:`errormap.chain_elements.ChainElementSet`; on the grinder
+    refused when made for another machine file than its own, :func:`errormap.machine.made_on`)."""
     from errormap.chain_elements import ChainElementSet
     el = ChainElementSet.load(path, machine)
     if is_grinder_chain(machine) and el.machine_sha256 and not made_on(machine, el.machine_sha256):
@@ -107,10 +107,10 @@ def reversal_from_diagnosis(path, model: ModelError) -> tuple:
         raise ValueError("--diagnosis needs an element-set model (the reversal is added to its elements)")
     doc = _diagnosis_doc(path)
     if is_grinder_chain(machine) and not (isinstance(doc, dict) and "machine" in doc):  # the grinder's older diagnosis
-        back, left = backlash_from_diagnosis(path)
+        back, left = backlash_from_diagnosis(path, doc)
         return ModelError(machine, model.elements, reversal={j.upper(): b for j, b in back.items()}), left
     from errormap.diagnosis.loop_model import ChainModelField
-    terms, left = reversal_terms_from_diagnosis(path, machine)
+    terms, left = reversal_terms_from_diagnosis(doc, path, machine)
     return ModelError(machine, model.elements, field=ChainModelField(machine, model.elements, terms)), left
 
 
@@ -124,12 +124,12 @@ def _diagnosis_doc(path) -> dict:
         raise InputError(f"{path}: not valid JSON: {exc}") from None
 
 
-def backlash_from_diagnosis(path) -> tuple[dict, list[str]]:
+def backlash_from_diagnosis(path, doc=None) -> tuple[dict, list[str]]:
     """Joint backlash (in its element's unit, μm or μrad) from a grinder file's ``diagnosis.json`` reversal
     terms, and the effects NOT exported: ``({joint: backlash}, [labels])``. A reversal term on a joint's own
     positioning element (``dx_x``, ``dz_z``, ``ex_a``) is a joint backlash; one on any other element cannot be
-    carried by a per-joint table and is refused."""
-    d = _diagnosis_doc(path)
+    carried by a per-joint table and is refused. ``doc``: the file's parsed JSON where the caller has read it."""
+    d = _diagnosis_doc(path) if doc is None else doc
     fmt = d.get("format") if isinstance(d, dict) else None
     if fmt is not None and fmt != CHECKS_DIAGNOSIS_FORMAT:  # by content; files from before the key: by 'effects'
         raise InputError(f"{path}: key 'format': {str(fmt)!r}; expected {CHECKS_DIAGNOSIS_FORMAT!r} (the "
@@ -148,7 +148,7 @@ def backlash_from_diagnosis(path) -> tuple[dict, list[str]]:
         if spec.export != BACKLASH_EXPORT:
             left.append(f"{e.get('kind')}({e.get('axis')}) on {e.get('element')}")
             continue
-        j, el = str(e.get("axis")).lower(), e.get("element")   # diagnose writes the axis word ('Z'); older files 'z'
+        j, el = e.get("axis"), e.get("element")
         if j not in GRINDER_JOINT_ELEMENT or el != GRINDER_JOINT_ELEMENT[j]:
             raise InputError(f"{path}: key 'effects[{i}].element': a per-joint table carries a reversal on the "
                              f"joint's own element ({GRINDER_JOINT_ELEMENT}), got reversal({j}) on {el!r}")
@@ -164,16 +164,12 @@ def backlash_from_diagnosis(path) -> tuple[dict, list[str]]:
     return back, left
 
 
-def reversal_terms_from_diagnosis(path, machine) -> tuple[list, list]:
-    """The terms of a chain loop's ``diagnosis.json`` (``volcomp diagnose --machine``: its ``effects``) that a
-    per-joint table carries as its forward/reverse difference (the registry's ``export``), and labels of the
-    other effects, left out. An InputError names the file and key for another machine's diagnosis."""
+def reversal_terms_from_diagnosis(d, path, machine) -> tuple[list, list]:
+    """The terms of a chain loop's ``diagnosis.json`` (``volcomp diagnose --machine``: its ``effects``; ``d`` its
+    parsed JSON, read from ``path``) that a per-joint table carries as its forward/reverse difference (the registry's
+    ``export``), and labels of the other effects, left out. An InputError names the file and key for another
+    machine's diagnosis."""
     from errormap.diagnosis.loop_model import read_terms
-    path = Path(path)
-    try:
-        d = json.loads(read_document_text(path, "a diagnosis"))
-    except (OSError, json.JSONDecodeError, RecursionError) as exc:
-        raise InputError(f"{path}: not a readable diagnosis file ({exc})") from None
     if not isinstance(d, dict) or d.get("machine") != machine.name or (d.get("machine_sha256") is not None and not made_on(machine, d["machine_sha256"])):
         got = d.get("machine") if isinstance(d, dict) else None
         raise InputError(f"{path}: key 'machine': expected the diagnosis of `volcomp diagnose --machine {machine.name}`, "
