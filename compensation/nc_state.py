@@ -634,19 +634,23 @@ def machine_with_tool(machine, length_mm: float):
     """The machine-tool chain ``machine`` with its tool's gauge length set to ``length_mm`` (its file read
     again with ``[geometry] tool_length`` replaced; the same file, checked by its sha256). A machine whose
     file declares no ``tool_length`` raises ``ValueError``."""
-    import hashlib
-    import tomllib
-
-    from errormap.machine_tool import parse_machine_tool
     if TOOL_LENGTH_KEY not in getattr(machine, "geometry", {}):
         raise ValueError(f"the machine {machine.name!r} declares no [geometry] {TOOL_LENGTH_KEY} (the gauge length its "
                          "tool chain ends with): a tool length offset cannot be applied to it")
+    doc = _machine_doc(machine)
+    from errormap.machine_tool import parse_machine_tool
+    doc["geometry"][TOOL_LENGTH_KEY] = float(length_mm)
+    return parse_machine_tool(doc, machine.path, machine.sha256)
+
+
+def _machine_doc(machine) -> dict:
+    """The TOML document of ``machine``'s file, read again (the same file: checked by its sha256)."""
+    import hashlib
+    import tomllib
     raw = Path(machine.path).read_bytes()
     if machine.sha256 and hashlib.sha256(raw).hexdigest() != machine.sha256:
         raise ValueError(f"{machine.path}: the machine file changed since it was loaded")
-    doc = tomllib.loads(raw.removeprefix(b"\xef\xbb\xbf").decode("utf-8"))
-    doc["geometry"][TOOL_LENGTH_KEY] = float(length_mm)
-    return parse_machine_tool(doc, machine.path, machine.sha256)
+    return tomllib.loads(raw.removeprefix(b"\xef\xbb\xbf").decode("utf-8"))
 
 
 def field_with_tool(field_, machine_at_tool):
@@ -669,13 +673,7 @@ def machine_with_lathe_tool(machine, x_mm: float, z_mm: float):
     translations (−``x_mm`` along x, −``z_mm`` along z) appended at the end of the tool side, where the
     controller's offset (machine X, Z = program X, Z + offset) puts the tool tip (its file read again, the
     same file, checked by its sha256). Zero offsets give the machine's own tool point."""
-    import hashlib
-    import tomllib
-
+    doc = _machine_doc(machine)
     from errormap.machine_tool import parse_machine_tool
-    raw = Path(machine.path).read_bytes()
-    if machine.sha256 and hashlib.sha256(raw).hexdigest() != machine.sha256:
-        raise ValueError(f"{machine.path}: the machine file changed since it was loaded")
-    doc = tomllib.loads(raw.removeprefix(b"\xef\xbb\xbf").decode("utf-8"))
     doc["tool"] = list(doc["tool"]) + [{"tx": -float(x_mm)}, {"tz": -float(z_mm)}]
     return parse_machine_tool(doc, machine.path, machine.sha256)
