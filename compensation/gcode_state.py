@@ -109,12 +109,7 @@ def bare_g43_tool(st: _State):
     that H where it is also the tool the program's ``M6`` loaded (LinuxCNC and Mach3 take the loaded tool: both
     readings agree); None otherwise (LinuxCNC: :func:`_loaded`; else refused). Only while ``G43`` is in force (a
     repeated ``G43 Z..``): after ``G49`` the number a Fanuc takes is not read here."""
-    if st.last_h is None or not st.g43:
-        return None
-    if getattr(st.dialect, "h_offset_alone", False):
-        return st.last_h
-    generic = st.dialect is None or st.dialect.name == "rs274"
-    return st.last_h if generic and st.loaded == st.last_h else None
+    return _modal_number(st, st.last_h) if st.g43 else None
 
 
 def d_modal(st: _State) -> bool:
@@ -126,12 +121,19 @@ def d_modal(st: _State) -> bool:
 def bare_d(st: _State):
     """The offset number of a ``G41``/``G42`` without ``D``, as :func:`bare_g43_tool` for ``H``: the last D on the
     Fanuc family; with no dialect, that D where it is also the tool ``M6`` loaded; None otherwise."""
-    if st.last_d is None:
+    return _modal_number(st, st.last_d)
+
+
+def _modal_number(st: _State, number):
+    """An offset number left out of its word (``G43``'s H, ``G41``'s D): ``number`` (the last one given) on the
+    Fanuc family (``h_offset_alone``); with no dialect, ``number`` where it is also the tool ``M6`` loaded; None
+    otherwise."""
+    if number is None:
         return None
     if getattr(st.dialect, "h_offset_alone", False):
-        return st.last_d
+        return number
     generic = st.dialect is None or st.dialect.name == "rs274"
-    return st.last_d if generic and st.loaded == st.last_d else None
+    return number if generic and st.loaded == number else None
 
 
 def _tool_change(st: _State, by, ms) -> None:
