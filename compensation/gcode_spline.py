@@ -234,19 +234,10 @@ def _knots(count: int, k: int) -> np.ndarray:
 
 
 def nurbs_basis(count: int, k: int, u) -> np.ndarray:
-    """The B-spline basis N_i,k(u) (m, count) of LinuxCNC's knot vector (Cox–de Boor; the last knot span closed)."""
-    t = _knots(count, k)
-    u = np.asarray(u, dtype=float)[:, None]
-    last = count - 1
-    N = ((t[None, :-1] <= u) & (u < t[None, 1:])).astype(float)
-    N[:, last] = np.where(u[:, 0] >= t[last + 1], 1.0, N[:, last]) if t[last + 1] > t[last] else N[:, last]
-    for d in range(2, k + 1):
-        m = N.shape[1] - 1
-        left_den, right_den = t[d - 1:d - 1 + m] - t[:m], t[d:d + m] - t[1:1 + m]
-        left = np.divide(u - t[None, :m], left_den, out=np.zeros((len(u), m)), where=left_den != 0) * N[:, :m]
-        right = np.divide(t[None, d:d + m] - u, right_den, out=np.zeros((len(u), m)), where=right_den != 0) * N[:, 1:]
-        N = left + right
-    return N[:, :count]
+    """The B-spline basis N_i,k(u) (m, count) of LinuxCNC's knot vector (order ``k``, degree ``k − 1``;
+    ``scipy.interpolate.BSpline.design_matrix``, the last knot span closed)."""
+    from scipy.interpolate import BSpline
+    return BSpline.design_matrix(np.asarray(u, dtype=float), _knots(count, k), k - 1).toarray()
 
 
 def _nurbs_segments(g: dict, tol_mm: float) -> int:
