@@ -73,6 +73,12 @@ _N_LABEL = re.compile(r"\s*[nN]\s*(\d+)")
 _NUM = re.compile(r"[ \t]*((?:\d[\d \t]*)?\.?[\d \t]*)")
 _LCNC_KEYS = {"sub", "endsub", "call", "return", "if", "elseif", "else", "endif", "while", "endwhile",
               "do", "repeat", "endrepeat", "break", "continue"}
+_LCNC_KEY_ORDER = ("sub", "endsub", "call", "do", "while", "repeat", "if", "elseif", "else", "endif", "break",
+                   "continue", "endwhile", "endrepeat", "return")
+"""LinuxCNC reads an O-word's keyword from the line with its spaces and tabs removed (``close_and_downcase``),
+taking the first of these, in this order, that the text starts with (``interp_read.cc`` ``read_o``): so
+``else if`` is ``elseif`` and ``end sub`` is ``endsub``; letters left after the keyword stop the controller
+("Unexpected character after O-word": only ``[arguments]`` and comments may follow)."""
 FUNCS = ("ABS", "ACOS", "ASIN", "ATAN", "COS", "EXP", "FIX", "FUP", "ROUND", "LN", "SIN", "SQRT", "TAN", "EXISTS")
 _PREC = {"**": 4, "*": 3, "/": 3, "MOD": 3, "+": 2, "-": 2, "EQ": 1, "NE": 1, "GT": 1, "GE": 1, "LT": 1, "LE": 1,
          "AND": 0, "OR": 0, "XOR": 0}
@@ -244,11 +250,13 @@ class _Parser:
         if c.isascii() and c.isalpha():
             name, j = self.alpha(i)
             if name not in FUNCS:
-                raise _Refuse(i + 1, f"{name!r} is not a function of the expression language "
-                                     f"({' '.join(FUNCS)})")
+                msg = _not_a_function(self.s, i, name)
+                raise _Refuse(i if msg.startswith(f"'{self.s[i - 1:i].upper()}{name}'") else i + 1, msg)
             j = self.ws(j)
             if j >= self.n or self.s[j] != "[":
-                raise _Refuse(i + 1, f"{name} needs its argument in '[ ]'")
+                raise _Refuse(i + 1, f"{name} needs its argument in '[ ]' ('(' opens a comment; LinuxCNC stops "
+                                     f"here too: \"Left bracket missing after unary operation name\"); write "
+                                     f"{name}[...]")
             if name == "EXISTS":
                 arg, k = self.value(j)
                 if arg[0] != "name":
@@ -307,6 +315,19 @@ class _Parser:
             left = ("bin", op, left, right, at + 1)
 
 
+MACRO_WORDS = ("WHILE", "GOTO", "END", "THEN", "IF", "DO")
+
+
+def _not_a_function(s: str, i: int, name: str) -> str:
+    """The refusal of a name that is no function: a macro word's first letters (``WH[`` for ``WHILE``) named as such."""
+    word = (s[i - 1] + name).upper() if i > 0 and s[i - 1].isalpha() else name
+    full = next((w for w in MACRO_WORDS + FUNCS if len(word) >= 2 and w != word and w.startswith(word)), None)
+    if full is not None:
+        return (f"'{word}' is not a macro word: Custom Macro B statements are read written in full (a two-letter "
+                f"form is an editor's shorthand, not program text the reader knows); write {full}")
+    return f"{name!r} is not a function of the expression language ({' '.join(FUNCS)})"
+
+
 def _parse_line(body: str):
     """One source line into a statement tuple (its first item the kind); see :class:`_Machine`."""
     code = _code_of(body)
@@ -326,8 +347,9 @@ def _parse_line(body: str):
     label = int(n.group(1)) if n else None
     i = n.end() if n else i
     o = _O_STMT.match(code, i)
-    if o and o.group(2) and o.group(2).lower() in _LCNC_KEYS:
-        return _parse_o(p, o, label)
+    key = _o_keyword(p, o) if o and o.group(2) else None
+    if key is not None:
+        return _parse_o(p, o, label, *key)
     if o and o.group(2) and (len(o.group(2)) > 1 or o.group(1)[0] in "<["):
         raise _Refuse(o.start(2) + 1, f"'o{o.group(1)} {o.group(2)}': '{o.group(2)}' is not an O-word keyword "
                                       f"({', '.join(sorted(_LCNC_KEYS))})")
@@ -391,10 +413,29 @@ def _assignments(p: _Parser, i: int) -> list:
     return out
 
 
-def _parse_o(p: _Parser, o, label):
+def _o_keyword(p: _Parser, o):
+    """``(keyword, end)`` of an O-word read by LinuxCNC's rule (:data:`_LCNC_KEY_ORDER`: the letters after the
+    O-number with blanks removed), or None where they start with no keyword; letters left over are refused."""
+    letters, ends, k = [], [], o.start(2)
+    while k < p.n and (p.s[k] in " \t" or (p.s[k].isascii() and p.s[k].isalpha())):
+        if p.s[k] not in " \t":
+            letters.append(p.s[k].lower())
+            ends.append(k + 1)
+        k += 1
+    word = "".join(letters)
+    kw = next((w for w in _LCNC_KEY_ORDER if word.startswith(w)), None)
+    if kw is None:
+        return None
+    if len(word) > len(kw):
+        left = ends[len(kw)] - 1
+        raise _Refuse(left + 1, f"'o{o.group(1)} {p.s[o.start(2):ends[-1]]}': LinuxCNC reads the keyword "
+                                f"'{kw}' and stops at '{word[len(kw):]}' (\"Unexpected character after O-word\": only "
+                                f"[arguments] and comments may follow); write 'o{o.group(1)} {kw}'")
+    return kw, ends[-1]
+
+
+def _parse_o(p: _Parser, o, label, kw: str, k: int):
     name = re.sub(r"\s+", "", o.group(1)).lower()
-    kw = o.group(2).lower()
-    k = o.end()
     if name.startswith("["):  # an indirect O-number (LinuxCNC: o[#101+2] call), evaluated when called
         if kw != "call":
             raise _Refuse(o.start(1) + 1, f"'o{o.group(1)} {kw}': a computed O-number is read only with call")
@@ -443,6 +484,9 @@ def _parse_words(p: _Parser, body: str, code: str, i: int, label):
                 node, k = p.value(j)
                 words.append((letter, i, k, node, None))
             i = k
+        elif c == ":":
+            raise _Refuse(i + 1, "unexpected character ':' (in ISO code ':' is the program-number address, read only "
+                                 "at the start of a line as ':1234'): remove it or end the block with ';'")
         else:
             raise _Refuse(i + 1, f"unexpected character {c!r}")
     return ("words", label, tuple(words), tuple(assigns), _call_of(words, p), bool(_END_CODES.search(code)))

@@ -18,7 +18,9 @@ from errormap.machine import load_machine
 DATA = Path(__file__).parent / "data" / "nc_macros"
 MILL = AxisWords.of(load_machine("mill-xyz"))
 ACCEPTED = [("linuxcnc_osub.ngc", "linuxcnc_osub.expected.ngc", "linuxcnc"),
-            ("fanuc_macro_b.nc", "fanuc_macro_b.expected.nc", "fanuc")]
+            ("fanuc_macro_b.nc", "fanuc_macro_b.expected.nc", "fanuc"),
+            ("linuxcnc_blanks.ngc", "linuxcnc_blanks.expected.ngc", "linuxcnc"),
+            ("fanuc_nested_loops.nc", "fanuc_nested_loops.expected.nc", "fanuc")]
 
 
 def _ends(prog):
@@ -176,7 +178,10 @@ def test_linuxcnc_indirect_o_number_call(tmp_path):
 
 
 @pytest.mark.parametrize("line,fragment", [
-    ("o<sub> callsub", "line 2, column 8: 'o<sub> callsub': 'callsub' is not an O-word keyword"),
+    ("o<sub> callsub", "line 2, column 12: 'o<sub> callsub': LinuxCNC reads the keyword 'call' and stops at 'sub' "
+                       "(\"Unexpected character after O-word\""),
+    ("o<sub> else iff", "line 2, column 15: 'o<sub> else iff': LinuxCNC reads the keyword 'elseif' and stops at 'f'"),
+    ("o<sub> fetch", "line 2, column 8: 'o<sub> fetch': 'fetch' is not an O-word keyword"),
     ("o[100] if [1]", "line 2, column 2: 'o[100] if': a computed O-number is read only with call"),
     ("o[2.5] call", "line 2, column 1: o[...] call: the O-number 2.5 is not a whole number"),
 ])
@@ -186,3 +191,47 @@ def test_o_word_keyword_and_indirect_number_refusals(tmp_path, line, fragment):
     with pytest.raises(InputError) as e:
         parse_program(p, axis_words=MILL, dialect="linuxcnc")
     assert fragment in str(e.value), str(e.value)
+
+
+@pytest.mark.parametrize("text,fragment", [
+    # LinuxCNC and Fanuc read a function's argument only in '[ ]'; '(' opens a comment
+    ("G21\n#<d> = [80/SQRT(2)/2]\nG0 X#<d> Y0 Z0\n", "line 2, column 12: SQRT needs its argument in '[ ]' ('(' opens a "
+     "comment; LinuxCNC stops here too: \"Left bracket missing after unary operation name\"); write SQRT[...]"),
+    # a macro word's first letters are not the word
+    ("O1\n#1 = 0\nWH[#1 LT 2]DO1\n#1 = #1 + 1\nEND1\nM30\n", "line 3, column 1: 'WH' is not a macro word"),
+    ("O1\n#1 = AB[-2]\nM30\n", "line 2, column 6: 'AB' is not a macro word"),
+    # ':' is the program-number address, at a line's start only
+    ("O1\n#1 = 2\n#2 = #1 - 1:\nG0 X#2 Y0 Z0\nM30\n", "line 3, column 12: unexpected character ':' (in ISO code ':' "
+     "is the program-number address"),
+])
+def test_what_the_controllers_refuse_is_refused_naming_their_rule(tmp_path, text, fragment):
+    p = tmp_path / "prog.nc"
+    p.write_text(text)
+    with pytest.raises(InputError) as exc:
+        parse_program(p, axis_words=MILL)
+    msg = str(exc.value)
+    assert fragment in msg and len(msg) - len(str(p)) < 300, msg
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("src", ["linuxcnc_blanks.ngc", "fanuc_nested_loops.nc"])
+def test_expanded_macro_programs_are_compensated_where_they_cut(tmp_path, src):
+    """Compensated on mill-xyz with the TRUE machine as the model and G54 from the shop's table, then judged by the
+    independent check (benchmarks/suite/gcode_corpus.py ``independent_check``: the lines that are not compensated moves
+    the reader's flat program's byte for byte, every programmed point reached by the TRUE machine within
+    ``TOL_POINT_UM``)."""
+    from benchmarks.suite.gcode_corpus import STYLE_TABLES, independent_check, style_tables
+    from compensation.app.cli import main
+    from errormap.chain_elements import ChainElementSet
+    from program_checks import TOL_POINT_UM
+    mill = load_machine("mill-xyz")
+    truth = ChainElementSet.random(mill, 101, 10.0, 11).save(tmp_path / "truth.json")  # ±10 μm / μrad, seed 11
+    out = tmp_path / "o"
+    assert main(["compensate", str(DATA / src), "--machine", "mill-xyz", "--model", str(truth), "--truth", str(truth),
+                 "--method", "exact", "--out", str(out), "--work-offsets", str(STYLE_TABLES / "offsets.csv")]) == 0
+    import json
+    e = json.loads((out / "compensate_summary.json").read_text())["files"][0]
+    assert e["true_uncompensated"]["max_um"] > 10 * TOL_POINT_UM  # the check below has teeth
+    verdict = independent_check(DATA / src, out / src, "auto", truth, *style_tables())
+    assert verdict.startswith("ok: "), verdict
+    assert float(verdict.split()[2]) <= TOL_POINT_UM
