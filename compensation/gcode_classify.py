@@ -469,15 +469,25 @@ def _arc_geometry(st, move, arc_words, scale, ax: AxisWords, first) -> dict:
     tol = getattr(st.dialect, "arc_radius_tol", None)
     tols = ({"abs_tol_mm": ARC_RADIUS_TOL_INCH_MM} if st.inch else {}) if tol is None else \
         {"abs_tol_mm": tol[1] if st.inch else tol[0], "rel_tol": tol[2]}
+    tols["rule"] = ARC_RADIUS_RULES.get(getattr(st.dialect, "name", None), "")
     return {"ju": ju, "jv": jv, **plane_arc(u0, v0, u1, v1, st.mode, arc_words, (u_c, v_c), st.arc_abs, scale,
                                              first, pair=f"{u_c}/{v_c}", both=f"{u_c} and {v_c}", **tols)}
 
 
+ARC_RADIUS_RULES = {"fanuc": "; Fanuc: parameter 3410 sets the tolerance, a spiral within it, alarm PS0020 beyond; the "
+                             "value is the machine's"}
+"""What decides, on a dialect's controller, whether an arc whose radii differ more than the reader allows runs (named in
+the refusal). Fanuc (Series 0i/16i "tolerance of arc radius", parameter 3410; 15i: 2410): within it the CNC cuts the
+spiral whose radius changes linearly with the centre angle, as the reader reads it; beyond it, an alarm. The value
+is set per machine and is not in the program, so the reader keeps its own bound."""
+
+
 def plane_arc(u0, v0, u1, v1, mode, arc_words, centre_words, arc_abs, scale, first, pair, both,
-              abs_tol_mm: float = ARC_RADIUS_TOL_MM, rel_tol: float | None = None) -> dict:
+              abs_tol_mm: float = ARC_RADIUS_TOL_MM, rel_tol: float | None = None, rule: str = "") -> dict:
     """Centre, radii and sweep of a G2/G3 (``mode``) arc from (u0, v0) to (u1, v1) mm in its plane's
     (u, v) coordinates; ``centre_words`` the words giving the centre's u and v offsets (G18: K, I; G17:
-    I, J), or ``R``; ``pair`` / ``both`` how the refusals name them. Returns ``uc vc r0 r1 theta0 sweep``."""
+    I, J), or ``R``; ``pair`` / ``both`` how the refusals name them; ``rule`` the controller's rule on radii that
+    differ (:data:`ARC_RADIUS_RULES`), named in that refusal. Returns ``uc vc r0 r1 theta0 sweep``."""
     u_c, v_c = centre_words
     ccw = mode == "G3"
     if "R" in arc_words:
@@ -511,7 +521,7 @@ def plane_arc(u0, v0, u1, v1, mode, arc_words, centre_words, arc_abs, scale, fir
     if abs(r1 - r0) > abs_tol_mm or (rel_tol is not None and abs(r1 - r0) > rel_tol * max(r0, r1)):
         limit = f"{abs_tol_mm * 1e3:.4g} μm" + (f" or {rel_tol:.2%} of the radius" if rel_tol is not None else "")
         raise _Refuse(first.start + 1, f"arc start and end radii differ by {abs(r1 - r0) * 1e3:.3f} μm "
-                                       f"(more than {limit})")
+                                       f"(more than {limit}{rule}): correct the end point or the centre")
     t0 = math.atan2(v0 - vc, u0 - uc)
     t1 = math.atan2(v1 - vc, u1 - uc)
     full = math.hypot(u1 - u0, v1 - v0) < 1e-9

@@ -332,6 +332,8 @@ def test_a_g10_changing_the_active_tool_length_is_refused(tmp_path, ax, line, di
     ("G2 X20 Y0 I10.004 J0", None, "more than 2 μm"),  # the reader's own 2 μm without the controller
     ("G2 X20 Y0 I10.03 J0", "linuxcnc", "more than 28.28 μm or 0.10% of the radius"),  # 60 μm: absolute exceeded
     ("G2 X2 Y0 I1.004 J0", "linuxcnc", "or 0.10% of the radius"),  # 8 μm on r 1 mm: relative exceeded
+    # Fanuc: its tolerance is a machine parameter (3410), not in the program: the reader's 2 μm, the rule named
+    ("G2 X20 Y0 I10.004 J0", "fanuc", "(more than 2 μm; Fanuc: parameter 3410 sets the tolerance"),
 ])
 def test_linuxcnc_reads_centre_arcs_with_its_own_radius_tolerance(tmp_path, ax, arc, dialect, refused):
     """LinuxCNC (interp_arc.cc arc_data_ijk): an error when the radii differ by more than 2·0.01·√2 mm (G21)
@@ -347,7 +349,7 @@ def test_linuxcnc_reads_centre_arcs_with_its_own_radius_tolerance(tmp_path, ax, 
 
 @pytest.mark.parametrize("arc, refused", [
     ("G3 X1.6875 I0.0688 J0", None),  # centre 1.61875 written to 0.0001 in: the radii differ by 0.0001 in (2.54 μm)
-    ("G3 X1.6875 I0.0691 J0", "differ by 17.780 μm (more than 7.184 μm)"),  # 0.0007 in: more than rounding explains
+    ("G3 X1.6875 I0.0691 J0", "differ by 17.780 μm (more than 7.184 μm; Fanuc: parameter 3410"),  # 0.0007 in: more than rounding
 ])
 def test_inch_arcs_rounded_to_four_decimals_are_read(tmp_path, ax, arc, refused):
     """A 4-decimal inch program (as CAM posts write G20 output; Fanuc manual, "Circular interpolation"): a
