@@ -424,7 +424,9 @@ def tokenize(body: str):
     if body[i:].strip().startswith("%"):
         rest = body[i:].strip()[1:].strip()
         if rest and not rest.startswith(("(", ";")):
-            raise _Refuse(i + 1, f"text after '%': {rest[:20]!r}")
+            raise _Refuse(i + 1, f"text after '%': {rest[:20]!r} ('%' on a line frames the program: LinuxCNC ends "
+                                 "the program at a second '%' line, Fanuc reads it as the end of record): write the "
+                                 "text in ( ) or after ';'")
         return block_delete, [], True
     words = []
     while i < n:
@@ -461,6 +463,9 @@ def tokenize(body: str):
                 raise _Refuse(i + 1, f"'{c}' number out of range")
             words.append(Word(u, v, text, i, i + 1, e))  # rewriting replaces spaces after the letter too
             i = e
+        elif c == ":":
+            raise _Refuse(i + 1, "unexpected character ':' (not an RS274 word; in ISO code ':' is the program-number "
+                                 "address, read only as ':1234' on a line of its own): remove it")
         else:
             raise _Refuse(i + 1, f"unexpected character {c!r} (not an RS274 word)")
     return block_delete, words, False

@@ -200,7 +200,12 @@ def test_o_word_keyword_and_indirect_number_refusals(tmp_path, line, fragment):
     # a macro word's first letters are not the word
     ("O1\n#1 = 0\nWH[#1 LT 2]DO1\n#1 = #1 + 1\nEND1\nM30\n", "line 3, column 1: 'WH' is not a macro word"),
     ("O1\n#1 = AB[-2]\nM30\n", "line 2, column 6: 'AB' is not a macro word"),
+    # a '%' line frames the program (LinuxCNC ends it at the second one): text after it is no comment
+    ("%\nG21 G90\n% vfd enable\nG0 X1 Y0 Z0\n%\n", "line 3, column 1: text after '%': 'vfd enable' ('%' on a line "
+     "frames the program: LinuxCNC ends the program at a second '%' line"),
     # ':' is the program-number address, at a line's start only
+    (": G90 G40 G94\nG17\nG0 X1 Y1 Z1\n", "line 1, column 1: unexpected character ':' (not an RS274 word; in ISO code "
+     "':' is the program-number address, read only as ':1234'"),
     ("O1\n#1 = 2\n#2 = #1 - 1:\nG0 X#2 Y0 Z0\nM30\n", "line 3, column 12: unexpected character ':' (in ISO code ':' "
      "is the program-number address"),
 ])
