@@ -323,8 +323,8 @@ def _not_a_function(s: str, i: int, name: str) -> str:
     word = (s[i - 1] + name).upper() if i > 0 and s[i - 1].isalpha() else name
     full = next((w for w in MACRO_WORDS + FUNCS if len(word) >= 2 and w != word and w.startswith(word)), None)
     if full is not None:
-        return (f"'{word}' is not a macro word: Custom Macro B statements are read written in full (a two-letter "
-                f"form is an editor's shorthand, not program text the reader knows); write {full}")
+        return (f"'{word}' is not a macro word: macro words and functions are read written in full (the two-letter "
+                f"forms some Fanuc editors take are not read); write {full}")
     return f"{name!r} is not a function of the expression language ({' '.join(FUNCS)})"
 
 
@@ -362,6 +362,9 @@ def _parse_line(body: str):
             _rest_empty(p, k3)
             return ("ifgoto", label, cond, target, i + 1)
         if then == "THEN":
+            if p.ws(k2) >= p.n:
+                raise _Refuse(k + 1, "IF [..] THEN with no statement after it: the block form (THEN, ELSE, ENDIF on "
+                                     "lines of their own) is not read; write IF [..] GOTO n or IF [..] THEN #i = ...")
             return ("then", label, cond, _assignments(p, k2))
         raise _Refuse(k + 1, "IF [..] is followed by GOTO n or THEN #i = ...")
     if key == "GOTO":
