@@ -289,6 +289,10 @@ class _Parser:
         if j < self.n and (self.s[j].isdigit() or self.s[j] == "."):
             v, k = self.number(j)
             return ("par", ("num", v), i + 1), k
+        if j < self.n and self.s[j] == "$":
+            name = re.match(r"\$(\w*)\$?", self.s[j:]).group(1)
+            raise _Refuse(i + 1, f"'#${name}$': LinuxCNC reads a named parameter only as #<name> ('$' after '#' is a "
+                                 f"bad number to its interpreter, read_parameter); write #<{name}>")
         inner, k = self.value(j)
         return ("par", inner, i + 1), k
 

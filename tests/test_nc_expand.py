@@ -200,6 +200,9 @@ def test_o_word_keyword_and_indirect_number_refusals(tmp_path, line, fragment):
     # a macro word's first letters are not the word
     ("O1\n#1 = 0\nWH[#1 LT 2]DO1\n#1 = #1 + 1\nEND1\nM30\n", "line 3, column 1: 'WH' is not a macro word"),
     ("O1\n#1 = AB[-2]\nM30\n", "line 2, column 6: 'AB' is not a macro word"),
+    # a named parameter is #<name> to LinuxCNC; '#$name$' it does not read
+    ("#$level$ = 5\nG0 X#$level$ Y0 Z0\nM2\n", "line 1, column 1: '#$level$': LinuxCNC reads a named parameter only as "
+     "#<name>"),
     # Custom Macro B's IF [..] THEN takes a statement on its line; a block form is not read
     ("O1\n#1 = 1\nIF [#1 EQ 2] THEN\nG0 X1 Y0 Z0\nENDIF\nM30\n", "line 3, column 13: IF [..] THEN with no statement"),
     # a '%' line frames the program (LinuxCNC ends it at the second one): text after it is no comment
