@@ -250,8 +250,7 @@ class _Parser:
         if c.isascii() and c.isalpha():
             name, j = self.alpha(i)
             if name not in FUNCS:
-                msg = _not_a_function(self.s, i, name)
-                raise _Refuse(i if msg.startswith(f"'{self.s[i - 1:i].upper()}{name}'") else i + 1, msg)
+                raise _Refuse(*_not_a_function(self.s, i, name))
             j = self.ws(j)
             if j >= self.n or self.s[j] != "[":
                 raise _Refuse(i + 1, f"{name} needs its argument in '[ ]' ('(' opens a comment; LinuxCNC stops "
@@ -322,14 +321,17 @@ class _Parser:
 MACRO_WORDS = ("WHILE", "GOTO", "END", "THEN", "IF", "DO")
 
 
-def _not_a_function(s: str, i: int, name: str) -> str:
-    """The refusal of a name that is no function: a macro word's first letters (``WH[`` for ``WHILE``) named as such."""
-    word = (s[i - 1] + name).upper() if i > 0 and s[i - 1].isalpha() else name
+def _not_a_function(s: str, i: int, name: str) -> tuple:
+    """``(column, refusal)`` of a name at ``s[i]`` that is no function: a macro word's first letters (``WH[`` for
+    ``WHILE``, the ``W`` read as a word letter before it) named as such, from its first letter."""
+    joined = i > 0 and s[i - 1].isascii() and s[i - 1].isalpha()
+    word = (s[i - 1] + name).upper() if joined else name
     full = next((w for w in MACRO_WORDS + FUNCS if len(word) >= 2 and w != word and w.startswith(word)), None)
     if full is not None:
-        return (f"'{word}' is not a macro word: macro words and functions are read written in full (the two-letter "
-                f"forms some Fanuc editors take are not read); write {full}")
-    return f"{name!r} is not a function of the expression language ({' '.join(FUNCS)})"
+        return (i if joined else i + 1), (f"'{word}' is not a macro word: macro words and functions are read written "
+                                          f"in full (the two-letter forms some Fanuc editors take are not read); "
+                                          f"write {full}")
+    return i + 1, f"{name!r} is not a function of the expression language ({' '.join(FUNCS)})"
 
 
 def _parse_line(body: str):
