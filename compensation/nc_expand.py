@@ -400,10 +400,10 @@ def _loop_id(p: _Parser, j: int, word: str):
     return int(v), k
 
 
-def _rest_empty(p: _Parser, k: int):
+def _rest_empty(p: _Parser, k: int, rule: str = ""):
     k = p.ws(k)
     if k < p.n:
-        raise _Refuse(k + 1, f"unexpected {p.s[k:k + 12].strip()!r} after the statement")
+        raise _Refuse(k + 1, f"unexpected {p.s[k:k + 12].strip()!r} after the statement{rule}")
 
 
 def _assignments(p: _Parser, i: int) -> list:
@@ -459,7 +459,7 @@ def _parse_o(p: _Parser, o, label, kw: str, k: int):
     elif kw in ("if", "elseif", "while", "repeat") or (kw in ("return", "endsub") and p.ws(k) < p.n):
         a, k = p.value(k)
         args.append(a)
-    _rest_empty(p, k)
+    _rest_empty(p, k, " (LinuxCNC: \"Unexpected character after O-word\"; put it on a line of its own)")
     return ("o", label, name, kw, tuple(args), o.start() + 1)
 
 

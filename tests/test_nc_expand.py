@@ -182,6 +182,8 @@ def test_linuxcnc_indirect_o_number_call(tmp_path):
                        "(\"Unexpected character after O-word\""),
     ("o<sub> else iff", "line 2, column 15: 'o<sub> else iff': LinuxCNC reads the keyword 'elseif' and stops at 'f'"),
     ("o<sub> fetch", "line 2, column 8: 'o<sub> fetch': 'fetch' is not an O-word keyword"),
+    ("o1 if [1] G0 X5", "line 2, column 11: unexpected 'G0 X5' after the statement (LinuxCNC: \"Unexpected character "
+                        "after O-word\""),
     ("o[100] if [1]", "line 2, column 2: 'o[100] if': a computed O-number is read only with call"),
     ("o[2.5] call", "line 2, column 1: o[...] call: the O-number 2.5 is not a whole number"),
 ])
