@@ -392,9 +392,9 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
         words["P"] = by["P"]
     known = np.isfinite(end)
     if compensate and not known.all():
-        missing = ", ".join(a for a, k in zip(ax.words, known) if not k)
+        lacking = [a for a, k in zip(ax.words, known) if not k]
         raise _Refuse(first.start + 1, f"'{first.letter}{first.text}': motion before {ax.joined('and')} are all "
-                                       f"known (no value yet for {missing})")
+                                       f"known (no value yet for {', '.join(lacking)}){_unknown_since(st, lacking)}")
     move = GMove(idx, kind, start, end, "inch" if st.inch else "mm", st.incremental, words, motion_word,
                  compensate, known=known, diameter=st.diameter)
     if kind == "arc":
@@ -404,6 +404,16 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
             raise _Refuse(r.col, f"'{first.letter}{first.text}': {r.msg}") from None
     st.pos = end
     return move
+
+
+def _unknown_since(st: _State, lacking) -> str:
+    """Why an axis has no value in the program's frame, and what gives it one: the last ``G53`` line that moved it
+    (machine coordinates are not the part's), else none yet."""
+    for idx, _col, kind, axes, _text in reversed(st.events):
+        if kind == "g53" and set(axes) & set(lacking):
+            return (f"; line {idx + 1} moved {', '.join(a for a in lacking if a in axes)} in machine coordinates (G53), "
+                    "not the part's: give it in the program before this move")
+    return f"; give {', '.join(lacking)} in the program (absolute) before this move"
 
 
 def synced_move(idx, st: _State, by, axis_words, arc_words, motion_word, rapids, ax: AxisWords) -> GMove:
