@@ -91,6 +91,8 @@ def test_a_crlf_program_is_checked_byte_for_byte(tmp_path, truth_file):
     ("G90 G94 G17\nG21\nG53 G0 Z0.\nT1 M6\nG54\nG1 X7.392 Y-58.862 F5000.\nG0 G43 Z16. H1\n", 6, 4,
      "line 3 moved Z in machine coordinates (G53)"),
     ("G21 G90 G54\nG1 X1 Y2 F100\n", 2, 4, "give Z in the program (absolute) before this move"),
+    # Z given after the G53 and then unknown by the G54 selection: the G53 is not why
+    ("G21 G90\nG53 G0 Z0.\nG0 Z5.\nG54\nG1 X1 Y2 F100\n", 5, 4, "give Z in the program (absolute) before this move"),
 ])
 def test_a_move_before_z_is_known_names_why(tmp_path, text, line, col, why):
     p = tmp_path / "p.nc"
@@ -99,4 +101,5 @@ def test_a_move_before_z_is_known_names_why(tmp_path, text, line, col, why):
         parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyz")), dialect="auto")
     msg = str(e.value)
     assert f"line {line}, column {col}:" in msg and "no value yet for Z" in msg and why in msg, msg
+    assert ("G53" in msg) == ("G53" in why)
     assert len(msg) - len(str(p)) < 300
