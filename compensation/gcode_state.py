@@ -136,12 +136,18 @@ def _modal_number(st: _State, number):
     return number if generic and st.loaded == number else None
 
 
-def _tool_change(st: _State, by, ms) -> None:
-    """``Tn`` prepares tool n, ``M6`` loads the prepared one (the tool LinuxCNC's bare ``G43``/``G41`` use)."""
+def _tool_change(st: _State, by, ms, idx: int = -1) -> None:
+    """``Tn`` prepares tool n, ``M6`` loads the prepared one (the tool LinuxCNC's bare ``G43``/``G41`` use).
+    ``M2``/``M30`` with a ``G52``/``G92`` shift in force: whether the controller clears it at the program end is
+    its parameter or version (Fanuc 1202#3 RLC; LinuxCNC's M2/M30 reset changed between versions), recorded as a
+    ``shift-end`` event (:func:`compensation.nc_state.program_frames` refuses a compensated move after it)."""
     if "T" in by and by["T"].value == int(by["T"].value):
         st.selected = int(by["T"].value)
     if any(m.value == 6 for m in ms):
         st.loaded = st.selected
+    end = next((m for m in ms if m.value in (2.0, 30.0)), None)
+    if end is not None and np.any(st.g92 != 0.0):
+        st.events.append((idx, end.start + 1, "shift-end", None, f"M{end.text.strip()}"))
 
 
 def _loaded(st: _State, code, w) -> int:
@@ -272,6 +278,8 @@ def _g92(idx, st: _State, groups, axis_words, ax: AxisWords) -> str:
     code, w = groups["nonmodal"]
     if "motion" in groups:
         raise _Refuse(w.start + 1, f"'{code}' with a motion code on the same line")
+    if code == "G52":
+        return _g52(idx, st, w, axis_words, ax)
     if code in ("G92.2", "G92.3") and st.dialect is not None and st.dialect.name == "grbl":
         raise _Refuse(w.start + 1, f"'{code}': grbl has G92 and G92.1 only")
     if code != "G92":
@@ -304,6 +312,39 @@ def _g92(idx, st: _State, groups, axis_words, ax: AxisWords) -> str:
             st.pos[j] = vals[a]
     st.g92_stored = st.g92.copy()
     st.events.append((idx, w.start + 1, "g92", (vals, pos), "G92"))
+    return "state"
+
+
+LOCAL_SHIFT_DIALECTS = ("linuxcnc", "fanuc", "haas", "siemens-iso", "mach3", "rs274")
+"""Dialects with ``G52`` (the local coordinate shift; ``rs274``: no dialect named, where every controller that runs
+the line reads it alike); grbl and Heidenhain ISO have none (refused)."""
+
+
+def _g52(idx, st: _State, w, axis_words, ax: AxisWords) -> str:
+    """``G52 X.. Y..`` (Fanuc 0i-MF, Haas, Siemens ISO, Mach3 "local coordinate system"; LinuxCNC "G52 local
+    offsets"): the shift of every work system along the axes given becomes the values (not added: ``G52 X0 Y0 Z0``
+    cancels); nothing moves, so the current point's program coordinates change by the old shift minus the new one.
+    LinuxCNC keeps it in the G92 registers (parameters 5211-5219: ``G92.1``/``G92.2`` clear it, ``G92.3`` restores
+    it); Fanuc-family controllers have no G92 offset read here, so one register serves both. Under ``G91``
+    (Mitsubishi and some Fanuc models add the values to the shift) refused; recorded as a ``g52`` event
+    ``(values mm/deg, LinuxCNC's stored copy written)``."""
+    if not axis_words:
+        raise _Refuse(w.start + 1, "'G52' without axis words ('G52 X0 Y0 Z0' cancels the shift)")
+    if st.incremental:
+        raise _Refuse(w.start + 1, "'G52' under G91: some controllers add the values to the shift, others set it; "
+                                   "write G90 before the G52 line")
+    scale = MM_PER_INCH if st.inch else 1.0
+    stores = st.dialect is not None and st.dialect.name == "linuxcnc"
+    vals = {}
+    st.pos, st.g92 = st.pos.copy(), st.g92.copy()
+    for j, a in enumerate(ax.words):
+        if a in axis_words:
+            vals[a] = axis_words[a].value * (1.0 if a in ax.rotary else scale)
+            st.pos[j] += st.g92[j] - vals[a]  # the machine stays where it is
+            st.g92[j] = vals[a]
+    if stores:
+        st.g92_stored = st.g92.copy()
+    st.events.append((idx, w.start + 1, "g52", (vals, stores), "G52"))
     return "state"
 
 

@@ -405,6 +405,14 @@ class _Controller:
             for a, v in vals.items():
                 self.g92[list(self.words).index(a)] += pos[a] - v
             self.g92_stored = self.g92.copy()
+        elif kind == "g52":  # G52: the shift along the axes given is the values (LinuxCNC: the G92 registers)
+            vals, stores = value
+            for a, v in vals.items():
+                self.g92[list(self.words).index(a)] = v
+            if stores:
+                self.g92_stored = self.g92.copy()
+        elif kind == "shift-end":  # M2/M30 with a shift in force: cleared or kept by the controller's parameter
+            self.g92 = np.full(len(self.words), np.nan)
         else:
             self.g92 = self.g92_stored.copy() if kind == "g92.3" else np.zeros(len(self.words))
             if kind == "g92.1":
@@ -505,7 +513,7 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
         elif kind.startswith("g10-"):
             c.g10(kind, value, where)
             c.check_active(where)
-        elif kind.startswith("g92"):
+        elif kind.startswith("g92") or kind in ("g52", "shift-end"):
             c.g92_event(kind, value)
         first.append(line)
         frames.append(c.frame())
@@ -517,6 +525,7 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
                                for s in sorted(c.used_systems)}
     notes["g53_lines"] = [e[0] + 1 for e in events if e[2] == "g53"]
     notes["g92_lines"] = [e[0] + 1 for e in events if e[2].startswith("g92")]
+    notes["g52_lines"] = [e[0] + 1 for e in events if e[2] == "g52"]
     notes["dialect_modes"] = sorted({e[3] for e in events if e[2] == "mode"})
     offs, tls, rads, txs = zip(*frames)
     if c.lathe() and c.used_tools:
@@ -615,7 +624,13 @@ def refuse_unknown_frames(program, frames: ProgramFrames, offsets: WorkOffsets |
     unknown = ~np.isfinite(frames.at(lines)[0]).all(axis=1)
     if not unknown.any():
         return
-    where = f"{program.path}: line {int(lines[np.argmax(unknown)]) + 1}"
+    first = int(lines[np.argmax(unknown)])
+    where = f"{program.path}: line {first + 1}"
+    end = next((e for e in (getattr(program, "events", ()) or ()) if e[2] == "shift-end" and e[0] < first), None)
+    if end is not None:
+        raise InputError(f"{where}: a move after '{end[4]}' of line {end[0] + 1}, with a G52/G92 shift in force: whether "
+                         "the program end clears it is the controller's parameter or version; cancel the shift "
+                         "(G52 X0 Y0 Z0, G92.1) before the program end")
     if offsets is None:  # (program_frames refused any other system no G10 L2 set: this is the first move)
         give = "--work-offsets FILE, or --work-offsets machine" if tables else "--work-offsets machine"
         raise InputError(f"{where}: the first move, with no work offset table (a controller runs G54 at power-on, "
