@@ -8,7 +8,7 @@ import re
 
 import numpy as np
 
-from .gcode_state import (LOCAL_SHIFT_DIALECTS, lathe_t_offset, MODE_E, bare_d, bare_g43_tool, d_modal, _dialect_mode, _forget, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
+from .gcode_state import (LOCAL_SHIFT_DIALECTS, lathe_t_offset, MODE_E, bare_d, bare_g43_rule, bare_g43_tool, d_modal, _dialect_mode, _forget, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
 from .nc_flow import TRACKED_NAMES
 from .nc_state import lathe_words
@@ -200,8 +200,7 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
                                        "table's number n")
     if "G43" in (c for c, _ in gs) and "H" not in by and not loaded and bare_g43_tool(st) is None:
         w = next(w for c, w in gs if c == "G43")
-        raise _Refuse(w.start + 1, "'G43' without H (the current tool's length): write 'G43 Hn' with the tool "
-                                   "table's number n")
+        raise _Refuse(w.start + 1, "'G43' without H (the current tool's length): " + bare_g43_rule(st.dialect))
 
 
 G80_HINT = " after G80 (Fanuc, Haas, Siemens ISO keep the G0-G3 of before a cycle: name the controller with --dialect)"

@@ -112,6 +112,21 @@ def bare_g43_tool(st: _State):
     return _modal_number(st, st.last_h) if st.g43 else None
 
 
+def bare_g43_rule(dia) -> str:
+    """Why a ``G43`` without ``H`` is refused on dialect ``dia`` and what to write (the manuals: LinuxCNC takes the
+    tool ``M6`` loaded; Fanuc, Haas, Siemens ISO the H in force, i.e. one given since the last ``G49``; Mach3 and
+    grbl, as RS274NGC, need H)."""
+    name = getattr(dia, "name", "rs274")
+    if getattr(dia, "h_offset_alone", False):
+        why = f"{name} takes the H number in force, and none was given since the last G49"
+    elif name in ("rs274", None):
+        why = ("LinuxCNC takes the tool an M6 loaded (--dialect linuxcnc), Fanuc and Haas the H in force, Mach3 "
+               "needs H")
+    else:
+        why = f"{name} needs the H number"
+    return f"{why}; write 'G43 Hn' with the tool table's number n"
+
+
 def d_modal(st: _State) -> bool:
     """A ``D`` word alone sets the cutter radius offset number (modal; Fanuc, Haas, Siemens ISO, and with no dialect
     word, where only they run such a line: LinuxCNC refuses a D without G41/G42)."""
@@ -377,9 +392,16 @@ def _only_z(vals, axis_words, what):
 
 
 def _g10_work(idx, st: _State, by, w, pw, p, lnum, dia, vals, axis_words, ax: AxisWords, text) -> str:
-    """``G10 L2`` (LinuxCNC P0: the active system) and ``G10 L20`` by dialect (:data:`G10_L20`)."""
+    """``G10 L2`` (LinuxCNC P0: the active system; LinuxCNC's ``R``: the system's XY rotation, deg, about its origin)
+    and ``G10 L20`` by dialect (:data:`G10_L20`)."""
+    rot = None
     if "R" in by:
-        raise _Refuse(by["R"].start + 1, f"'R' with G10 L{int(lnum)}: a rotated work system is not supported")
+        r = by["R"]
+        if lnum != 2 or dia != "linuxcnc":
+            raise _Refuse(r.start + 1, f"'R' with G10 L{int(lnum)}: " + (
+                "a rotated work system is read with G10 L2 only (set the rotation there)" if dia == "linuxcnc" else
+                "the work system's XY rotation is LinuxCNC's (--dialect linuxcnc); Fanuc rotates with G68 (refused)"))
+        rot = r.value
     how = "table" if lnum == 2 else G10_L20.get(dia)
     if how is None:
         raise _Refuse(w.start + 1, f"'{text}': dialect-dependent (LinuxCNC, grbl: work offset P set from the current "
@@ -412,9 +434,9 @@ def _g10_work(idx, st: _State, by, w, pw, p, lnum, dia, vals, axis_words, ax: Ax
                 if a in vals:
                     st.pos[j] = vals[a]
         return "state"
-    st.events.append((idx, w.start + 1, "g10-work", (name, vals), text))
+    st.events.append((idx, w.start + 1, "g10-work", (name, vals, rot, dia == "linuxcnc"), text))
     if name == active:
-        _forget(st, ax, tuple(vals))
+        _forget(st, ax, tuple(vals) + (("X", "Y") if rot is not None else ()))
     return "state"
 
 
