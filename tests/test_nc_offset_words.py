@@ -345,3 +345,18 @@ def test_a_bare_g43_takes_the_loaded_tool_on_linuxcnc(tmp_path, mill):
     p = parse_program(prog, axis_words=AxisWords.of(mill), dialect="linuxcnc")
     f = program_frames(p, read_work_offsets("machine"), read_tool_table(tools))
     assert f.at([4])[1][0] == 100.0 and f.notes["tools_used"] == {2: 100.0}
+
+
+def test_a_linuxcnc_cycle_starting_below_r_first_rises_to_r(tmp_path, mill):
+    """LinuxCNC convert_cycle_xy: from an initial level below R a rapid up to R at the current X Y, then every hole
+    clears to R (G98 or G99); here under G91 with polar repeats: R 0+2, bottom 2-6, holes at 90° and 180°."""
+    prog = tmp_path / "p.ngc"
+    prog.write_text("G21 G90 G17\nG0 X30 Y0 Z0\nG91 G81 R2 Z-6 ^90 L2 F100\nG90 G80\nM2\n")
+    from compensation.chain_gcode import parse_chain_program
+    p = parse_chain_program(prog, mill, dialect="linuxcnc", cycles="expand")
+    ends = [tuple(np.round(m.end, 6)) for m in p.moves]
+    assert ends == [(30.0, 0.0, 0.0), (30.0, 0.0, 2.0), (0.0, 30.0, 2.0), (0.0, 30.0, 2.0), (0.0, 30.0, -4.0),
+                    (0.0, 30.0, 2.0), (-30.0, 0.0, 2.0), (-30.0, 0.0, 2.0), (-30.0, 0.0, -4.0), (-30.0, 0.0, 2.0)]
+    prog.write_text("G21 G90 G17\nG0 X30 Y0 Z0\nG81 X0 Y30 R2 Z-4 F100\nG80\nM30\n")
+    with pytest.raises(InputError, match=r"line 3, column 1: G81: the Z at the cycle's start \(0\) is below R \(2\)"):
+        parse_chain_program(prog, mill, dialect="fanuc", cycles="keep")
