@@ -7,6 +7,11 @@ places the program's points in the machine by the active **work offset** (``G54`
     machine axis = program axis + work offset (every axis word, linear mm, rotary deg)
     machine Z    = ... + tool length (while ``G43 Hn`` is active, LinuxCNC / Fanuc rule)
 
+plus the shift of every work system (``G92`` on LinuxCNC and grbl; ``G52``, the local coordinate shift, which
+LinuxCNC keeps in the same registers), and, on LinuxCNC, the work system's XY rotation (``G10 L2 R``, a ``.var``'s
+parameter ``5230 + 20·(P−1)``): the program's X Y are turned by it about the work system's origin before the
+offsets are added (:meth:`ProgramFrames.place`).
+
 and the tool tip is then the machine file's tool point with its gauge length (the ``[geometry]``
 constant ``tool_length``) set to the tool table's length (:func:`errormap.machine_tool.with_tool_length`):
 the nominal tip does not depend on the tool, but the angular errors act on its Abbe arm.
@@ -22,7 +27,8 @@ mode too).
 Tables, each recognised by content (never by the file's name):
 
 * work offsets (:func:`read_work_offsets`): a LinuxCNC parameter file (``.var``: lines ``NUMBER VALUE``;
-  system ``P`` = 1..9 (G54..G59.3) at parameters ``5221 + 20·(P−1)`` … ``+8`` for ``X Y Z A B C U V W``),
+  system ``P`` = 1..9 (G54..G59.3) at parameters ``5221 + 20·(P−1)`` … ``+8`` for ``X Y Z A B C U V W``, ``+9``
+  its XY rotation),
   or a CSV ``system,x_mm,y_mm,z_mm[,a_deg,b_deg,c_deg]`` (``system``: ``G54`` … ``G59.3``, ``G54.1P3``,
   Haas ``G154P12`` (``G110``–``G129``: ``G154P1``–``P20``));
   ``machine`` (:data:`MACHINE`): the program is in machine coordinates, every offset zero;
@@ -30,7 +36,7 @@ Tables, each recognised by content (never by the file's name):
   a lathe's ``T2 P2 X-1.5 Z+3.2 D0.8 Q2``) or a CSV ``tool,length_mm[,radius_mm]`` (a lathe's
   ``tool,x_mm,z_mm[,radius_mm]``, ``tool`` the offset number a Fanuc/Haas ``TttOO`` word selects);
 * the program's own ``G10`` lines, in program order (:mod:`compensation.gcode_state`): ``L2 Pn`` (work
-  offset n), ``L1 Pn Z.. [R..]`` (tool n), and by dialect ``L20`` (LinuxCNC, grbl: work offset n set so
+  offset n; LinuxCNC's ``R`` its XY rotation), ``L1 Pn Z.. [R..]`` (tool n), and by dialect ``L20`` (LinuxCNC, grbl: work offset n set so
   that the current position reads the values; Fanuc: the extended system ``G54.1 Pn``; Haas: ``G154 Pn``),
   ``L10``/``L11`` (LinuxCNC: tool n's length set so that the current Z reads the value, in the active
   system or in ``G59.3``; Fanuc, Haas: the length's geometry and wear, whose sum is the length — both
