@@ -205,7 +205,8 @@ REFUSED_G = {
     "G41.1": "dynamic cutter radius compensation", "G42.1": "dynamic cutter radius compensation",
     "G43.1": "tool length offset", "G43.2": "tool length offset",
     "G50": "scaling off / lathe coordinate setting (dialect-dependent)", "G50.1": "mirror off",
-    "G51": "scaling", "G51.1": "mirror", "G54.2": ("dynamic fixture offset: the offset follows the rotary axes from a controller table that no file read "
+    "G51": "scaling", "G51.1": "mirror",
+    "G54.2": ("dynamic fixture offset: the offset follows the rotary axes from a controller table that no file read "
               "here holds; give the offset at the program's rotary position as a G54-G59 or G54.1 P system in "
               "--work-offsets"),
     "G52": "local coordinate shift (read on LinuxCNC, Fanuc, Haas, Siemens ISO, Mach3, or with no dialect named)",

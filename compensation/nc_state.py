@@ -36,11 +36,11 @@ Tables, each recognised by content (never by the file's name):
   a lathe's ``T2 P2 X-1.5 Z+3.2 D0.8 Q2``) or a CSV ``tool,length_mm[,radius_mm]`` (a lathe's
   ``tool,x_mm,z_mm[,radius_mm]``, ``tool`` the offset number a Fanuc/Haas ``TttOO`` word selects);
 * the program's own ``G10`` lines, in program order (:mod:`compensation.gcode_state`): ``L2 Pn`` (work
-  offset n; LinuxCNC's ``R`` its XY rotation), ``L1 Pn Z.. [R..]`` (tool n), and by dialect ``L20`` (LinuxCNC, grbl: work offset n set so
-  that the current position reads the values; Fanuc: the extended system ``G54.1 Pn``; Haas: ``G154 Pn``),
-  ``L10``/``L11`` (LinuxCNC: tool n's length set so that the current Z reads the value, in the active
-  system or in ``G59.3``; Fanuc, Haas: the length's geometry and wear, whose sum is the length — both
-  are needed), ``L12``/``L13`` (Haas: the diameter's geometry and wear).
+  offset n; LinuxCNC's ``R`` its XY rotation), ``L1 Pn Z.. [R..]`` (tool n), and by dialect ``L20`` (LinuxCNC,
+  grbl: work offset n set so that the current position reads the values; Fanuc: the extended system ``G54.1 Pn``;
+  Haas: ``G154 Pn``), ``L10``/``L11`` (LinuxCNC: tool n's length set so that the current Z reads the value, in the
+  active system or in ``G59.3``; Fanuc, Haas: the length's geometry and wear, whose sum is the length — both are
+  needed), ``L12``/``L13`` (Haas: the diameter's geometry and wear).
 
 Every bad row is refused naming the file, the row and the column. A program that selects a work
 system or a tool length it was not given is refused naming the word, the line and the option that
@@ -471,8 +471,8 @@ class _Controller:
             raise InputError(f"{where}: the work offset {value} is not in {offsets.source} (nor set by a G10 L2 "
                              "line before it): give it in --work-offsets")
         if not np.isfinite(table[value].get(ROTATION, 0.0)):
-            raise InputError(f"{where}: the work offset {value} was set by G10 L2 without R, and its XY rotation is the "
-                             f"controller's: give {value} in --work-offsets (a .var) or R on the G10 line")
+            raise InputError(f"{where}: the work offset {value} was set by G10 L2 without R, and its XY rotation is "
+                             f"the controller's: give {value} in --work-offsets (a .var) or R on the G10 line")
         unset = [w for w in self.words if not np.isfinite(table[value].get(w, 0.0))]
         if unset:
             raise InputError(f"{where}: the work offset {value} was set by G10 along some axes only; its "
@@ -692,8 +692,8 @@ def refuse_unknown_frames(program, frames: ProgramFrames, offsets: WorkOffsets |
     where = f"{program.path}: line {first + 1}"
     end = next((e for e in (getattr(program, "events", ()) or ()) if e[2] == "shift-end" and e[0] < first), None)
     if end is not None:
-        raise InputError(f"{where}: a move after '{end[4]}' of line {end[0] + 1}, with a G52/G92 shift in force: whether "
-                         "the program end clears it is the controller's parameter or version; cancel the shift "
+        raise InputError(f"{where}: a move after '{end[4]}' of line {end[0] + 1}, with a G52/G92 shift in force: "
+                         "whether the program end clears it is the controller's parameter or version; cancel the shift "
                          "(G52 X0 Y0 Z0, G92.1) before the program end")
     if offsets is None:  # (program_frames refused any other system no G10 L2 set: this is the first move)
         give = "--work-offsets FILE, or --work-offsets machine" if tables else "--work-offsets machine"

@@ -199,7 +199,8 @@ def test_g52_shifts_every_work_system_until_it_is_cancelled(tmp_path, mill, trut
 def test_linuxcnc_g52_is_the_g92_register(tmp_path, mill):
     """LinuxCNC: G52 and G92 share the offset registers: G92.1 clears a G52 shift, G92.3 restores it."""
     prog = tmp_path / "p.ngc"
-    prog.write_text("G21 G90\nG54\nG0 X0 Y0 Z10\nG52 X5 Y-3\nG1 X1 F100\nG92.2\nG1 X2\nG92.3\nG1 X3\nG92.1\nG1 X4\nM2\n")
+    prog.write_text("G21 G90\nG54\nG0 X0 Y0 Z10\nG52 X5 Y-3\nG1 X1 F100\nG92.2\nG1 X2\nG92.3\nG1 X3\nG92.1\nG1 X4\n"
+                    "M2\n")
     p = parse_program(prog, axis_words=AxisWords.of(mill), dialect="linuxcnc")
     f = program_frames(p, read_work_offsets("machine"), None)
     for line0, want in ((4, G52_SHIFT_MM), (6, 0.0), (8, G52_SHIFT_MM), (10, 0.0)):
