@@ -587,8 +587,12 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
     rots = np.array(rots, dtype=float)
     if np.any(np.nan_to_num(rots) != 0.0):
         notes["xy_rotation_deg"] = {s: float(c.table[s].get(ROTATION, 0.0)) for s in sorted(c.used_systems)}
+        at = f"{path}: line {first[int(np.flatnonzero(np.nan_to_num(rots) != 0.0)[0])] + 1}"
+        if not c.words_rotate():
+            raise InputError(f"{at}: a rotated work system (XY rotation {notes['xy_rotation_deg']} deg) on a machine "
+                             f"without X and Y axis words ({' '.join(words)}): set the rotation to 0")
         if getattr(program, "tcp", None) is not None:
-            raise InputError(f"{path}: a rotated work system (G10 L2 R, or a .var's rotation) with tool-centre-point "
+            raise InputError(f"{at}: a rotated work system (G10 L2 R, or a .var's rotation) with tool-centre-point "
                              "lines: not supported; cancel the rotation (R0)")
     if c.lathe() and c.used_tools:
         notes["tool_x_used"] = {int(t): float(c.tool_x.get(t, 0.0)) for t in sorted(c.used_tools)}

@@ -162,6 +162,16 @@ def test_what_a_rotated_work_system_does_not_say_is_refused_by_name(tmp_path, mi
     assert all(w in msg for w in words), msg
 
 
+def test_a_rotation_on_a_machine_without_x_and_y_is_refused(tmp_path):
+    var = tmp_path / "o.var"
+    var.write_text("5221 10\n5222 0\n5223 -20\n5230 15\n")
+    prog = tmp_path / "p.ngc"
+    prog.write_text("G18 G21 G90\nG54\nG0 X10 Z5 C0\nG1 X5 Z0 F100\nM2\n")
+    p = parse_program(prog, axis_words=AxisWords("lathe-xzc", ("X", "Z", "C"), ("C",)), dialect="linuxcnc")
+    with pytest.raises(InputError, match=r"p\.ngc: line 1: a rotated work system .* without X and Y axis words"):
+        program_frames(p, read_work_offsets(var), None)
+
+
 # ---------------------------------------------------------------------------- G52: the local shift
 G52_FANUC = """%
 O0052
