@@ -115,6 +115,23 @@ def test_a_rotated_work_system_is_compensated_where_the_part_is_cut(tmp_path, mi
     assert missed.max() > MISSED_MIN_UM
 
 
+def test_kept_cycle_holes_in_a_rotated_work_system_reach_their_bottoms(tmp_path, mill, truth_file):
+    """A G81 series in the rotated G54: the written cycle lines (X Y Z sticky), turned and offset as the controller
+    does, put the TRUE tool point at every programmed hole bottom within 1 μm."""
+    text = ("G21 G90 G17\nG10 L2 P1 X200 Y100 Z-150 R30\nG54\nG0 X0 Y0 Z20\nG98 G81 X40 Y10 Z-5 R2 F200\nX60 Y-20\n"
+            "G80\nG0 Z20\nM2\n")
+    rc, prog, out = _compensate(tmp_path, text, truth_file)
+    assert rc == 0
+    written = [ln for ln in out.read_text().splitlines() if "G81" in ln or ln.startswith("X")]
+    els, words, errs = ChainElementSet.load(truth_file, mill), {}, []
+    for ln, hole in zip(written, [(40.0, 10.0, -5.0), (60.0, -20.0, -5.0)]):
+        words.update((a, float(v)) for a, v in re.findall(r"([XYZ])(-?[\d.]+)", ln))
+        q = _turn([words["X"], words["Y"], words["Z"]], ROT_DEG) + WORK_MM
+        tip = mill.nominal(q[None])[0] + ChainField(mill, els).predict(q[None])[0] * 1e-3
+        errs.append(np.linalg.norm(tip - mill.nominal((_turn(hole, ROT_DEG) + WORK_MM)[None])[0]) * 1e3)
+    assert len(written) == 2 and max(errs) < TOL_POINT_UM
+
+
 def test_a_var_files_rotation_places_the_program(tmp_path, mill, truth_file):
     var = tmp_path / "o.var"
     var.write_text("5221 200.0\n5222 100.0\n5223 -150.0\n5224 0\n5225 0\n5226 0\n5227 0\n5228 0\n5229 0\n"
