@@ -170,6 +170,8 @@ class ChainGCodeJob:
         """Machine minus program axes per vertex (n, k): the work offset and the tool length on Z."""
         if self.frames is None:
             return np.zeros_like(self.axes)
+        if self.frames.rotated:  # a rotated work system: the shift of each vertex (ProgramFrames.place)
+            return self.frames.place(self.lines - 1, self.axes, self.program.axis_words.words) - self.axes
         return self.frames.shift(self.lines - 1, self.program.axis_words.words)
 
     @property
@@ -184,7 +186,7 @@ class ChainGCodeJob:
         """The kept rapids' ends in machine axes (m, k)."""
         if self.frames is None or not len(self.kept_lines):
             return self.kept_axes
-        return self.kept_axes + self.frames.shift(self.kept_lines - 1, self.program.axis_words.words)
+        return self.frames.place(self.kept_lines - 1, self.kept_axes, self.program.axis_words.words)
 
 
 def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, frames=None, max_segment_mm="auto",
@@ -200,7 +202,8 @@ def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, fr
     (:class:`compensation.gcode.MoveTable`) is planned column-wise (:func:`plan_table`): the same vertices."""
     if isinstance(max_segment_mm, str) and max_segment_mm != "auto":
         raise ValueError(f"Expected max_segment_mm 'auto', None or a length in mm, got {max_segment_mm!r}")
-    if program.table is not None and program.tcp is None and program.expanded is None:
+    rotated = frames is not None and frames.rotated
+    if program.table is not None and program.tcp is None and program.expanded is None and not rotated:
         return plan_table(program, arc_tolerance_um, field_, frames, max_segment_mm, nominal)
     comp = [m for m in program.moves if m.compensate]
     tol_mm = arc_tolerance_um * 1e-3
@@ -214,7 +217,7 @@ def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, fr
         raise ValueError(f"Expected a positive max_segment_mm with the machine's nominal, got {max_segment_mm!r}")
     if with_start and (by_length or (max_segment_mm == "auto" and field_ is not None)):
         shift = frames.shift([m.index for m in with_start], program.axis_words.words) if frames is not None else None
-        place = None
+        place = partial(frames.place, words=program.axis_words.words) if rotated else None
         if program.tcp is not None and frames is not None and machine is not None:
             place = partial(program.tcp.place, machine, program, frames)
         pieces = (length_pieces(with_start, nominal, max_segment_mm, shift, place) if by_length

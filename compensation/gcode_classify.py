@@ -8,7 +8,7 @@ import re
 
 import numpy as np
 
-from .gcode_state import (lathe_t_offset, MODE_E, bare_d, bare_g43_tool, d_modal, _dialect_mode, _forget, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
+from .gcode_state import (LOCAL_SHIFT_DIALECTS, lathe_t_offset, MODE_E, bare_d, bare_g43_rule, bare_g43_tool, d_modal, _dialect_mode, _forget, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
 from .nc_flow import TRACKED_NAMES
 from .nc_state import lathe_words
@@ -71,7 +71,7 @@ def _checked_words(words, ax: AxisWords, dia=None):
                 raise _Refuse(w.start + 1, f"'G{w.text}': unknown G code")
             if code in dia.modes or code in dia.work_systems or code in dia.splines or code in dia.synced or (
                     code in dia.lathe_modes) or (
-                    dia.g92_offsets and code in G92_CODES):
+                    dia.g92_offsets and code in G92_CODES) or (code == "G52" and dia.name in LOCAL_SHIFT_DIALECTS):
                 gs.append((code, w))
                 continue
             if code in BARE_UNITS and dia.g80_unrecognised and "Y" in ax.words and all(x.letter in "GN" for x in words):
@@ -99,7 +99,7 @@ def _checked_words(words, ax: AxisWords, dia=None):
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': {REFUSED_LETTERS[w.letter]}; not supported")
         elif w.letter not in LETTER_RULES:
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': unknown word")
-        elif w.letter == "T" and not _plain_tool_number(w) and not _lathe_t_word(w, ax, dia):
+        elif w.letter == "T" and not _plain_tool_number(w, ax) and not _lathe_t_word(w, ax, dia):
             raise _Refuse(w.start + 1, f"'T{w.text}': a T word of more than {MAX_TOOL_DIGITS} digits (or not a "
                                        "whole number) may select a tool offset (lathe 'TttOO': tool tt, offset "
                                        "OO) that shifts the axes, like G43 H; not supported (write the tool "
@@ -118,12 +118,18 @@ def _lathe_t_word(w: Word, ax: AxisWords, dia) -> bool:
     return getattr(dia, "lathe_t_offset", False) and len(digits) == 4 and digits.isdigit() and lathe_words(ax.words)
 
 
-def _plain_tool_number(w: Word) -> bool:
-    """A ``T`` word that can only be a tool number: a whole number of at most
-    :data:`MAX_TOOL_DIGITS` digits as written (``T1``, ``T01``, ``T12``; not ``T0101``,
-    ``T101``, ``T1.5``, ``T-1``)."""
+def _plain_tool_number(w: Word, ax: AxisWords) -> bool:
+    """A ``T`` word that can only be a tool number: a whole number of at most :data:`MAX_TOOL_DIGITS` digits as
+    written (``T1``, ``T01``, ``T12``; not ``T0101``, ``T101``, ``T1.5``, ``T-1``), or of any number of digits
+    on a mill (X, Y and Z axis words: :func:`mill_words`), where T only selects the tool (Fanuc, Haas, LinuxCNC,
+    Mach3 mills; a Mastercam Fanuc post writes ``T212``) and its length comes from ``G43 H``."""
     digits = w.text.replace(" ", "").replace("\t", "")
-    return digits.isdigit() and len(digits) <= MAX_TOOL_DIGITS
+    return digits.isdigit() and (len(digits) <= MAX_TOOL_DIGITS or mill_words(ax.words))
+
+
+def mill_words(words) -> bool:
+    """A mill's axis words: X, Y and Z (a lathe's ``TttOO`` offset form is read only without Y)."""
+    return {"X", "Y", "Z"} <= set(words)
 
 
 def _modal_groups(gs, dia=None) -> dict:
@@ -131,7 +137,7 @@ def _modal_groups(gs, dia=None) -> dict:
     a motion code where the dialect runs them so: the motion code is kept)."""
     groups = {}
     for code, w in gs:
-        grp = "lathe" if dia is not None and code in dia.lathe_modes else "nonmodal" if code in G92_CODES else "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
+        grp = "lathe" if dia is not None and code in dia.lathe_modes else "nonmodal" if code in G92_CODES or code == "G52" else "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
             code in dia.splines or code in dia.synced) else ALLOWED_G[code][0] if code in ALLOWED_G else (
             "coords" if dia is not None and code in dia.work_systems else "dialect mode")  # a dialect's own first
         g80_motion = dia is not None and (dia.g80_with_motion or dia.g80_unrecognised)  # no dialect: the one reading
@@ -195,8 +201,7 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
                                        "table's number n")
     if "G43" in (c for c, _ in gs) and "H" not in by and not loaded and bare_g43_tool(st) is None:
         w = next(w for c, w in gs if c == "G43")
-        raise _Refuse(w.start + 1, "'G43' without H (the current tool's length): write 'G43 Hn' with the tool "
-                                   "table's number n")
+        raise _Refuse(w.start + 1, "'G43' without H (the current tool's length): " + bare_g43_rule(st.dialect))
 
 
 G80_HINT = " after G80 (Fanuc, Haas, Siemens ISO keep the G0-G3 of before a cycle: name the controller with --dialect)"
@@ -255,7 +260,7 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     if bd and block_delete == "on":
         return "skipped", None
     by, gs, ms = _checked_words(words, ax, dia)
-    _tool_change(st, by, ms)
+    _tool_change(st, by, ms, idx)
     if "T" in by and _lathe_t_word(by["T"], ax, dia):
         lathe_t_offset(idx, st, by["T"], ax)
     groups = _modal_groups(gs, dia)
@@ -278,7 +283,7 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     _check_p_q(st, by, gs, axis_words, arc_words)
     if "nonmodal" in groups and groups["nonmodal"][0] == "G10":
         return _g10(idx, st, groups, by, axis_words, ax), None
-    if "nonmodal" in groups and groups["nonmodal"][0] in G92_CODES:
+    if "nonmodal" in groups and (groups["nonmodal"][0] in G92_CODES or groups["nonmodal"][0] == "G52"):
         return _g92(idx, st, groups, axis_words, ax), None
     _work_state(idx, st, groups, by, ax)
     if "dialect mode" in groups:

@@ -1,10 +1,11 @@
 """The controller-state words of the G-code reader (:mod:`compensation.gcode`), line by line: work-system
 selections (``G54`` … ``G59.3``, ``G54.1 Pn``, Haas ``G154 Pn``), tool length offsets (``G43 Hn`` / ``G49``; on
 LinuxCNC a bare ``G43`` is the tool the program's ``Tn M6`` loaded), cutter radius compensation (``G41``/``G42
-Dn`` / ``G40``), the program's own tables (``G10 L1 L2 L10–L13 L20`` by dialect), moves in machine coordinates
-(``G53``), a dialect's mode codes (:mod:`compensation.dialects`), LinuxCNC's output/input M codes
-(:func:`io_line`) and Siemens native-mode lines (:func:`siemens_native`, refused). Each is recorded as an
-event (:attr:`compensation.gcode.GProgram.events`) that :func:`compensation.nc_state.program_frames`
+Dn`` / ``G40``), the program's own tables (``G10 L1 L2 L10–L13 L20`` by dialect; LinuxCNC's ``G10 L2 R``
+rotation), the shifts of every work system (``G92`` family, ``G52``), moves in machine coordinates (``G53``), a
+dialect's mode codes (:mod:`compensation.dialects`), LinuxCNC's output/input M codes (:func:`io_line`) and
+Siemens native-mode lines (:func:`siemens_native`, refused). Each is recorded as an event
+(:attr:`compensation.gcode.GProgram.events`) that :func:`compensation.nc_state.program_frames`
 resolves against the controller's tables; where a frame changes, the program position along the axes it
 moves becomes unknown (the next move there must give it absolutely)."""
 from __future__ import annotations
@@ -112,6 +113,21 @@ def bare_g43_tool(st: _State):
     return _modal_number(st, st.last_h) if st.g43 else None
 
 
+def bare_g43_rule(dia) -> str:
+    """Why a ``G43`` without ``H`` is refused on dialect ``dia`` and what to write (the manuals: LinuxCNC takes the
+    tool ``M6`` loaded; Fanuc, Haas, Siemens ISO the H in force, i.e. one given since the last ``G49``; Mach3 and
+    grbl, as RS274NGC, need H)."""
+    name = getattr(dia, "name", "rs274")
+    if getattr(dia, "h_offset_alone", False):
+        why = f"{name} takes the H number in force, and none was given since the last G49"
+    elif name in ("rs274", None):
+        why = ("LinuxCNC takes the tool an M6 loaded (--dialect linuxcnc), Fanuc and Haas the H in force, Mach3 "
+               "needs H")
+    else:
+        why = f"{name} needs the H number"
+    return f"{why}; write 'G43 Hn' with the tool table's number n"
+
+
 def d_modal(st: _State) -> bool:
     """A ``D`` word alone sets the cutter radius offset number (modal; Fanuc, Haas, Siemens ISO, and with no dialect
     word, where only they run such a line: LinuxCNC refuses a D without G41/G42)."""
@@ -136,12 +152,18 @@ def _modal_number(st: _State, number):
     return number if generic and st.loaded == number else None
 
 
-def _tool_change(st: _State, by, ms) -> None:
-    """``Tn`` prepares tool n, ``M6`` loads the prepared one (the tool LinuxCNC's bare ``G43``/``G41`` use)."""
+def _tool_change(st: _State, by, ms, idx: int = -1) -> None:
+    """``Tn`` prepares tool n, ``M6`` loads the prepared one (the tool LinuxCNC's bare ``G43``/``G41`` use).
+    ``M2``/``M30`` with a ``G52``/``G92`` shift in force: whether the controller clears it at the program end is
+    its parameter or version (Fanuc 1202#3 RLC; LinuxCNC's M2/M30 reset changed between versions), recorded as a
+    ``shift-end`` event (:func:`compensation.nc_state.program_frames` refuses a compensated move after it)."""
     if "T" in by and by["T"].value == int(by["T"].value):
         st.selected = int(by["T"].value)
     if any(m.value == 6 for m in ms):
         st.loaded = st.selected
+    end = next((m for m in ms if m.value in (2.0, 30.0)), None)
+    if end is not None and np.any(st.g92 != 0.0):
+        st.events.append((idx, end.start + 1, "shift-end", None, f"M{end.text.strip()}"))
 
 
 def _loaded(st: _State, code, w) -> int:
@@ -272,6 +294,8 @@ def _g92(idx, st: _State, groups, axis_words, ax: AxisWords) -> str:
     code, w = groups["nonmodal"]
     if "motion" in groups:
         raise _Refuse(w.start + 1, f"'{code}' with a motion code on the same line")
+    if code == "G52":
+        return _g52(idx, st, w, axis_words, ax)
     if code in ("G92.2", "G92.3") and st.dialect is not None and st.dialect.name == "grbl":
         raise _Refuse(w.start + 1, f"'{code}': grbl has G92 and G92.1 only")
     if code != "G92":
@@ -307,6 +331,39 @@ def _g92(idx, st: _State, groups, axis_words, ax: AxisWords) -> str:
     return "state"
 
 
+LOCAL_SHIFT_DIALECTS = ("linuxcnc", "fanuc", "haas", "siemens-iso", "mach3", "rs274")
+"""Dialects with ``G52`` (the local coordinate shift; ``rs274``: no dialect named, where every controller that runs
+the line reads it alike); grbl and Heidenhain ISO have none (refused)."""
+
+
+def _g52(idx, st: _State, w, axis_words, ax: AxisWords) -> str:
+    """``G52 X.. Y..`` (Fanuc 0i-MF, Haas, Siemens ISO, Mach3 "local coordinate system"; LinuxCNC "G52 local
+    offsets"): the shift of every work system along the axes given becomes the values (not added: ``G52 X0 Y0 Z0``
+    cancels); nothing moves, so the current point's program coordinates change by the old shift minus the new one.
+    LinuxCNC keeps it in the G92 registers (parameters 5211-5219: ``G92.1``/``G92.2`` clear it, ``G92.3`` restores
+    it); Fanuc-family controllers have no G92 offset read here, so one register serves both. Under ``G91``
+    (Mitsubishi and some Fanuc models add the values to the shift) refused; recorded as a ``g52`` event
+    ``(values mm/deg, LinuxCNC's stored copy written)``."""
+    if not axis_words:
+        raise _Refuse(w.start + 1, "'G52' without axis words ('G52 X0 Y0 Z0' cancels the shift)")
+    if st.incremental:
+        raise _Refuse(w.start + 1, "'G52' under G91: some controllers add the values to the shift, others set it; "
+                                   "write G90 before the G52 line")
+    scale = MM_PER_INCH if st.inch else 1.0
+    stores = st.dialect is not None and st.dialect.name == "linuxcnc"
+    vals = {}
+    st.pos, st.g92 = st.pos.copy(), st.g92.copy()
+    for j, a in enumerate(ax.words):
+        if a in axis_words:
+            vals[a] = axis_words[a].value * (1.0 if a in ax.rotary else scale)
+            st.pos[j] += st.g92[j] - vals[a]  # the machine stays where it is
+            st.g92[j] = vals[a]
+    if stores:
+        st.g92_stored = st.g92.copy()
+    st.events.append((idx, w.start + 1, "g52", (vals, stores), "G52"))
+    return "state"
+
+
 def synced_words(code, by, arc_words, col: int) -> None:
     """The words of a ``G33``/``G33.1`` line (LinuxCNC G-code reference): ``K`` the distance per spindle
     revolution (required, positive), ``I`` the return speed multiplier of ``G33.1`` (optional); no other
@@ -336,9 +393,16 @@ def _only_z(vals, axis_words, what):
 
 
 def _g10_work(idx, st: _State, by, w, pw, p, lnum, dia, vals, axis_words, ax: AxisWords, text) -> str:
-    """``G10 L2`` (LinuxCNC P0: the active system) and ``G10 L20`` by dialect (:data:`G10_L20`)."""
+    """``G10 L2`` (LinuxCNC P0: the active system; LinuxCNC's ``R``: the system's XY rotation, deg, about its origin)
+    and ``G10 L20`` by dialect (:data:`G10_L20`)."""
+    rot = None
     if "R" in by:
-        raise _Refuse(by["R"].start + 1, f"'R' with G10 L{int(lnum)}: a rotated work system is not supported")
+        r = by["R"]
+        if lnum != 2 or dia != "linuxcnc":
+            raise _Refuse(r.start + 1, f"'R' with G10 L{int(lnum)}: " + (
+                "a rotated work system is read with G10 L2 only (set the rotation there)" if dia == "linuxcnc" else
+                "the work system's XY rotation is LinuxCNC's (--dialect linuxcnc); Fanuc rotates with G68 (refused)"))
+        rot = r.value
     how = "table" if lnum == 2 else G10_L20.get(dia)
     if how is None:
         raise _Refuse(w.start + 1, f"'{text}': dialect-dependent (LinuxCNC, grbl: work offset P set from the current "
@@ -371,9 +435,9 @@ def _g10_work(idx, st: _State, by, w, pw, p, lnum, dia, vals, axis_words, ax: Ax
                 if a in vals:
                     st.pos[j] = vals[a]
         return "state"
-    st.events.append((idx, w.start + 1, "g10-work", (name, vals), text))
+    st.events.append((idx, w.start + 1, "g10-work", (name, vals, rot, dia == "linuxcnc"), text))
     if name == active:
-        _forget(st, ax, tuple(vals))
+        _forget(st, ax, tuple(vals) + (("X", "Y") if rot is not None else ()))
     return "state"
 
 

@@ -205,7 +205,11 @@ REFUSED_G = {
     "G41.1": "dynamic cutter radius compensation", "G42.1": "dynamic cutter radius compensation",
     "G43.1": "tool length offset", "G43.2": "tool length offset",
     "G50": "scaling off / lathe coordinate setting (dialect-dependent)", "G50.1": "mirror off",
-    "G51": "scaling", "G51.1": "mirror", "G52": "local coordinate shift",
+    "G51": "scaling", "G51.1": "mirror",
+    "G54.2": ("dynamic fixture offset: the offset follows the rotary axes from a controller table that no file read "
+              "here holds; give the offset at the program's rotary position as a G54-G59 or G54.1 P system in "
+              "--work-offsets"),
+    "G52": "local coordinate shift (read on LinuxCNC, Fanuc, Haas, Siemens ISO, Mach3, or with no dialect named)",
     "G60": "unidirectional approach", "G65": "macro call (its letters are arguments, not axes)",
     "G66": "modal macro call", "G66.1": "modal macro call", "G68": "coordinate rotation",
     "G68.2": "tilted work plane", "G70": UNITS_OR_CYCLE.format(what="inch"), "G71": UNITS_OR_CYCLE.format(what="mm"), "G72": "lathe cycle",

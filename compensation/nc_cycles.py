@@ -21,10 +21,11 @@ Semantics (LinuxCNC 2.9 ``rs274ngc`` ``convert_cycle_xy`` and the Fanuc 0i/Haas 
   LinuxCNC 2.9's ``cycle_il``); under ``G91`` ``R`` is measured from it.
 * Per hole: rapid ``X Y`` at the current level, rapid ``Z`` to ``R``, the body, and the return to
   the *clear level*: ``G98`` the initial level, ``G99`` the R plane. What the controllers (or their
-  versions) do differently is refused: an initial level below R (LinuxCNC first rapids up to R;
-  Fanuc does not), a ``G98`` hole after a ``G99`` hole of one series (older LinuxCNC returns to the
-  Z at the line's start), a change of cycle without its ``Z R`` (``Q``/``P``) words (LinuxCNC needs
-  them, Fanuc keeps the earlier ones); a bottom above R is an error on both.
+  versions) do differently is refused: an initial level below R (LinuxCNC first rapids up to R at the current
+  X Y and then clears to R, ``G98`` or ``G99``: read so with ``--dialect linuxcnc``; Fanuc does not), a ``G98``
+  hole after a ``G99`` hole of one series (older LinuxCNC returns to the Z at the line's start), a change of
+  cycle without its ``Z R`` (``Q``/``P``) words (LinuxCNC needs them, Fanuc keeps the earlier ones); a bottom
+  above R is an error on both.
 * Bodies: ``G81`` feed to Z, rapid out; ``G82`` feed, dwell ``P``, rapid out; ``G83`` peck: for
   each depth ``R − nQ`` above Z, feed to it, rapid to R, rapid to 0.010 in (0.254 mm) above it; then
   feed to Z and rapid out; ``G73`` chip break: as G83 but retracting only by that 0.254 mm; ``G85``
@@ -94,10 +95,12 @@ RAPID_DELTA_IN = 0.010
 OTHER_G = ("G90", "G91", "G98", "G99", "G17")
 SYNCED = ("G33", "G33.1")
 """LinuxCNC's spindle-synchronised motion codes (motion group: they end a cycle mode; compensation.gcode_state)."""
-INVALIDATE_G = ("G54", "G55", "G56", "G57", "G58", "G59", "G54.1", "G59.1", "G59.2", "G59.3", "G10", "G92", "G154",
-                *(f"G{c}" for c in range(110, 130)))
+INVALIDATE_G = ("G54", "G55", "G56", "G57", "G58", "G59", "G54.1", "G59.1", "G59.2", "G59.3", "G10", "G92", "G52",
+                "G154", *(f"G{c}" for c in range(110, 130)))
 """Codes after which the current position in program coordinates is not known to this pass (every axis)."""
 INVALIDATE_NAMED_G = ("G28", "G30", "G53")
+NOT_A_POSITION_G = ("G28", "G30", "G53", "G10", "G92", "G52")
+"""Codes whose axis words are a via point, machine coordinates or data, not the program position."""
 """Codes that move only the axes named on their line (to the reference, or in machine coordinates): those become
 unknown; ``G28``/``G30`` with no axis word move every axis on LinuxCNC (none on Fanuc): every axis."""
 INVALIDATE_Z_G = ("G43", "G49")
@@ -251,7 +254,7 @@ def _g80_motion(motion, st: _St) -> None:
 def _after_kept(by, gs, st: _St) -> None:
     """After a kept cycle the controller's Z is the written (compensated) R or initial level, not the
     programmed one the reader continues from: an incremental move is refused until an absolute Z."""
-    if not st.kept_line or not any(a in by for a in "XYZ") or any(c in ("G28", "G30", "G53", "G10", "G92") for c in gs):
+    if not st.kept_line or not any(a in by for a in "XYZ") or any(c in NOT_A_POSITION_G for c in gs):
         return
     if st.inc:
         w = next(by[a] for a in "XYZ" if a in by)
@@ -284,7 +287,7 @@ def _track(words, by, gs, motion, st: _St):
         st.initial = math.nan
     if "F" in by:
         st.feed = by["F"].text
-    if any(c in ("G28", "G30", "G53", "G10", "G92") for c in gs) or st.tapping or ("G4" in gs and st.dwell_x):
+    if any(c in NOT_A_POSITION_G for c in gs) or st.tapping or ("G4" in gs and st.dwell_x):
         return  # a via point, machine coordinates or data (the position stays unknown), a tap that returned, or a
         # Fanuc 'G04 X' dwell time
     for j, a in enumerate("XYZ"):  # after G43/G49 or a work system only absolute words are known again
@@ -306,6 +309,9 @@ def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes,
     dec = DECIMALS["inch" if st.inch else "mm"]
     out = []
     x, y = st.pos[0], st.pos[1]
+    if mode == "expand" and st.pos[2] < r:  # LinuxCNC: below R, first a rapid up to it at the current X Y
+        out.append(f"{extra} G0 Z{fmt(r, dec)}")
+        extra = "G90"
     for _ in range(_repeats(by) if (st.inc or mode == "expand") else 1):
         x = x + by["X"].value if st.inc and "X" in by else (by["X"].value if "X" in by else x)
         y = y + by["Y"].value if st.inc and "Y" in by else (by["Y"].value if "Y" in by else y)
@@ -424,9 +430,12 @@ def _levels(code, st: _St, col, dialect=None) -> tuple:
         return _back_boring_levels(st, r, bottom, old_z, col)
     if bottom > r:
         raise _Refuse(col, f"{code}: the hole bottom Z {bottom:g} is above R {r:g}")
-    if old_z < r:
+    if old_z < r and dialect != "linuxcnc":
         raise _Refuse(col, f"{code}: the Z at the cycle's start ({old_z:g}) is below R ({r:g}): LinuxCNC first rapids "
-                           "up to R, Fanuc does not; program a Z move to or above R before the cycle")
+                           "up to R (--dialect linuxcnc), Fanuc does not; program a Z move to or above R before the "
+                           "cycle")
+    if old_z < r:  # LinuxCNC convert_cycle_xy: a rapid up to R at the current X Y, then R is the clear level
+        return r, bottom, r
     if st.ret == "G98" and st.series_g99 and dialect not in INITIAL_LEVEL_DIALECTS:
         raise _Refuse(col, f"{code} G98 after a G99 hole of the same series: Fanuc, Haas and LinuxCNC 2.9 return to "
                            "the series' initial level, older LinuxCNC to the R plane; name the controller with "

@@ -684,8 +684,9 @@ class _Machine:
             cuts = [(a, b, "") for _, _, a, b in assigns]
             cuts += [(w[1] + 1, w[2], _fmt(vals[id(w)], pc, w[1] + 1, self)) for w in words
                      if w[3] is not None and w[0] not in "@^"]
-            cuts += polar_cuts(self, pc, body, words, lambda w: vals[id(w)] if w[3] is not None else w[4],
-                               lambda v, col: _fmt(v, pc, col, self))
+            polar, more = polar_cuts(self, pc, body, words, lambda w: vals[id(w)] if w[3] is not None else w[4],
+                                     lambda v, col: _fmt(v, pc, col, self))
+            cuts += polar
             if cuts:
                 out, at = [], 0
                 for a, b, rep in sorted(cuts):
@@ -696,6 +697,8 @@ class _Machine:
                 self._emit(pc, "".join(out))
             else:
                 self._emit(pc)
+            for text in more:  # a G91 polar canned cycle's further holes (compensation.nc_polar)
+                self._emit(pc, text)
         if ends:
             raise _Stop
         return pc + 1

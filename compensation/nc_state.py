@@ -7,6 +7,11 @@ places the program's points in the machine by the active **work offset** (``G54`
     machine axis = program axis + work offset (every axis word, linear mm, rotary deg)
     machine Z    = ... + tool length (while ``G43 Hn`` is active, LinuxCNC / Fanuc rule)
 
+plus the shift of every work system (``G92`` on LinuxCNC and grbl; ``G52``, the local coordinate shift, which
+LinuxCNC keeps in the same registers), and, on LinuxCNC, the work system's XY rotation (``G10 L2 R``, a ``.var``'s
+parameter ``5230 + 20·(P−1)``): the program's X Y are turned by it about the work system's origin before the
+offsets are added (:meth:`ProgramFrames.place`).
+
 and the tool tip is then the machine file's tool point with its gauge length (the ``[geometry]``
 constant ``tool_length``) set to the tool table's length (:func:`errormap.machine_tool.with_tool_length`):
 the nominal tip does not depend on the tool, but the angular errors act on its Abbe arm.
@@ -22,7 +27,8 @@ mode too).
 Tables, each recognised by content (never by the file's name):
 
 * work offsets (:func:`read_work_offsets`): a LinuxCNC parameter file (``.var``: lines ``NUMBER VALUE``;
-  system ``P`` = 1..9 (G54..G59.3) at parameters ``5221 + 20·(P−1)`` … ``+8`` for ``X Y Z A B C U V W``),
+  system ``P`` = 1..9 (G54..G59.3) at parameters ``5221 + 20·(P−1)`` … ``+8`` for ``X Y Z A B C U V W``, ``+9``
+  its XY rotation),
   or a CSV ``system,x_mm,y_mm,z_mm[,a_deg,b_deg,c_deg]`` (``system``: ``G54`` … ``G59.3``, ``G54.1P3``,
   Haas ``G154P12`` (``G110``–``G129``: ``G154P1``–``P20``));
   ``machine`` (:data:`MACHINE`): the program is in machine coordinates, every offset zero;
@@ -30,11 +36,11 @@ Tables, each recognised by content (never by the file's name):
   a lathe's ``T2 P2 X-1.5 Z+3.2 D0.8 Q2``) or a CSV ``tool,length_mm[,radius_mm]`` (a lathe's
   ``tool,x_mm,z_mm[,radius_mm]``, ``tool`` the offset number a Fanuc/Haas ``TttOO`` word selects);
 * the program's own ``G10`` lines, in program order (:mod:`compensation.gcode_state`): ``L2 Pn`` (work
-  offset n), ``L1 Pn Z.. [R..]`` (tool n), and by dialect ``L20`` (LinuxCNC, grbl: work offset n set so
-  that the current position reads the values; Fanuc: the extended system ``G54.1 Pn``; Haas: ``G154 Pn``),
-  ``L10``/``L11`` (LinuxCNC: tool n's length set so that the current Z reads the value, in the active
-  system or in ``G59.3``; Fanuc, Haas: the length's geometry and wear, whose sum is the length — both
-  are needed), ``L12``/``L13`` (Haas: the diameter's geometry and wear).
+  offset n; LinuxCNC's ``R`` its XY rotation), ``L1 Pn Z.. [R..]`` (tool n), and by dialect ``L20`` (LinuxCNC,
+  grbl: work offset n set so that the current position reads the values; Fanuc: the extended system ``G54.1 Pn``;
+  Haas: ``G154 Pn``), ``L10``/``L11`` (LinuxCNC: tool n's length set so that the current Z reads the value, in the
+  active system or in ``G59.3``; Fanuc, Haas: the length's geometry and wear, whose sum is the length — both are
+  needed), ``L12``/``L13`` (Haas: the diameter's geometry and wear).
 
 Every bad row is refused naming the file, the row and the column. A program that selects a work
 system or a tool length it was not given is refused naming the word, the line and the option that
@@ -62,6 +68,9 @@ SYSTEMS = ("G54", "G55", "G56", "G57", "G58", "G59", "G59.1", "G59.2", "G59.3")
 VAR_FIRST = 5221
 VAR_STEP = 20
 """LinuxCNC: system P's X offset is parameter 5221 + 20·(P − 1), then Y Z A B C U V W, R (rotation) at +9."""
+ROTATION = "R"
+"""A work system's XY rotation about its origin (deg, counter-clockwise seen from +Z; LinuxCNC ``G10 L2 R``,
+parameter ``5230 + 20·(P−1)``), kept in its row under this key; tables without one (CSV): 0."""
 VAR_G92 = (5211, 5219)
 """LinuxCNC's G92 offsets (parameters 5211–5219): a non-zero one shifts every system; refused."""
 EXTENDED_MAX = 300
@@ -189,11 +198,8 @@ def _read_var(path, lines) -> WorkOffsets:
         base = VAR_FIRST + VAR_STEP * (p - 1)
         if not all(base + j in params for j in range(3)):
             continue
-        rot = params.get(base + 9, (0.0, 0))
-        if rot[0] != 0.0:
-            raise _refuse(path, rot[1], 1, f"parameter {base + 9} ({name} XY rotation) is {rot[0]:g}: rotated work "
-                                           "systems are not supported")
         systems[name] = {w: params[base + j][0] for j, w in enumerate(OFFSET_WORDS) if base + j in params}
+        systems[name][ROTATION] = params.get(base + 9, (0.0, 0))[0]  # LinuxCNC's XY rotation (G10 L2 R), deg
     if not systems:
         raise InputError(f"{path}: no work system in the parameter file (G54 is parameters {VAR_FIRST}-{VAR_FIRST + 2})")
     return WorkOffsets(systems, str(path))
@@ -325,6 +331,26 @@ class ProgramFrames:
     """(m,) the cutter radius while G41/G42 is active (NaN: off)."""
     tool_x_mm: np.ndarray | None = None
     """(m,) a lathe tool's X offset while its offset is active (NaN: none; None: no lathe tool in the program)."""
+    rot_deg: np.ndarray | None = None
+    """(m,) the active work system's XY rotation (deg; LinuxCNC ``G10 L2 R``; None: none anywhere): machine axes
+    are the program's X Y turned by it about the work system's origin, then shifted (:meth:`place`)."""
+
+    @property
+    def rotated(self) -> bool:
+        return self.rot_deg is not None and bool(np.any(self.rot_deg != 0.0))
+
+    def place(self, lines0, q, words) -> np.ndarray:
+        """Machine axes (n, k) of program axes ``q`` (n, k) at 0-based lines: X Y turned by the rotation (LinuxCNC
+        ``rotate(x, y, rotation_xy)`` before the offsets), then :meth:`shift` added."""
+        return _turn_xy(q, self._rot(lines0), words) + self.shift(lines0, words)
+
+    def unplace(self, lines0, m, words) -> np.ndarray:
+        """Program axes (n, k) of machine axes ``m`` (n, k): :meth:`place` inverted."""
+        return _turn_xy(np.asarray(m, dtype=float) - self.shift(lines0, words), -self._rot(lines0), words)
+
+    def _rot(self, lines0) -> np.ndarray:
+        s = np.maximum(np.searchsorted(self.first_line, np.asarray(lines0, dtype=np.int64), side="right") - 1, 0)
+        return np.zeros(len(s)) if self.rot_deg is None else self.rot_deg[s]
 
     def lathe_tool(self, lines0) -> np.ndarray:
         """The active lathe tool offsets (n, 2) mm, X and Z, at 0-based lines (NaN rows: no tool offset active)."""
@@ -355,6 +381,17 @@ class ProgramFrames:
             tx = self.lathe_tool(lines0)[:, 0]
             out[:, list(words).index("X")] += np.where(np.isfinite(tx), tx, 0.0)
         return out
+
+
+def _turn_xy(q, deg, words) -> np.ndarray:
+    """``q`` (n, k) with its X Y turned by ``deg`` (n,) about Z (counter-clockwise seen from +Z)."""
+    out = np.array(q, dtype=float)
+    if not np.any(deg != 0.0):
+        return out
+    jx, jy = list(words).index("X"), list(words).index("Y")
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    out[:, jx], out[:, jy] = c * q[:, jx] - s * q[:, jy], s * q[:, jx] + c * q[:, jy]
+    return out
 
 
 def lathe_words(words) -> bool:
@@ -390,12 +427,17 @@ class _Controller:
     def lathe(self) -> bool:
         return lathe_words(self.words)
 
+    def rotation(self) -> float:
+        """The active work system's XY rotation, deg (NaN: not known; 0 where the tables give none)."""
+        return float(self.table[self.system].get(ROTATION, 0.0)) if self.system in self.table else np.nan
+
     def frame(self) -> tuple:
-        """(offset (k,), tool length mm or NaN, cutter radius mm or NaN, a lathe tool's X offset mm or NaN) now."""
+        """(offset (k,), tool length mm or NaN, cutter radius mm or NaN, a lathe tool's X offset mm or NaN, XY
+        rotation deg) now."""
         on = self.tool is not None
         return (self.offset() + self.g92, self.tooltab[self.tool] if on else np.nan,
                 self.radii[self.cutter] if self.cutter is not None else np.nan,
-                self.tool_x.get(self.tool, 0.0) if on and self.lathe() else np.nan)
+                self.tool_x.get(self.tool, 0.0) if on and self.lathe() else np.nan, self.rotation())
 
     def g92_event(self, kind, value) -> None:
         """``G92`` (``value``: values and the position before, program mm/deg): the offset grows by position minus
@@ -405,6 +447,14 @@ class _Controller:
             for a, v in vals.items():
                 self.g92[list(self.words).index(a)] += pos[a] - v
             self.g92_stored = self.g92.copy()
+        elif kind == "g52":  # G52: the shift along the axes given is the values (LinuxCNC: the G92 registers)
+            vals, stores = value
+            for a, v in vals.items():
+                self.g92[list(self.words).index(a)] = v
+            if stores:
+                self.g92_stored = self.g92.copy()
+        elif kind == "shift-end":  # M2/M30 with a shift in force: cleared or kept by the controller's parameter
+            self.g92 = np.full(len(self.words), np.nan)
         else:
             self.g92 = self.g92_stored.copy() if kind == "g92.3" else np.zeros(len(self.words))
             if kind == "g92.1":
@@ -420,6 +470,9 @@ class _Controller:
                                  "(.var/CSV), G10 L2, or --work-offsets machine (machine coordinates)")
             raise InputError(f"{where}: the work offset {value} is not in {offsets.source} (nor set by a G10 L2 "
                              "line before it): give it in --work-offsets")
+        if not np.isfinite(table[value].get(ROTATION, 0.0)):
+            raise InputError(f"{where}: the work offset {value} was set by G10 L2 without R, and its XY rotation is "
+                             f"the controller's: give {value} in --work-offsets (a .var) or R on the G10 line")
         unset = [w for w in self.words if not np.isfinite(table[value].get(w, 0.0))]
         if unset:
             raise InputError(f"{where}: the work offset {value} was set by G10 along some axes only; its "
@@ -453,7 +506,12 @@ class _Controller:
         """A ``G10`` line's data (:mod:`compensation.gcode_state`) into the tables."""
         words = self.words
         if kind == "g10-work":
-            _set_offset(self.table, value[0], value[1], words, self.offsets)
+            _set_offset(self.table, value[0], value[1], words, self.offsets, value[3])
+            if value[2] is not None:
+                self.table[value[0]][ROTATION] = value[2]
+            if value[0] == self.system and self.words_rotate() and not np.isfinite(self.rotation()):
+                raise InputError(f"{where}: sets the active work offset {value[0]} without R, whose XY rotation is the "
+                                 f"controller's: give {value[0]} in --work-offsets (a .var) or R on the G10 line")
         elif kind == "g10-here":
             _set_offset(self.table, value[0], _offset_here(value, self.offset(), words, where, self.system), words,
                         self.offsets)
@@ -476,6 +534,9 @@ class _Controller:
                 dest[n] = have["geometry"] + have["wear"]
             else:
                 dest.pop(n, None)
+
+    def words_rotate(self) -> bool:
+        return "X" in self.words and "Y" in self.words
 
     def check_active(self, where) -> None:
         """The active tool and cutter radius are still known after a G10 line changed the tables."""
@@ -505,7 +566,10 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
         elif kind.startswith("g10-"):
             c.g10(kind, value, where)
             c.check_active(where)
-        elif kind.startswith("g92"):
+        elif kind.startswith("g92") or kind in ("g52", "shift-end"):
+            if kind != "shift-end" and c.rotation() != 0.0:
+                raise InputError(f"{where}: a G92/G52 shift while the work system {c.system} is rotated (G10 L2 R): "
+                                 "LinuxCNC adds it to rotated coordinates; cancel the rotation (R0) first")
             c.g92_event(kind, value)
         first.append(line)
         frames.append(c.frame())
@@ -517,13 +581,25 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
                                for s in sorted(c.used_systems)}
     notes["g53_lines"] = [e[0] + 1 for e in events if e[2] == "g53"]
     notes["g92_lines"] = [e[0] + 1 for e in events if e[2].startswith("g92")]
+    notes["g52_lines"] = [e[0] + 1 for e in events if e[2] == "g52"]
     notes["dialect_modes"] = sorted({e[3] for e in events if e[2] == "mode"})
-    offs, tls, rads, txs = zip(*frames)
+    offs, tls, rads, txs, rots = zip(*frames)
+    rots = np.array(rots, dtype=float)
+    if np.any(np.nan_to_num(rots) != 0.0):
+        notes["xy_rotation_deg"] = {s: float(c.table[s].get(ROTATION, 0.0)) for s in sorted(c.used_systems)}
+        at = f"{path}: line {first[int(np.flatnonzero(np.nan_to_num(rots) != 0.0)[0])] + 1}"
+        if not c.words_rotate():
+            raise InputError(f"{at}: a rotated work system (XY rotation {notes['xy_rotation_deg']} deg) on a machine "
+                             f"without X and Y axis words ({' '.join(words)}): set the rotation to 0")
+        if getattr(program, "tcp", None) is not None:
+            raise InputError(f"{at}: a rotated work system (G10 L2 R, or a .var's rotation) with tool-centre-point "
+                             "lines: not supported; cancel the rotation (R0)")
     if c.lathe() and c.used_tools:
         notes["tool_x_used"] = {int(t): float(c.tool_x.get(t, 0.0)) for t in sorted(c.used_tools)}
     return ProgramFrames(np.array(first, dtype=np.int64), np.array(offs).reshape(len(first), len(words)),
                          np.array(tls, dtype=float), notes, np.array(rads, dtype=float),
-                         np.array(txs, dtype=float) if c.lathe() and c.used_tools else None)
+                         np.array(txs, dtype=float) if c.lathe() and c.used_tools else None,
+                         rots if np.any(rots != 0.0) else None)
 
 
 FROM_POSITION = ("g92", "g10-here", "g10-tool-here")
@@ -549,12 +625,13 @@ def _refuse_set_from_compensated(program, events) -> None:
                              "move would shift by its correction): reach it by a G0 kept with --rapids keep")
 
 
-def _set_offset(table, name, vals, words, offsets) -> None:
+def _set_offset(table, name, vals, words, offsets, rotates: bool = False) -> None:
     """Work system ``name``'s words ``vals`` set by a G10 line; a system not yet known gets the others
-    unknown (NaN: the controller's stored values), or zero with ``--work-offsets machine``."""
+    unknown (NaN: the controller's stored values; its XY rotation too where the dialect has one, ``rotates``), or
+    zero with ``--work-offsets machine``."""
     if name not in table:
         zero = offsets is not None and offsets.machine_coordinates
-        table[name] = {} if zero else {w: np.nan for w in words}
+        table[name] = {} if zero else {w: np.nan for w in words} | ({ROTATION: np.nan} if rotates else {})
     table[name].update(vals)
 
 
@@ -612,10 +689,16 @@ def refuse_unknown_frames(program, frames: ProgramFrames, offsets: WorkOffsets |
         lines = t.line if offsets is None else t.line[t.compensate]
     else:
         lines = np.array([m.index for m in program.moves if offsets is None or m.compensate], dtype=np.int64)
-    unknown = ~np.isfinite(frames.at(lines)[0]).all(axis=1)
+    unknown = ~np.isfinite(frames.at(lines)[0]).all(axis=1) | ~np.isfinite(frames._rot(lines))
     if not unknown.any():
         return
-    where = f"{program.path}: line {int(lines[np.argmax(unknown)]) + 1}"
+    first = int(lines[np.argmax(unknown)])
+    where = f"{program.path}: line {first + 1}"
+    end = next((e for e in (getattr(program, "events", ()) or ()) if e[2] == "shift-end" and e[0] < first), None)
+    if end is not None:
+        raise InputError(f"{where}: a move after '{end[4]}' of line {end[0] + 1}, with a G52/G92 shift in force: "
+                         "whether the program end clears it is the controller's parameter or version; cancel the shift "
+                         "(G52 X0 Y0 Z0, G92.1) before the program end")
     if offsets is None:  # (program_frames refused any other system no G10 L2 set: this is the first move)
         give = "--work-offsets FILE, or --work-offsets machine" if tables else "--work-offsets machine"
         raise InputError(f"{where}: the first move, with no work offset table (a controller runs G54 at power-on, "

@@ -259,13 +259,14 @@ def test_header_goes_after_tape_start_and_program_number(tmp_path, machine):
 
 
 def test_linuxcnc_polar_words_are_refused_by_name(tmp_path):
-    """LinuxCNC's polar coordinates (``@`` distance, ``^`` angle) on a canned cycle are not read (on G0/G1 they are:
-    tests/test_polar_words.py): refused naming the word."""
+    """LinuxCNC's polar coordinates (``@`` distance, ``^`` angle) on a canned cycle's modal repeat are not read (the
+    reader does not follow the position after a cycle line; on G0-G3 and cycle lines they are:
+    tests/test_polar_words.py, tests/test_nc_offset_words.py): refused naming the word."""
     p = tmp_path / "polar.ngc"
-    p.write_text("G20 G17 G90\nG0 X1.5 Y0 Z0\nG91 G81 R.1 Z-.5 ^60 L6 F10\nM2\n")
+    p.write_text("G20 G17 G90\nG0 X1.5 Y0 Z1\nG81 X1.5 Y0 R.1 Z-.5 F10\n^60\nM2\n")
     with pytest.raises(InputError) as e:
         parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyz")), dialect="linuxcnc")
-    assert "polar.ngc: line 3, column 18: '^': a LinuxCNC polar coordinate on a line with G81" in str(e.value)
+    assert "polar.ngc: line 4, column 1: '^': a LinuxCNC polar coordinate needs the current X Y" in str(e.value)
 
 
 def test_a_folder_given_as_the_program_is_named_as_a_folder(tmp_path):

@@ -235,16 +235,16 @@ def test_a_fanuc_lathe_t_word_selects_tool_and_offset(tmp_path, lathe, dialect):
         "--tool-table" in msg and len(msg) - len(str(tmp_path)) < 300, msg
 
 
-def test_a_four_digit_t_word_stays_refused_on_a_mill_and_on_linuxcnc(tmp_path):
+def test_a_four_digit_t_word_stays_refused_on_a_lathe_with_linuxcnc_and_is_a_tool_on_a_mill(tmp_path):
+    """On a mill (X, Y and Z) T only selects the tool (Fanuc: tool 101; its length comes from G43 H); on a lathe
+    without a dialect that reads TttOO it may select an offset: refused."""
     p = tmp_path / "m.nc"
-    p.write_text("G21 G90\nT0101\nG0 X1 Y1 Z1\nM30\n")
-    for machine, dialect in (("mill-xyz", "fanuc"), (LATHE, "linuxcnc")):
-        aw = AxisWords.of(load_machine(machine))
-        if machine == LATHE:
-            aw = AxisWords(LATHE, ("X", "Z"), ())
-            p.write_text("G18 G21 G90\nT0101\nG0 X1 Z1\nM30\n")
-        with pytest.raises(InputError, match=r"line 2, column 1: 'T0101': a T word of more than 2 digits"):
-            parse_program(p, axis_words=aw, dialect=dialect)
+    p.write_text("G21 G90\nT0101 M6\nG0 X1 Y1 Z1\nG1 X2 F100\nM30\n")
+    prog = parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyz")), dialect="fanuc")
+    assert [e for e in prog.events if e[2] == "tool"] == []  # no offset selected by the T word
+    p.write_text("G18 G21 G90\nT0101\nG0 X1 Z1\nM30\n")
+    with pytest.raises(InputError, match=r"line 2, column 1: 'T0101': a T word of more than 2 digits"):
+        parse_program(p, axis_words=AxisWords(LATHE, ("X", "Z"), ()), dialect="linuxcnc")
 
 
 def test_a_tool_offset_in_c_axis_mode_is_refused(tmp_path, lathe, truth_els):

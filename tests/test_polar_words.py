@@ -65,7 +65,6 @@ def test_polar_points_follow_the_manual(tmp_path, text, points):
     ("G21 G90\nG0 X0 Y0 Z1\nG1 @5 F100\nM2\n", 3, 4, ("'@'", "alone at the origin")),
     ("G21 G90\nG0 X0 Y0 Z1\nG91 G1 ^30 F100\nM2\n", 3, 8, ("'^'", "incremental (G91) at the origin")),
     ("G21 G90\nG0 X1 Y1 Z1\nG53 G0 @5 ^30\nM2\n", 3, 8, ("'@'", "G53")),
-    ("G21 G90\nG0 X1 Y1 Z1\nG81 @5 ^30 Z-1 R1 F100\nM2\n", 3, 5, ("'@'", "G81")),
     ("G21 G90\nG0 X1 Y1 Z1\nG55 G1 @5 ^30 F100\nM2\n", 3, 8, ("'@'", "G55")),
     ("G21 G90\nG0 Z1\nG1 @5 F100\nM2\n", 3, 4, ("'@'", "X and Y are known")),
 ])

@@ -43,7 +43,7 @@ def truth_file(tmp_path, mill):
 def test_tables_are_read_by_content_whatever_their_names(tmp_path):
     var = read_work_offsets(DATA / "offsets.var")
     csv_ = read_work_offsets(DATA / "offsets.csv")
-    assert var.systems["G55"] == {w: v for w, v in zip("XYZABCUVW", (200, 100, -150, 0, 0, 0, 0, 0, 0))}
+    assert var.systems["G55"] == {w: v for w, v in zip("XYZABCUVWR", (200, 100, -150, 0, 0, 0, 0, 0, 0, 0))}
     assert set(var.systems) == {"G54", "G55"}
     assert csv_.systems["G55"] == {"X": 200.0, "Y": 100.0, "Z": -150.0}
     assert csv_.systems["G54.1P3"] == {"X": 300.5, "Y": 120.25, "Z": -80.0}

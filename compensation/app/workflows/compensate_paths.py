@@ -156,6 +156,10 @@ def program_axes(tp: ToolPath, axes, machine) -> np.ndarray:
     """The program axes to write for the compensated machine ``axes`` (n, k): minus the work offset and tool
     length shift; in TCP form on tool-centre-point lines (:mod:`compensation.tcp`)."""
     out = axes - tp.shift if tp.shift is not None else axes
+    frames = tp.source.frames if tp.kind == "gcode" else None
+    if frames is not None and frames.rotated:  # a rotated work system: the correction turns back with it
+        cols = list(tp.columns)
+        out[:, cols] = frames.unplace(tp.lines - 1, axes[:, cols], tp.source.program.axis_words.words)
     tcp = tp.source.program.tcp if tp.kind == "gcode" else None
     if tcp is None:
         return out

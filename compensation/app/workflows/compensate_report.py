@@ -40,7 +40,10 @@ def straight_segments(tp: ToolPath) -> np.ndarray:
     for move, c in zip([m for m in job.program.moves if m.compensate], job.counts):
         if move.kind == "linear":
             if i > 0 and np.all(np.isfinite(move.start)):
-                out[i] = np.abs(move.start + tp.shift[i, cols] - tp.axes[i - 1, cols]).max() <= JOIN_MM
+                start = move.start + tp.shift[i, cols]
+                if job.frames is not None and job.frames.rotated:  # a rotated work system: the start turned too
+                    start = job.frames.place([job.lines[i] - 1], move.start[None], job.program.axis_words.words)[0]
+                out[i] = np.abs(start - tp.axes[i - 1, cols]).max() <= JOIN_MM
             out[i + 1:i + c] = True
         i += c
     return out
