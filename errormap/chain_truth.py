@@ -68,6 +68,7 @@ from scipy.stats import qmc
 
 from .effect_kinds import EFFECT_KINDS as _REGISTRY
 from .effect_kinds import effect_kind
+from .machine_checks import MachineFileError, check_known_keys, short_repr
 from .machine_tool import COMPONENTS, MachineTool
 from .chain_elements import ChainElementSet
 from .seeds import spawn_rngs
@@ -91,6 +92,62 @@ SCALE_RANGE = {("linear", "d_along"): (3.0, 25.0), ("linear", "d_across"): (2.0,
                ("rotary", "d"): (1.0, 10.0), ("rotary", "e_along"): (10.0, 80.0), ("rotary", "e_across"): (5.0, 40.0),
                "location_d": (10.0, 100.0), "location_e": (20.0, 200.0), "squareness": (10.0, 120.0)}
 
+@dataclass(frozen=True)
+class Recipe:
+    """How a family draws a truth (module doc); a machine file's ``[truth.FAMILY]`` overrides its fields.
+    ``entropy``: ints after the seed (``SeedSequence([seed, *entropy])``); ``one_stream``: every draw of the
+    truth and of its checks from one generator (else three children: elements, scale, effects / points,
+    environment, noise); ``order``: per slot ``"scale-profile"`` or ``"profile-scale"``, or
+    ``"scales-first"`` (every slot's scale, then the profiles and constants); ``scale``: per-slot 1-σ
+    (default) or ``[lo, hi]`` (independent) overriding :data:`SCALE` / :data:`SCALE_RANGE`;
+    ``draw_truth_only``: the independent family's drawn parameters apply to the truth-only kinds too."""
+
+    entropy: tuple
+    one_stream: bool = False
+    order: str = "scale-profile"
+    scale: dict = field(default_factory=dict)
+    draw_truth_only: bool = False
+
+
+RECIPES = {"default": Recipe((0x3A7, 0)), "independent": Recipe((0x3A7, 1))}
+ORDERS = ("scale-profile", "profile-scale", "scales-first")
+
+
+def _truth_table(machine) -> dict:
+    """The machine file's ``[truth]`` table, its keys and ``grid`` checked."""
+    t = getattr(machine, "truth", None) or {}
+    check_known_keys(t, ("grid",) + FAMILIES, "truth", machine.path)
+    g = t.get("grid")
+    if g is not None and (not isinstance(g, list) or len(g) != len(machine.axes)
+                          or not all(isinstance(c, int) and c >= 2 for c in g)):
+        raise MachineFileError(f"{machine.path}: key 'truth.grid': expected {len(machine.axes)} point counts "
+                               f"(integers >= 2, one per axis in {[a.word for a in machine.axes]}), got {short_repr(g)}")
+    return t
+
+
+def recipe(machine: MachineTool, family: str) -> Recipe:
+    """The family's :class:`Recipe` on ``machine`` (its file's ``[truth.FAMILY]`` over :data:`RECIPES`);
+    ``MachineFileError`` naming the key for a malformed one."""
+    if family not in FAMILIES:
+        raise ValueError(f"Expected family in {FAMILIES}, got {family!r}")
+    t = _truth_table(machine).get(family, {})
+    where = f"{machine.path}: key 'truth.{family}"
+    check_known_keys(t, ("entropy", "one_stream", "order", "scale", "draw_truth_only"), f"truth.{family}",
+                     machine.path)
+    if t.get("order", ORDERS[0]) not in ORDERS:
+        raise MachineFileError(f"{where}.order': expected one of {ORDERS}, got {short_repr(t['order'])}")
+    bad = sorted(set(t.get("scale", {})) - set(machine.slot_names))
+    if bad:
+        raise MachineFileError(f"{where}.scale.{bad[0]}': not an error slot of the machine")
+    return Recipe(**{**RECIPES[family].__dict__, **t, "entropy": tuple(t.get("entropy", RECIPES[family].entropy))})
+
+
+def truth_rngs(seed, rec: Recipe, n: int = 3) -> list:
+    """``n`` generators of ``seed`` (an int or a SeedSequence) under ``rec`` (one shared, or ``n`` children)."""
+    ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence([seed, *rec.entropy])
+    return [np.random.default_rng(ss)] * n if rec.one_stream else spawn_rngs(ss, n)
+
+
 CHAIN_SIMULATED = ("thermal", "reversal", "periodic", "harmonic", "interaction")
 """The registry's kinds this simulator draws on a chain (:meth:`MTTruth.element_values` dispatches on
 them; ``tests/test_mt_model.py`` checks the table against the registry)."""
@@ -99,7 +156,7 @@ EFFECT_KINDS = tuple(k.name for k in _REGISTRY if k.name in CHAIN_SIMULATED)
 EFFECT_ALIASES = {a: k.name for k in _REGISTRY if k.name in EFFECT_KINDS for a in k.aliases}
 """The registry's aliases of those kinds (``pitch`` → ``periodic``, ``worm`` → ``harmonic``,
 ``backlash`` → ``reversal``)."""
-CHAIN_TRUTH_ONLY = ("bump", "squareness", "squareness_xz", "xz_saddle")
+CHAIN_TRUTH_ONLY = ("bump", "squareness", "squareness_xz", "xz_saddle", "a_tilt", "a_lobe_x")
 """The registry's truth-only kinds this simulator draws on a chain (module doc): no diagnosis kind represents
 them, so they are not :data:`EFFECT_KINDS` (the kinds a chain model's terms may have)."""
 SIMULATED_KINDS = EFFECT_KINDS + CHAIN_TRUTH_ONLY
@@ -114,7 +171,11 @@ EFFECT_DEFAULTS = {
     "periodic": {"amplitude_um": 4.0, "period_mm": 10.0, "phase_rad": 0.7},
     "harmonic": {"amplitude_urad": 100.0, "teeth": 40, "phase_rad": 1.1},
     "interaction": {"corner_um": 6.0},
+    "a_tilt": {"k_urad": 120.0},
+    "a_lobe_x": {"amplitude_um": 6.0, "p_frac": 0.5, "width_frac": 0.15, "phase_rad": 0.4},
 }
+ROTARY_BY_LINEAR = ("a_tilt", "a_lobe_x")
+"""Truth-only kinds on a rotary axis W, local in a linear axis V (``KIND:W*V``, module doc)."""
 
 
 def _scale_key(machine: MachineTool, slot) -> object:
@@ -164,47 +225,43 @@ def _independent_profile(u, periodic, rng):
 
 def random_chain_elements(machine: MachineTool, rng: np.random.Generator, family: str = "default",
                           n_stations: int | None = None) -> ChainElementSet:
-    """Unscaled random elements of ``family`` (module doc) on ``n_stations`` per axis."""
-    if family not in FAMILIES:
-        raise ValueError(f"Expected family in {FAMILIES}, got {family!r}")
+    """Unscaled random elements of ``family`` (module doc; drawn in :func:`recipe`'s order) on ``n_stations``
+    per axis."""
+    rec = recipe(machine, family)
     n = n_stations or (DEFAULT_STATIONS if family == "default" else TRUTH_STATIONS)
     u = np.linspace(0.0, 1.0, n)
-    stations, fun, const = {}, {}, {}
-    for a in machine.axes:
-        if machine.slots_of(a.word):
-            stations[a.column] = np.linspace(*a.stroke, n)
-    for s in machine.slots:
+    stations = {a.column: np.linspace(*a.stroke, n) for a in machine.axes if machine.slots_of(a.word)}
+    fun, const = {}, {}
+
+    def draw_scale(s):
         key = _scale_key(machine, s)
         if family == "default":
-            scale = SCALE[key] * (abs(rng.normal(1.0, 0.3)) if s.is_function else 1.0)
-        else:
-            scale = float(np.exp(rng.uniform(*np.log(SCALE_RANGE[key]))))
+            return rec.scale.get(s.name, SCALE[key]) * (abs(rng.normal(1.0, 0.3)) if s.is_function else 1.0)
+        return float(np.exp(rng.uniform(*np.log(rec.scale.get(s.name, SCALE_RANGE[key])))))
+
+    first = {s.name: draw_scale(s) for s in machine.slots} if rec.order == "scales-first" else {}
+    for s in machine.slots:
+        scale = first.get(s.name) if first else (draw_scale(s) if rec.order == "scale-profile" else None)
         if s.is_function:
             ax = next(a for a in machine.axes if a.word == s.axis)
             prof = (_default_profile if family == "default" else _independent_profile)(u, ax.full_turn, rng)
             if ax.full_turn:
                 prof[-1] = prof[0]
-            fun[s.name] = scale * prof
+            fun[s.name] = (draw_scale(s) if scale is None else scale) * prof
         else:
+            scale = draw_scale(s) if scale is None else scale
             const[s.name] = scale * (rng.uniform(-1.0, 1.0) if family == "default"
                                      else rng.choice([-1.0, 1.0]) * rng.uniform(0.3, 1.0))
     return ChainElementSet(machine, stations, fun, const, machine.name, machine.sha256)
 
 
-def scaled(elements: ChainElementSet, factor: float) -> ChainElementSet:
-    """Every element multiplied by ``factor``."""
-    out = elements.copy()
-    out.functions = {k: v * factor for k, v in out.functions.items()}
-    out.constants = {k: v * factor for k, v in out.constants.items()}
-    out._splines = {}
-    return out
-
-
-def volume_grid(machine: MachineTool, n_points: int = GRID_POINTS) -> np.ndarray:
-    """A product grid over the strokes, about ``n_points`` points, shape (N, k)."""
+def volume_grid(machine: MachineTool, n_points: int | None = None) -> np.ndarray:
+    """A product grid over the strokes, shape (N, k): about ``n_points`` points, by default the machine file's
+    ``truth.grid`` counts per axis or about :data:`GRID_POINTS`."""
     k = len(machine.axes)
-    m = max(5, int(round(n_points ** (1.0 / k))))
-    g = [np.linspace(*a.stroke, m) for a in machine.axes]
+    m = max(5, int(round((n_points or GRID_POINTS) ** (1.0 / k))))
+    counts = (n_points is None and _truth_table(machine).get("grid")) or [m] * k
+    g = [np.linspace(*a.stroke, c) for a, c in zip(machine.axes, counts)]
     return np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, k)
 
 
@@ -227,11 +284,19 @@ def parse_effect(machine: MachineTool, text: str) -> tuple[str, tuple]:
     if not words:
         pair = (lin[0], lin[-1]) if len(lin) >= 2 else ()
         words = {"thermal": lin[:1], "periodic": lin[:1], "reversal": lin[-1:], "harmonic": rot[:1],
-                 "interaction": pair, **{k: pair for k in CHAIN_TRUTH_ONLY}}[kind]
+                 "interaction": pair, **{k: pair for k in CHAIN_TRUTH_ONLY},
+                 **{k: (rot[:1] + lin[:1]) if rot and lin else () for k in ROTARY_BY_LINEAR}}[kind]
         words = tuple(words)
     want = {"thermal": (lin, 1), "periodic": (lin, 1), "reversal": (lin + rot, 1), "harmonic": (rot, 1),
-            "interaction": (lin, 2), **{k: (lin, 2) for k in CHAIN_TRUTH_ONLY}}[kind]
-    if len(words) != want[1] or any(w not in want[0] for w in words) or len(set(words)) != len(words):
+            "interaction": (lin, 2), **{k: (lin, 2) for k in CHAIN_TRUTH_ONLY},
+            **{k: (rot + lin, 2) for k in ROTARY_BY_LINEAR}}[kind]
+    mixed = kind in ROTARY_BY_LINEAR and (words[:1] != tuple(w for w in words[:1] if w in rot)
+                                          or words[1:] != tuple(w for w in words[1:] if w in lin))
+    if (len(words) != want[1] or any(w not in want[0] for w in words) or len(set(words)) != len(words)
+            or mixed):
+        if kind in ROTARY_BY_LINEAR:
+            raise ValueError(f"effect {text!r}: {kind} acts on a rotary axis of {rot or 'none on this machine'} "
+                             f"and a linear axis of {lin} (e.g. {kind}:{(rot or ['C'])[0]}*{(lin or ['X'])[0]})")
         raise ValueError(f"effect {text!r}: {kind} acts on {want[1]} {'distinct ' if want[1] > 1 else ''}"
                          f"axis word(s) of {want[0] or 'none on this machine'} (e.g. {kind}:"
                          f"{'*'.join(want[0][:want[1]]) if want[0] else 'W'}), got {list(words) or 'none'}")
@@ -252,6 +317,16 @@ def independent_effect_parameters(rng: np.random.Generator) -> dict:
         "harmonic": {"amplitude_urad": rng.uniform(60.0, 140.0), "teeth": int(rng.integers(30, 51)),
                      "phase_rad": rng.uniform(0, 2 * np.pi)},
         "interaction": {"corner_um": rng.uniform(4.0, 9.0) * rng.choice([-1.0, 1.0])},
+        # the truth-only kinds after the five (their draws leave those unchanged), used where the recipe says
+        "bump": {"amplitude_um": rng.uniform(6.0, 10.0) * rng.choice([-1.0, 1.0]), "p_frac": rng.uniform(0.3, 0.7),
+                 "q_frac": rng.uniform(0.3, 0.7), "width_frac": rng.uniform(0.14, 0.22)},
+        "a_tilt": {"k_urad": rng.uniform(80.0, 160.0) * rng.choice([-1.0, 1.0])},
+        "squareness": {"k_urad": rng.uniform(70.0, 130.0) * rng.choice([-1.0, 1.0])},
+        "squareness_xz": {"k_urad": rng.uniform(70.0, 130.0) * rng.choice([-1.0, 1.0])},
+        "a_lobe_x": {"amplitude_um": rng.uniform(4.5, 7.5) * rng.choice([-1.0, 1.0]), "p_frac": rng.uniform(0.35, 0.65),
+                     "width_frac": rng.uniform(0.12, 0.18), "phase_rad": rng.uniform(0.0, 2 * np.pi)},
+        "xz_saddle": {"amplitude_um": rng.uniform(6.0, 10.0) * rng.choice([-1.0, 1.0]), "p_frac": rng.uniform(0.35, 0.65),
+                      "q_frac": rng.uniform(0.4, 0.6), "width_frac": rng.uniform(0.12, 0.18)},
     }
 
 
@@ -319,6 +394,11 @@ class MTTruth:
                 j2, ax2 = self._ax(words[1])
                 span = (ax.stroke[1] - ax.stroke[0]) * (ax2.stroke[1] - ax2.stroke[0])
                 v[:, idx[slot]] += p["corner_um"] * rel * (axes[:, j2] - ax2.stroke[0]) / span
+            elif kind in ROTARY_BY_LINEAR:
+                j2, ax2 = self._ax(words[1])
+                name, val = self._rotary_by_linear(kind, p, ax, pos, (axes[:, j2] - ax2.stroke[0])
+                                                   / (ax2.stroke[1] - ax2.stroke[0]))
+                v[:, idx[name]] += val
             elif kind in CHAIN_TRUTH_ONLY:
                 j2, ax2 = self._ax(words[1])
                 name, val = self._truth_only(kind, p, ax, ax2, rel / (ax.stroke[1] - ax.stroke[0]),
@@ -329,6 +409,17 @@ class MTTruth:
             else:  # never a default
                 raise ValueError(f"effect {key}: kind {kind!r} is not simulated on a machine-tool chain")
         return v
+
+    @staticmethod
+    def _rotary_by_linear(kind, p, ax, pos_deg, u) -> tuple:
+        """``(element name, values (n,))`` of ``a_tilt`` / ``a_lobe_x`` on rotary axis ``ax`` at ``pos_deg``,
+        the linear axis' stroke fraction ``u``: the tilt or radial motion towards the first direction across it."""
+        c, w = "xyz"[min({0, 1, 2} - {ax.along})], ax.word.lower()
+        if kind == "a_tilt":
+            return f"e{c}_{w}", p["k_urad"] * u
+        s = (u - p["p_frac"]) / p["width_frac"]
+        return f"d{c}_{w}", p["amplitude_um"] * s * np.exp(0.5 - 0.5 * s * s) * np.cos(2.0 * np.deg2rad(pos_deg)
+                                                                                    + p["phase_rad"])
 
     @staticmethod
     def _truth_only(kind, p, ax, ax2, u, w) -> tuple:
@@ -362,7 +453,8 @@ class MTTruth:
         (default) the noise stream of ``seed``; a seed: only the noise redrawn, the layout unchanged."""
         m = self.machine
         k = len(m.axes)
-        r_pts, r_env, r_noise = spawn_rngs(seed, 3)
+        ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+        r_pts, r_env, r_noise = truth_rngs(ss, recipe(m, self.family))
         if noise_seed is not None:
             r_noise = np.random.default_rng(noise_seed)
         lo, hi = m.stroke_lo, m.stroke_hi
@@ -390,19 +482,19 @@ class MTTruth:
 def make_mt_truth(machine: MachineTool, seed: int, effects=(), family: str = "default") -> MTTruth:
     """A seeded truth of ``family`` for ``machine`` (module doc); ``effects``: ``KIND[:AXES]``
     strings, or a mapping of them to parameter overrides."""
-    if family not in FAMILIES:
-        raise ValueError(f"Expected family in {FAMILIES}, got {family!r}")
-    r_el, r_scale, r_eff = spawn_rngs(np.random.SeedSequence([seed, 0x3A7, FAMILIES.index(family)]), 3)
+    rec = recipe(machine, family)
+    r_el, r_scale, r_eff = truth_rngs(seed, rec)
     el = random_chain_elements(machine, r_el, family)
     grid = volume_grid(machine)
     e = machine.spatial_error(grid, el.values(grid))
-    el = scaled(el, r_scale.uniform(*TARGET_MAX_RANGE_UM[family]) / np.linalg.norm(e, axis=1).max())
+    el = el.scaled(r_scale.uniform(*TARGET_MAX_RANGE_UM[family]) / np.linalg.norm(e, axis=1).max())
     eff = effects if isinstance(effects, dict) else {k: {} for k in effects}
     drawn = independent_effect_parameters(r_eff) if family == "independent" else {}
     params = {}
     for key, over in eff.items():
         kind, words = parse_effect(machine, key)
-        params[effect_key(kind, words)] = {**drawn.get(kind, {}), **(over or {})}
+        use = kind in EFFECT_KINDS or rec.draw_truth_only
+        params[effect_key(kind, words)] = {**(drawn.get(kind, {}) if use else {}), **(over or {})}
     return MTTruth(machine, el, params, seed, family)
 
 
