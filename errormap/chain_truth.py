@@ -71,6 +71,7 @@ from .effect_kinds import effect_kind
 from .machine_checks import MachineFileError, check_known_keys, short_repr
 from .machine_tool import COMPONENTS, MachineTool
 from .chain_elements import ChainElementSet
+from .chain_kernel import spatial_error as kernel_spatial_error
 from .seeds import spawn_rngs
 
 FAMILIES = ("default", "independent")
@@ -193,34 +194,33 @@ def _scale_key(machine: MachineTool, slot) -> object:
     return ("rotary", "e_along" if comp[1] == along else "e_across")
 
 
-def _default_profile(u, periodic, rng):
-    """Default family: cubic + one sinusoid (or harmonics 1–3 on a full turn), zero at u=0, max |.| = 1."""
-    if periodic:
-        th = 2 * np.pi * u
-        v = sum(rng.normal() / h * np.cos(h * th) + rng.normal() / h * np.sin(h * th) for h in (1, 2, 3))
+def _default_profile(u, theta, rng):
+    """Default family: cubic + one sinusoid on ``u`` in [0, 1], or harmonics 1–3 of ``theta`` (rad, a full
+    turn; None otherwise); zero at the first station, unnormalised."""
+    if theta is not None:
+        v = sum(rng.normal() / h * np.cos(h * theta) + rng.normal() / h * np.sin(h * theta) for h in (1, 2, 3))
     else:
         c = rng.normal(size=3)
         w = rng.uniform(1.0, 2.5)
         v = c[0] * u + c[1] * u**2 + c[2] * u**3 + 0.3 * rng.normal() * np.sin(2 * np.pi * w * u + rng.uniform(0, 2 * np.pi))
-    v = v - v[0]
-    return v / max(np.abs(v).max(), 1e-12)
+    return v - v[0]
 
 
-def _independent_profile(u, periodic, rng):
-    """Independent family: bumps + Chebyshev (Fourier h = 1…6 on a full turn), zero at u=0, max |.| = 1."""
-    if periodic:
+def _independent_profile(u, theta, rng):
+    """Independent family: bumps + Chebyshev on ``u``, or harmonics 1…6 (amplitudes ∝ h^-1.5) of ``theta``;
+    zero at the first station, unnormalised."""
+    if theta is not None:
         h = np.arange(1, 7)
         amp = rng.normal(size=6) / h**1.5
         ph = rng.uniform(0, 2 * np.pi, 6)
-        v = (amp[None] * np.cos(h[None] * 2 * np.pi * u[:, None] + ph[None])).sum(axis=1)
+        v = (amp[None] * np.cos(h[None] * theta[:, None] + ph[None])).sum(axis=1)
     else:
         v = np.zeros_like(u)
         for _ in range(int(rng.integers(2, 6))):
             c, w = rng.uniform(-0.1, 1.1), rng.uniform(0.08, 0.35)
             v += rng.normal() * np.exp(-0.5 * ((u - c) / w) ** 2)
         v += chebyshev.chebval(2 * u - 1, np.r_[0.0, rng.normal(size=4) / np.arange(1, 5) ** 1.2])
-    v = v - v[0]
-    return v / max(np.abs(v).max(), 1e-12)
+    return v - v[0]
 
 
 def random_chain_elements(machine: MachineTool, rng: np.random.Generator, family: str = "default",
@@ -231,25 +231,28 @@ def random_chain_elements(machine: MachineTool, rng: np.random.Generator, family
     n = n_stations or (DEFAULT_STATIONS if family == "default" else TRUTH_STATIONS)
     u = np.linspace(0.0, 1.0, n)
     stations = {a.column: np.linspace(*a.stroke, n) for a in machine.axes if machine.slots_of(a.word)}
+    profile = _default_profile if family == "default" else _independent_profile
     fun, const = {}, {}
 
-    def draw_scale(s):
+    def draw_scale(s, multiplier=True):
         key = _scale_key(machine, s)
         if family == "default":
-            return rec.scale.get(s.name, SCALE[key]) * (abs(rng.normal(1.0, 0.3)) if s.is_function else 1.0)
+            return rec.scale.get(s.name, SCALE[key]) * (abs(rng.normal(1.0, 0.3)) if multiplier else 1.0)
         return float(np.exp(rng.uniform(*np.log(rec.scale.get(s.name, SCALE_RANGE[key])))))
 
-    first = {s.name: draw_scale(s) for s in machine.slots} if rec.order == "scales-first" else {}
+    first = {s.name: draw_scale(s, s.is_function) for s in machine.slots} if rec.order == "scales-first" else {}
     for s in machine.slots:
-        scale = first.get(s.name) if first else (draw_scale(s) if rec.order == "scale-profile" else None)
+        later = rec.order == "profile-scale" and s.is_function
+        scale = first[s.name] if first else draw_scale(s, s.is_function and not later)
         if s.is_function:
             ax = next(a for a in machine.axes if a.word == s.axis)
-            prof = (_default_profile if family == "default" else _independent_profile)(u, ax.full_turn, rng)
+            st = stations[ax.column]
+            v = profile(u, np.deg2rad(st - st[0]) if ax.full_turn else None, rng)
+            m = max(np.abs(v).max(), 1e-12)
+            fun[s.name] = scale * v / m * abs(rng.normal(1.0, 0.3)) if later else scale * (v / m)
             if ax.full_turn:
-                prof[-1] = prof[0]
-            fun[s.name] = (draw_scale(s) if scale is None else scale) * prof
+                fun[s.name][-1] = fun[s.name][0]
         else:
-            scale = draw_scale(s) if scale is None else scale
             const[s.name] = scale * (rng.uniform(-1.0, 1.0) if family == "default"
                                      else rng.choice([-1.0, 1.0]) * rng.uniform(0.3, 1.0))
     return ChainElementSet(machine, stations, fun, const, machine.name, machine.sha256)
@@ -396,13 +399,12 @@ class MTTruth:
                 v[:, idx[slot]] += p["corner_um"] * rel * (axes[:, j2] - ax2.stroke[0]) / span
             elif kind in ROTARY_BY_LINEAR:
                 j2, ax2 = self._ax(words[1])
-                name, val = self._rotary_by_linear(kind, p, ax, pos, (axes[:, j2] - ax2.stroke[0])
-                                                   / (ax2.stroke[1] - ax2.stroke[0]))
+                name, val = self._rotary_by_linear(kind, p, ax, pos, axes[:, j2] - ax2.stroke[0],
+                                                   ax2.stroke[1] - ax2.stroke[0])
                 v[:, idx[name]] += val
             elif kind in CHAIN_TRUTH_ONLY:
                 j2, ax2 = self._ax(words[1])
-                name, val = self._truth_only(kind, p, ax, ax2, rel / (ax.stroke[1] - ax.stroke[0]),
-                                             (axes[:, j2] - ax2.stroke[0]) / (ax2.stroke[1] - ax2.stroke[0]))
+                name, val = self._truth_only(kind, p, ax, ax2, rel, axes[:, j2] - ax2.stroke[0])
                 if name not in idx:
                     raise ValueError(f"effect {key}: the machine has no element {name} to carry it")
                 v[:, idx[name]] += val
@@ -411,23 +413,26 @@ class MTTruth:
         return v
 
     @staticmethod
-    def _rotary_by_linear(kind, p, ax, pos_deg, u) -> tuple:
+    def _rotary_by_linear(kind, p, ax, pos_deg, rel, span) -> tuple:
         """``(element name, values (n,))`` of ``a_tilt`` / ``a_lobe_x`` on rotary axis ``ax`` at ``pos_deg``,
-        the linear axis' stroke fraction ``u``: the tilt or radial motion towards the first direction across it."""
+        the linear axis at ``rel`` of its ``span`` (mm): the tilt or radial motion towards the first direction across it."""
         c, w = "xyz"[min({0, 1, 2} - {ax.along})], ax.word.lower()
         if kind == "a_tilt":
-            return f"e{c}_{w}", p["k_urad"] * u
-        s = (u - p["p_frac"]) / p["width_frac"]
+            return f"e{c}_{w}", p["k_urad"] * rel / span
+        s = (rel / span - p["p_frac"]) / p["width_frac"]
         return f"d{c}_{w}", p["amplitude_um"] * s * np.exp(0.5 - 0.5 * s * s) * np.cos(2.0 * np.deg2rad(pos_deg)
                                                                                     + p["phase_rad"])
 
     @staticmethod
-    def _truth_only(kind, p, ax, ax2, u, w) -> tuple:
-        """``(element name, values (n,))`` of a truth-only kind on linear axes ``ax``, ``ax2`` at the stroke
-        fractions ``u``, ``w`` (module doc)."""
+    def _truth_only(kind, p, ax, ax2, rel, rel2) -> tuple:
+        """``(element name, values (n,))`` of a truth-only kind on linear axes ``ax``, ``ax2`` at ``rel``,
+        ``rel2`` mm from their strokes' starts (module doc)."""
+        span, span2 = ax.stroke[1] - ax.stroke[0], ax2.stroke[1] - ax2.stroke[0]
+        u, w = rel / span, rel2 / span2
         if kind in ("squareness", "squareness_xz"):
-            f = np.sin(np.pi * u) * (np.sin(np.pi * w) if kind == "squareness_xz" else 1.0)
-            return f"s_{''.join(sorted((ax.word.lower(), ax2.word.lower())))}", p["k_urad"] * f
+            f = p["k_urad"] * np.sin(np.pi * rel / span)
+            f = f * np.sin(np.pi * rel2 / span2) if kind == "squareness_xz" else f
+            return f"s_{''.join(sorted((ax.word.lower(), ax2.word.lower())))}", f
         third = {0, 1, 2} - {ax.along, ax2.along}
         if len(third) != 1:
             raise ValueError(f"effect {kind}:{ax.word}*{ax2.word}: the two axes move along the same direction")
@@ -441,7 +446,7 @@ class MTTruth:
     def spatial_error(self, axes, **conditions) -> np.ndarray:
         """True spatial error (μm) of the tool point in the workpiece frame, (n, k) -> (n, 3)."""
         axes = np.atleast_2d(np.asarray(axes, dtype=float))
-        return self.machine.spatial_error(axes, self.element_values(axes, **conditions))
+        return kernel_spatial_error(self.machine, axes, self.element_values(axes, **conditions))
 
     def default_conditions(self, n: int) -> dict:
         """Reference temperature, positive approach on every axis."""
@@ -486,7 +491,7 @@ def make_mt_truth(machine: MachineTool, seed: int, effects=(), family: str = "de
     r_el, r_scale, r_eff = truth_rngs(seed, rec)
     el = random_chain_elements(machine, r_el, family)
     grid = volume_grid(machine)
-    e = machine.spatial_error(grid, el.values(grid))
+    e = kernel_spatial_error(machine, grid, el.values(grid))
     el = el.scaled(r_scale.uniform(*TARGET_MAX_RANGE_UM[family]) / np.linalg.norm(e, axis=1).max())
     eff = effects if isinstance(effects, dict) else {k: {} for k in effects}
     drawn = independent_effect_parameters(r_eff) if family == "independent" else {}
