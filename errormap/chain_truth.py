@@ -1,7 +1,6 @@
 """Seeded truth machines for ANY machine-tool chain file (:class:`errormap.machine_tool.MachineTool`).
 
-The generic form of :mod:`errormap.simulator` (default family) and :mod:`errormap.truth_families`
-(independent family), over the machine's element slots instead of the grinder's 23 names:
+Two families (default, independent) over the machine's element slots:
 
 * **component errors** (functions of their own axis, zero at the axis' first station — the
   gauge of :class:`errormap.chain_elements.ChainElementSet`): default family — a cubic plus one
@@ -17,7 +16,12 @@ The generic form of :mod:`errormap.simulator` (default family) and :mod:`errorma
   20–60 μrad on rotary axes; location 60 μm / 150 μrad; squareness 80 μrad) — the
   independent family draws each log-uniformly from :data:`SCALE_RANGE`; then the whole set
   is scaled so the maximum spatial error over the volume is drawn in [165, 215] μm (default)
-  or [120, 260] μm (independent), as the grinder's families.
+  or [120, 260] μm (independent), over :func:`volume_grid`.
+
+How a family draws (the seed's streams, the draw order, per-slot scales) is its :class:`Recipe`; a machine
+file's ``[truth]`` table overrides it per family and sets the grid (``docs/how-to/machine-file.md``; the
+built-in grinder's keeps its seeded truths as they always were). Spatial errors are the compiled kernel's
+(:func:`errormap.chain_kernel.spatial_error`).
 
 Effects (canonical kind names of the project's effect table; ``KIND:AXES``, e.g.
 ``periodic:X``, ``harmonic:C``, ``interaction:X*Z``; the grinder's simulator names ``pitch``
@@ -50,6 +54,10 @@ xz_saddle       ``d{third}_w += A·s·exp(½−½s²)·(1−t²)·exp(−½t²)`
                 ``s = (u−p)/w`` along V, ``t = (v'−q)/w`` along W          w = 0.15
 squareness      the V–W squareness ``s_vw += k·sin(π·u)``                    k = 100 μrad
 squareness_xz   ``s_vw += k·sin(π·u)·sin(π·v')``                            k = 100 μrad
+a_tilt          rotary W, linear V (``a_tilt:W*V``): ``e{c}_w += k·u``,      k = 120 μrad
+                ``c`` the first direction across W, ``u`` along V
+a_lobe_x        ``d{c}_w += A·s·exp(½−½s²)·cos(2w + φ)``, ``s = (u−p)/w``    A = 6 μm, p = 0.5,
+                                                                          w = 0.15, φ = 0.4
 ==============  ======================================================  ===========================
 
 Check measurements: columns ``<axis columns>, dx_um, dy_um, dz_um, time_s, temp_c, dir_<w>…,
@@ -71,6 +79,7 @@ from .effect_kinds import effect_kind
 from .machine_checks import MachineFileError, check_known_keys, short_repr
 from .machine_tool import COMPONENTS, MachineTool
 from .chain_elements import ChainElementSet
+from .chain_kernel import forward
 from .chain_kernel import spatial_error as kernel_spatial_error
 from .seeds import spawn_rngs
 
@@ -258,14 +267,20 @@ def random_chain_elements(machine: MachineTool, rng: np.random.Generator, family
     return ChainElementSet(machine, stations, fun, const, machine.name, machine.sha256)
 
 
-def volume_grid(machine: MachineTool, n_points: int | None = None) -> np.ndarray:
-    """A product grid over the strokes, shape (N, k): about ``n_points`` points, by default the machine file's
-    ``truth.grid`` counts per axis or about :data:`GRID_POINTS`."""
+def volume_grid(machine: MachineTool, n_points=None) -> np.ndarray:
+    """A product grid over the strokes, shape (N, k): ``n_points`` a count per axis or about that many points
+    in all; by default the machine file's ``truth.grid`` counts, or about :data:`GRID_POINTS` points."""
     k = len(machine.axes)
-    m = max(5, int(round((n_points or GRID_POINTS) ** (1.0 / k))))
-    counts = (n_points is None and _truth_table(machine).get("grid")) or [m] * k
+    m = max(5, int(round((n_points if np.isscalar(n_points) else GRID_POINTS) ** (1.0 / k))))
+    counts = ((n_points if n_points is not None and not np.isscalar(n_points) else None)
+              or (n_points is None and _truth_table(machine).get("grid")) or [m] * k)
     g = [np.linspace(*a.stroke, c) for a, c in zip(machine.axes, counts)]
     return np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, k)
+
+
+def random_axes(machine: MachineTool, n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` points uniform over the strokes, shape (n, k)."""
+    return machine.stroke_lo + (machine.stroke_hi - machine.stroke_lo) * rng.random((n, len(machine.axes)))
 
 
 # -- effects -----------------------------------------------------------------------------------
@@ -353,6 +368,15 @@ class MTTruth:
     def _ax(self, word):
         j = [a.word for a in self.machine.axes].index(word)
         return j, self.machine.axes[j]
+
+    def parameters(self, name: str) -> dict:
+        """The parameters of the one effect of kind ``name`` (canonical or an alias: ``pitch``); KeyError
+        if the truth has none or several."""
+        kind = effect_kind(name).name
+        found = [p for key, p in self.effects.items() if key.split(":")[0] == kind]
+        if len(found) != 1:
+            raise KeyError(f"{len(found)} effects of kind {kind!r} in this truth (keys {list(self.effects)})")
+        return found[0]
 
     def needs(self) -> set:
         """Condition columns the effects need (``temp_c``, ``dir_z`` ...)."""
@@ -448,6 +472,11 @@ class MTTruth:
         axes = np.atleast_2d(np.asarray(axes, dtype=float))
         return kernel_spatial_error(self.machine, axes, self.element_values(axes, **conditions))
 
+    def tool_point(self, axes, **conditions) -> np.ndarray:
+        """Where the tool really lands in the workpiece frame (mm) when commanded to ``axes``, (n, k) -> (n, 3)."""
+        axes = np.atleast_2d(np.asarray(axes, dtype=float))
+        return forward(self.machine, axes) + 1e-3 * self.spatial_error(axes, **conditions)
+
     def default_conditions(self, n: int) -> dict:
         """Reference temperature, positive approach on every axis."""
         return {"temp_c": np.full(n, REF_TEMP_C), **{f"dir_{a.word.lower()}": np.ones(n) for a in self.machine.axes}}
@@ -471,7 +500,7 @@ class MTTruth:
             temp = (REF_TEMP_C + rise * (1.0 - np.exp(-t / tau))
                     + 0.15 * np.sin(2 * np.pi * t / 5400.0 + r_env.uniform(0, 6.3)) + r_env.normal(0, 0.02, n))
         else:
-            u = r_pts.random((n, k))
+            u = r_pts.random((n, k))  # as random_axes
             temp = REF_TEMP_C + 4.0 * (1.0 - np.exp(-t / 2400.0)) + r_env.normal(0, 0.02, n)
         axes = lo + (hi - lo) * u
         dirs = r_env.choice([-1, 1], size=(n, k)).astype(float)
