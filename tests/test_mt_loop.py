@@ -334,7 +334,7 @@ float rounding."""
 
 @pytest.mark.parametrize("grinder_name, chain_effect, element", [
     ("bump", "bump:X*Z", "dy_x"), ("xz_saddle", "xz_saddle:X*Z", "dy_z"), ("squareness", "squareness:X*Z", "s_xz"),
-    ("squareness_xz", "squareness_xz:X*Z", "s_xz")])
+    ("squareness_xz", "squareness_xz:X*Z", "s_xz"), ("a_tilt", "a_tilt:A*X", "ey_a"), ("a_lobe_x", "a_lobe_x:A*X", "dy_a")])
 def test_truth_only_effects_on_a_chain_are_the_grinders(grinder_name, chain_effect, element):
     """``simulate --effect bump:V*W`` / ``xz_saddle:V*W`` on a chain: on the grinder's own chain file the added
     element values equal the grinder simulator's ``bump`` / ``xz_saddle``, on that element and no other."""
@@ -362,3 +362,28 @@ def test_truth_only_effects_through_the_cli(tmp_path):
     assert _main(["simulate", "--machine", "mill-xyz", "--seed", "0", "--checks", "20", "--effect", "squareness_xz:Y*Z",
                   "--out", str(tmp_path / "sq")]) == 0
     assert _main(["simulate", "--machine", "mill-xyz", "--effect", "bump:X", "--out", str(tmp_path / "bad")]) == 2
+
+
+@pytest.mark.parametrize("effect, element", [("a_tilt:C*Z", "ex_c"), ("a_lobe_x:C*Y", "dx_c"), ("a_tilt", "ey_a")])
+def test_rotary_by_linear_effects_on_any_rotary_axis(five, effect, element):
+    """``a_tilt`` / ``a_lobe_x`` on any rotary axis W and linear axis V (``KIND:W*V``; without axes the first of
+    each): the tilt or radial motion of W towards the first direction across it, on that element only; a linear
+    axis first is refused naming the order."""
+    el = ChainElementSet.zeros(five)
+    axes = five.stroke_lo + (five.stroke_hi - five.stroke_lo) * np.random.default_rng(3).random((200, 5))
+    d = np.abs(MTTruth(five, el, {effect: {}}).element_values(axes)).max(axis=0)
+    assert [five.slot_names[i] for i in np.flatnonzero(d)] == [element] and d.max() > 1.0
+    with pytest.raises(ValueError, match="rotary axis of"):
+        MTTruth(five, el, {"a_tilt:X*C": {}})
+
+
+def test_truth_recipe_of_a_machine_file_is_checked(mill):
+    """A machine file's ``[truth]`` table (chain_truth.recipe): a wrong order, slot or grid is one line naming the key."""
+    import dataclasses
+    from errormap.machine_checks import MachineFileError
+    for table, key in (({"default": {"order": "sideways"}}, "truth.default.order"),
+                       ({"independent": {"scale": {"dq_q": [1.0, 2.0]}}}, "truth.independent.scale.dq_q"),
+                       ({"grid": [3, 3]}, "truth.grid")):
+        with pytest.raises(MachineFileError, match=key.replace(".", r"\.")):
+            make_mt_truth(dataclasses.replace(mill, truth=table), 0, family="independent" if "independent" in table
+                          else "default")
