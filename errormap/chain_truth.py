@@ -513,12 +513,13 @@ class MTTruth:
         return out
 
 
-def make_mt_truth(machine: MachineTool, seed: int, effects=(), family: str = "default") -> MTTruth:
-    """A seeded truth of ``family`` for ``machine`` (module doc); ``effects``: ``KIND[:AXES]``
-    strings, or a mapping of them to parameter overrides."""
+def make_mt_truth(machine: MachineTool, seed: int, effects=(), family: str = "default",
+                  n_stations: int | None = None) -> MTTruth:
+    """A seeded truth of ``family`` for ``machine`` (module doc) on ``n_stations`` per axis (None: the family's);
+    ``effects``: ``KIND[:AXES]`` strings, or a mapping of them to parameter overrides."""
     rec = recipe(machine, family)
     r_el, r_scale, r_eff = truth_rngs(seed, rec)
-    el = random_chain_elements(machine, r_el, family)
+    el = random_chain_elements(machine, r_el, family, n_stations)
     grid = volume_grid(machine)
     e = kernel_spatial_error(machine, grid, el.values(grid))
     el = el.scaled(r_scale.uniform(*TARGET_MAX_RANGE_UM[family]) / np.linalg.norm(e, axis=1).max())
