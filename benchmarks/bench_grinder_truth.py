@@ -1,11 +1,12 @@
-"""The grinder's seeded truths through errormap.chain_truth against a checkout that still had errormap/simulator.py.
+"""The grinder's seeded truths (errormap.chain_truth) against a checkout that had errormap/simulator.py.
 
 For each seed, family (default, independent) and effect set (none; all eleven simulator effects), the truth's
 spatial error at 10,000 seeded points under seeded conditions and its 400 check measurements, from this
 checkout (``make_mt_truth``) and from BASELINE (``errormap.truth_families.make_truth``, run in a subprocess
 with BASELINE on PYTHONPATH); prints the largest difference (μm; 0 = the same floats).
 
-    PYTHONPATH=. OMP_NUM_THREADS=1 python benchmarks/bench_grinder_truth.py --baseline-root MAIN_BEFORE --seeds 0,1,3,4,11,100
+    PYTHONPATH=. OMP_NUM_THREADS=1 python benchmarks/bench_grinder_truth.py --baseline-root MAIN_BEFORE \
+        --seeds 0,1,3,4,11,100
 """
 from __future__ import annotations
 
@@ -18,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-EFFECTS = ("thermal", "reversal", "pitch", "worm", "interaction", "bump", "a_tilt", "squareness", "squareness_xz",
-           "a_lobe_x", "xz_saddle")
+EFFECTS = ("thermal", "reversal", "pitch", "worm", "interaction", "bump", "a_tilt", "squareness",
+           "squareness_xz", "a_lobe_x", "xz_saddle")
 N_POINTS = 10_000
 
 
@@ -30,7 +31,8 @@ def draw(make_truth, seeds) -> dict:
     m = load_machine(None)
     rng = np.random.default_rng(99)
     pts = m.stroke_lo + (m.stroke_hi - m.stroke_lo) * rng.random((N_POINTS, 3))
-    cond = {"temp_c": 20 + 4 * rng.random(N_POINTS), **{f"dir_{w}": rng.choice([-1.0, 1.0], N_POINTS) for w in "xza"}}
+    dirs = {f"dir_{w}": rng.choice([-1.0, 1.0], N_POINTS) for w in "xza"}
+    cond = {"temp_c": 20 + 4 * rng.random(N_POINTS), **dirs}
     out = {}
     for fam in ("default", "independent"):
         for seed in seeds:
@@ -45,7 +47,7 @@ def draw(make_truth, seeds) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--baseline-root", help="checkout with errormap/simulator.py (omit: draw this checkout only)")
+    ap.add_argument("--baseline-root", help="checkout with errormap/simulator.py (omit: this checkout only)")
     ap.add_argument("--seeds", default="0,1,3,4,11,100")
     ap.add_argument("--save", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -62,8 +64,8 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as td:
         path = Path(td) / "baseline.npz"
         env = {**os.environ, "PYTHONPATH": str(Path(args.baseline_root).resolve())}
-        subprocess.run([sys.executable, str(Path(__file__).resolve()), "--seeds", args.seeds, "--save", str(path)],
-                       check=True, env=env, cwd=args.baseline_root)
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--seeds", args.seeds, "--save", str(path)]
+        subprocess.run(cmd, check=True, env=env, cwd=args.baseline_root)
         with np.load(path) as base:
             worst = {k: float(np.abs(ours[k] - base[k]).max()) for k in ours}
     for k, v in worst.items():

@@ -131,7 +131,8 @@ def _truth_table(machine) -> dict:
     if g is not None and (not isinstance(g, list) or len(g) != len(machine.axes)
                           or not all(isinstance(c, int) and c >= 2 for c in g)):
         raise MachineFileError(f"{machine.path}: key 'truth.grid': expected {len(machine.axes)} point counts "
-                               f"(integers >= 2, one per axis in {[a.word for a in machine.axes]}), got {short_repr(g)}")
+                               f"(integers >= 2, one per axis in {[a.word for a in machine.axes]}), "
+                               f"got {short_repr(g)}")
     return t
 
 
@@ -149,11 +150,13 @@ def recipe(machine: MachineTool, family: str) -> Recipe:
     bad = sorted(set(t.get("scale", {})) - set(machine.slot_names))
     if bad:
         raise MachineFileError(f"{where}.scale.{bad[0]}': not an error slot of the machine")
-    return Recipe(**{**RECIPES[family].__dict__, **t, "entropy": tuple(t.get("entropy", RECIPES[family].entropy))})
+    entropy = tuple(t.get("entropy", RECIPES[family].entropy))
+    return Recipe(**{**RECIPES[family].__dict__, **t, "entropy": entropy})
 
 
 def truth_rngs(seed, rec: Recipe, n: int = 3) -> list:
-    """``n`` generators of ``seed`` (an int or a SeedSequence) under ``rec`` (one shared, or ``n`` children)."""
+    """``n`` generators of ``seed`` (an int or a SeedSequence) under ``rec`` (one shared, or ``n``
+    children)."""
     ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence([seed, *rec.entropy])
     return [np.random.default_rng(ss)] * n if rec.one_stream else spawn_rngs(ss, n)
 
@@ -249,7 +252,8 @@ def random_chain_elements(machine: MachineTool, rng: np.random.Generator, family
             return rec.scale.get(s.name, SCALE[key]) * (abs(rng.normal(1.0, 0.3)) if multiplier else 1.0)
         return float(np.exp(rng.uniform(*np.log(rec.scale.get(s.name, SCALE_RANGE[key])))))
 
-    first = {s.name: draw_scale(s, s.is_function) for s in machine.slots} if rec.order == "scales-first" else {}
+    first = ({s.name: draw_scale(s, s.is_function) for s in machine.slots} if rec.order == "scales-first"
+             else {})
     for s in machine.slots:
         later = rec.order == "profile-scale" and s.is_function
         scale = first[s.name] if first else draw_scale(s, s.is_function and not later)
@@ -313,8 +317,9 @@ def parse_effect(machine: MachineTool, text: str) -> tuple[str, tuple]:
     if (len(words) != want[1] or any(w not in want[0] for w in words) or len(set(words)) != len(words)
             or mixed):
         if kind in ROTARY_BY_LINEAR:
-            raise ValueError(f"effect {text!r}: {kind} acts on a rotary axis of {rot or 'none on this machine'} "
-                             f"and a linear axis of {lin} (e.g. {kind}:{(rot or ['C'])[0]}*{(lin or ['X'])[0]})")
+            example = f"{kind}:{(rot or ['C'])[0]}*{(lin or ['X'])[0]}"
+            raise ValueError(f"effect {text!r}: {kind} acts on a rotary axis of {rot or 'none on this machine'}"
+                             f" and a linear axis of {lin} (e.g. {example})")
         raise ValueError(f"effect {text!r}: {kind} acts on {want[1]} {'distinct ' if want[1] > 1 else ''}"
                          f"axis word(s) of {want[0] or 'none on this machine'} (e.g. {kind}:"
                          f"{'*'.join(want[0][:want[1]]) if want[0] else 'W'}), got {list(words) or 'none'}")
@@ -336,15 +341,18 @@ def independent_effect_parameters(rng: np.random.Generator) -> dict:
                      "phase_rad": rng.uniform(0, 2 * np.pi)},
         "interaction": {"corner_um": rng.uniform(4.0, 9.0) * rng.choice([-1.0, 1.0])},
         # the truth-only kinds after the five (their draws leave those unchanged), used where the recipe says
-        "bump": {"amplitude_um": rng.uniform(6.0, 10.0) * rng.choice([-1.0, 1.0]), "p_frac": rng.uniform(0.3, 0.7),
-                 "q_frac": rng.uniform(0.3, 0.7), "width_frac": rng.uniform(0.14, 0.22)},
+        "bump": {"amplitude_um": rng.uniform(6.0, 10.0) * rng.choice([-1.0, 1.0]),
+                 "p_frac": rng.uniform(0.3, 0.7), "q_frac": rng.uniform(0.3, 0.7),
+                 "width_frac": rng.uniform(0.14, 0.22)},
         "a_tilt": {"k_urad": rng.uniform(80.0, 160.0) * rng.choice([-1.0, 1.0])},
         "squareness": {"k_urad": rng.uniform(70.0, 130.0) * rng.choice([-1.0, 1.0])},
         "squareness_xz": {"k_urad": rng.uniform(70.0, 130.0) * rng.choice([-1.0, 1.0])},
-        "a_lobe_x": {"amplitude_um": rng.uniform(4.5, 7.5) * rng.choice([-1.0, 1.0]), "p_frac": rng.uniform(0.35, 0.65),
-                     "width_frac": rng.uniform(0.12, 0.18), "phase_rad": rng.uniform(0.0, 2 * np.pi)},
-        "xz_saddle": {"amplitude_um": rng.uniform(6.0, 10.0) * rng.choice([-1.0, 1.0]), "p_frac": rng.uniform(0.35, 0.65),
-                      "q_frac": rng.uniform(0.4, 0.6), "width_frac": rng.uniform(0.12, 0.18)},
+        "a_lobe_x": {"amplitude_um": rng.uniform(4.5, 7.5) * rng.choice([-1.0, 1.0]),
+                     "p_frac": rng.uniform(0.35, 0.65), "width_frac": rng.uniform(0.12, 0.18),
+                     "phase_rad": rng.uniform(0.0, 2 * np.pi)},
+        "xz_saddle": {"amplitude_um": rng.uniform(6.0, 10.0) * rng.choice([-1.0, 1.0]),
+                      "p_frac": rng.uniform(0.35, 0.65), "q_frac": rng.uniform(0.4, 0.6),
+                      "width_frac": rng.uniform(0.12, 0.18)},
     }
 
 
@@ -439,13 +447,14 @@ class MTTruth:
     @staticmethod
     def _rotary_by_linear(kind, p, ax, pos_deg, rel, span) -> tuple:
         """``(element name, values (n,))`` of ``a_tilt`` / ``a_lobe_x`` on rotary axis ``ax`` at ``pos_deg``,
-        the linear axis at ``rel`` of its ``span`` (mm): the tilt or radial motion towards the first direction across it."""
+        the linear axis at ``rel`` of its ``span`` (mm): the tilt or radial motion towards the first direction
+        across it."""
         c, w = "xyz"[min({0, 1, 2} - {ax.along})], ax.word.lower()
         if kind == "a_tilt":
             return f"e{c}_{w}", p["k_urad"] * rel / span
         s = (rel / span - p["p_frac"]) / p["width_frac"]
-        return f"d{c}_{w}", p["amplitude_um"] * s * np.exp(0.5 - 0.5 * s * s) * np.cos(2.0 * np.deg2rad(pos_deg)
-                                                                                    + p["phase_rad"])
+        lobe = np.cos(2.0 * np.deg2rad(pos_deg) + p["phase_rad"])
+        return f"d{c}_{w}", p["amplitude_um"] * s * np.exp(0.5 - 0.5 * s * s) * lobe
 
     @staticmethod
     def _truth_only(kind, p, ax, ax2, rel, rel2) -> tuple:
@@ -473,7 +482,8 @@ class MTTruth:
         return kernel_spatial_error(self.machine, axes, self.element_values(axes, **conditions))
 
     def tool_point(self, axes, **conditions) -> np.ndarray:
-        """Where the tool really lands in the workpiece frame (mm) when commanded to ``axes``, (n, k) -> (n, 3)."""
+        """Where the tool really lands in the workpiece frame (mm) when commanded to ``axes``,
+        (n, k) -> (n, 3)."""
         axes = np.atleast_2d(np.asarray(axes, dtype=float))
         return forward(self.machine, axes) + 1e-3 * self.spatial_error(axes, **conditions)
 
@@ -515,8 +525,8 @@ class MTTruth:
 
 def make_mt_truth(machine: MachineTool, seed: int, effects=(), family: str = "default",
                   n_stations: int | None = None) -> MTTruth:
-    """A seeded truth of ``family`` for ``machine`` (module doc) on ``n_stations`` per axis (None: the family's);
-    ``effects``: ``KIND[:AXES]`` strings, or a mapping of them to parameter overrides."""
+    """A seeded truth of ``family`` for ``machine`` (module doc) on ``n_stations`` per axis (None: the
+    family's); ``effects``: ``KIND[:AXES]`` strings, or a mapping of them to parameter overrides."""
     rec = recipe(machine, family)
     r_el, r_scale, r_eff = truth_rngs(seed, rec)
     el = random_chain_elements(machine, r_el, family, n_stations)

@@ -104,7 +104,8 @@ def grinder_chain_document(grinder: dict) -> dict:
 
 
 def builtin_truth() -> dict:
-    """The built-in grinder's ``[truth]`` table: a grinder file's seeded truths are drawn as the built-in's."""
+    """The built-in grinder's ``[truth]`` table: a grinder file's seeded truths are drawn as the
+    built-in's."""
     import tomllib
     from pathlib import Path
     with open(Path(__file__).parent / "machines" / "grinder.toml", "rb") as fh:

@@ -153,8 +153,8 @@ class MachineTool:
     controller's tool-centre-point kinematics on and off (LinuxCNC's switchable kinematics, remapped M
     codes); None without one (:mod:`compensation.tcp`)."""
     truth: dict = field(default_factory=dict)
-    """``[truth]`` of the file: how seeded truths of this machine are drawn (:func:`errormap.chain_truth.recipe`
-    reads and checks it); empty without one."""
+    """``[truth]`` of the file: how seeded truths of this machine are drawn
+    (:func:`errormap.chain_truth.recipe` reads and checks it); empty without one."""
     read_as: str = ""
     """The one line a command says when the file was not a chain file but was read into one (a
     ``kind = "grinder"`` file, :func:`errormap.grinder_file.parse_grinder_file`); empty for a chain file."""
@@ -479,7 +479,8 @@ class MachineTool:
 
 def parse_machine_tool(doc: dict, path, sha: str = "") -> MachineTool:
     """Validate a parsed ``kind = "machine-tool"`` file and compile its chain (``docs/how-to/machine-file.md``)."""
-    check_known_keys(doc, ("machine", "geometry", "work", "tool", "targets", "spindle", "tcp", "truth"), "", path)
+    check_known_keys(doc, ("machine", "geometry", "work", "tool", "targets", "spindle", "tcp", "truth"), "",
+                     path)
     m = check_table(doc, "machine", path)
     check_known_keys(m, ("kind", "name", "schema", "description"), "machine", path)
     name = m.get("name", "machine-tool")

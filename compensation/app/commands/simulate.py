@@ -29,8 +29,9 @@ def register(sub):
     p.add_argument("--effect", action="append", default=[],
                    help="add an undeclared effect (repeatable): grinder " + EFFECT_HELP + "; a machine-tool "
                         "chain KIND[:AXES] with KIND thermal, reversal, periodic (pitch), harmonic (worm), interaction, or the "
-                        "truth-only bump, xz_saddle, squareness, squareness_xz on two linear axes or a_tilt, a_lobe_x on a "
-                        "rotary and a linear axis, e.g. periodic:Y, harmonic:C, bump:X*Y, a_tilt:C*X; a serial arm: sag, backlash")
+                        "truth-only bump, xz_saddle, squareness, squareness_xz on two linear axes or a_tilt, "
+                        "a_lobe_x on a rotary and a linear axis, e.g. periodic:Y, harmonic:C, bump:X*Y, "
+                        "a_tilt:C*X; a serial arm: sag, backlash")
     p.add_argument("--noise-um", type=float, default=None,
                    help="measurement noise σ per axis (μm); default 1 for machine tools, 20 for a serial arm's tracker, "
                         "5 for a parallel machine's instrument")

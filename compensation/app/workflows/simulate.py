@@ -45,20 +45,23 @@ def simulate_truth(machine, seed: int, out, effects=(), noise_um: float = 1.0, c
     return info
 
 
-EFFECT_CHOICES = SIMULATOR_NAMES + tuple(k.name for k in map(effect_kind, SIMULATOR_NAMES) if k.name != k.simulator)
-"""What the grinder's ``--effect`` accepts: the simulator's names and the registry's canonical names of the same
-kinds (``periodic`` = ``pitch``, ``harmonic`` = ``worm``)."""
+EFFECT_CHOICES = SIMULATOR_NAMES + tuple(k.name for k in map(effect_kind, SIMULATOR_NAMES)
+                                         if k.name != k.simulator)
+"""What the grinder's ``--effect`` accepts: the simulator's names and the registry's canonical names of the
+same kinds (``periodic`` = ``pitch``, ``harmonic`` = ``worm``)."""
 EFFECT_HELP = ", ".join(SIMULATOR_NAMES) + " (" + ", ".join(
     f"{k} = {effect_kind(k).simulator}" for k in EFFECT_CHOICES[len(SIMULATOR_NAMES):]) + ")"
 """The grinder's ``--effect`` help: the names and the canonical names accepted beside them."""
 
 
 def grinder_effects(effects: dict) -> dict:
-    """A truth's ``{"KIND:AXES": parameters}`` as a grinder ``truth.json`` records them: by the simulator's names,
-    the stroke fractions by the axes (``x_frac``, ``z_frac``; :data:`compensation.evaluate.PARAMETER_NAMES`)."""
+    """A truth's ``{"KIND:AXES": parameters}`` as a grinder ``truth.json`` records them: by the simulator's
+    names, the stroke fractions by the axes (``x_frac``, ``z_frac``;
+    :data:`compensation.evaluate.PARAMETER_NAMES`)."""
     from compensation.evaluate import PARAMETER_NAMES
     back = {v: k for k, v in PARAMETER_NAMES.items()}
-    return {simulator_name(key.split(":")[0]): {back.get(k, k): v for k, v in p.items()} for key, p in effects.items()}
+    return {simulator_name(key.split(":")[0]): {back.get(k, k): v for k, v in p.items()}
+            for key, p in effects.items()}
 
 
 def check_noise_comments(check_noise_seed) -> list:
