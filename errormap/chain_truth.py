@@ -1,7 +1,6 @@
 """Seeded truth machines for ANY machine-tool chain file (:class:`errormap.machine_tool.MachineTool`).
 
-The generic form of :mod:`errormap.simulator` (default family) and :mod:`errormap.truth_families`
-(independent family), over the machine's element slots instead of the grinder's 23 names:
+Two families (default, independent) over the machine's element slots:
 
 * **component errors** (functions of their own axis, zero at the axis' first station — the
   gauge of :class:`errormap.chain_elements.ChainElementSet`): default family — a cubic plus one
@@ -17,7 +16,12 @@ The generic form of :mod:`errormap.simulator` (default family) and :mod:`errorma
   20–60 μrad on rotary axes; location 60 μm / 150 μrad; squareness 80 μrad) — the
   independent family draws each log-uniformly from :data:`SCALE_RANGE`; then the whole set
   is scaled so the maximum spatial error over the volume is drawn in [165, 215] μm (default)
-  or [120, 260] μm (independent), as the grinder's families.
+  or [120, 260] μm (independent), over :func:`volume_grid`.
+
+How a family draws (the seed's streams, the draw order, per-slot scales) is its :class:`Recipe`; a machine
+file's ``[truth]`` table overrides it per family and sets the grid (``docs/how-to/machine-file.md``; the
+built-in grinder's keeps its seeded truths as they always were). Spatial errors are the compiled kernel's
+(:func:`errormap.chain_kernel.spatial_error`).
 
 Effects (canonical kind names of the project's effect table; ``KIND:AXES``, e.g.
 ``periodic:X``, ``harmonic:C``, ``interaction:X*Z``; the grinder's simulator names ``pitch``
@@ -50,6 +54,10 @@ xz_saddle       ``d{third}_w += A·s·exp(½−½s²)·(1−t²)·exp(−½t²)`
                 ``s = (u−p)/w`` along V, ``t = (v'−q)/w`` along W          w = 0.15
 squareness      the V–W squareness ``s_vw += k·sin(π·u)``                    k = 100 μrad
 squareness_xz   ``s_vw += k·sin(π·u)·sin(π·v')``                            k = 100 μrad
+a_tilt          rotary W, linear V (``a_tilt:W*V``): ``e{c}_w += k·u``,      k = 120 μrad
+                ``c`` the first direction across W, ``u`` along V
+a_lobe_x        ``d{c}_w += A·s·exp(½−½s²)·cos(2w + φ)``, ``s = (u−p)/w``    A = 6 μm, p = 0.5,
+                                                                          w = 0.15, φ = 0.4
 ==============  ======================================================  ===========================
 
 Check measurements: columns ``<axis columns>, dx_um, dy_um, dz_um, time_s, temp_c, dir_<w>…,
@@ -68,8 +76,11 @@ from scipy.stats import qmc
 
 from .effect_kinds import EFFECT_KINDS as _REGISTRY
 from .effect_kinds import effect_kind
+from .machine_checks import MachineFileError, check_known_keys, short_repr
 from .machine_tool import COMPONENTS, MachineTool
 from .chain_elements import ChainElementSet
+from .chain_kernel import forward
+from .chain_kernel import spatial_error as kernel_spatial_error
 from .seeds import spawn_rngs
 
 FAMILIES = ("default", "independent")
@@ -91,6 +102,65 @@ SCALE_RANGE = {("linear", "d_along"): (3.0, 25.0), ("linear", "d_across"): (2.0,
                ("rotary", "d"): (1.0, 10.0), ("rotary", "e_along"): (10.0, 80.0), ("rotary", "e_across"): (5.0, 40.0),
                "location_d": (10.0, 100.0), "location_e": (20.0, 200.0), "squareness": (10.0, 120.0)}
 
+@dataclass(frozen=True)
+class Recipe:
+    """How a family draws a truth (module doc); a machine file's ``[truth.FAMILY]`` overrides its fields.
+    ``entropy``: ints after the seed (``SeedSequence([seed, *entropy])``); ``one_stream``: every draw of the
+    truth and of its checks from one generator (else three children: elements, scale, effects / points,
+    environment, noise); ``order``: per slot ``"scale-profile"`` or ``"profile-scale"``, or
+    ``"scales-first"`` (every slot's scale, then the profiles and constants); ``scale``: per-slot 1-σ
+    (default) or ``[lo, hi]`` (independent) overriding :data:`SCALE` / :data:`SCALE_RANGE`;
+    ``draw_truth_only``: the independent family's drawn parameters apply to the truth-only kinds too."""
+
+    entropy: tuple
+    one_stream: bool = False
+    order: str = "scale-profile"
+    scale: dict = field(default_factory=dict)
+    draw_truth_only: bool = False
+
+
+RECIPES = {"default": Recipe((0x3A7, 0)), "independent": Recipe((0x3A7, 1))}
+ORDERS = ("scale-profile", "profile-scale", "scales-first")
+
+
+def _truth_table(machine) -> dict:
+    """The machine file's ``[truth]`` table, its keys and ``grid`` checked."""
+    t = getattr(machine, "truth", None) or {}
+    check_known_keys(t, ("grid",) + FAMILIES, "truth", machine.path)
+    g = t.get("grid")
+    if g is not None and (not isinstance(g, list) or len(g) != len(machine.axes)
+                          or not all(isinstance(c, int) and c >= 2 for c in g)):
+        raise MachineFileError(f"{machine.path}: key 'truth.grid': expected {len(machine.axes)} point counts "
+                               f"(integers >= 2, one per axis in {[a.word for a in machine.axes]}), "
+                               f"got {short_repr(g)}")
+    return t
+
+
+def recipe(machine: MachineTool, family: str) -> Recipe:
+    """The family's :class:`Recipe` on ``machine`` (its file's ``[truth.FAMILY]`` over :data:`RECIPES`);
+    ``MachineFileError`` naming the key for a malformed one."""
+    if family not in FAMILIES:
+        raise ValueError(f"Expected family in {FAMILIES}, got {family!r}")
+    t = _truth_table(machine).get(family, {})
+    where = f"{machine.path}: key 'truth.{family}"
+    check_known_keys(t, ("entropy", "one_stream", "order", "scale", "draw_truth_only"), f"truth.{family}",
+                     machine.path)
+    if t.get("order", ORDERS[0]) not in ORDERS:
+        raise MachineFileError(f"{where}.order': expected one of {ORDERS}, got {short_repr(t['order'])}")
+    bad = sorted(set(t.get("scale", {})) - set(machine.slot_names))
+    if bad:
+        raise MachineFileError(f"{where}.scale.{bad[0]}': not an error slot of the machine")
+    entropy = tuple(t.get("entropy", RECIPES[family].entropy))
+    return Recipe(**{**RECIPES[family].__dict__, **t, "entropy": entropy})
+
+
+def truth_rngs(seed, rec: Recipe, n: int = 3) -> list:
+    """``n`` generators of ``seed`` (an int or a SeedSequence) under ``rec`` (one shared, or ``n``
+    children)."""
+    ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence([seed, *rec.entropy])
+    return [np.random.default_rng(ss)] * n if rec.one_stream else spawn_rngs(ss, n)
+
+
 CHAIN_SIMULATED = ("thermal", "reversal", "periodic", "harmonic", "interaction")
 """The registry's kinds this simulator draws on a chain (:meth:`MTTruth.element_values` dispatches on
 them; ``tests/test_mt_model.py`` checks the table against the registry)."""
@@ -99,7 +169,7 @@ EFFECT_KINDS = tuple(k.name for k in _REGISTRY if k.name in CHAIN_SIMULATED)
 EFFECT_ALIASES = {a: k.name for k in _REGISTRY if k.name in EFFECT_KINDS for a in k.aliases}
 """The registry's aliases of those kinds (``pitch`` → ``periodic``, ``worm`` → ``harmonic``,
 ``backlash`` → ``reversal``)."""
-CHAIN_TRUTH_ONLY = ("bump", "squareness", "squareness_xz", "xz_saddle")
+CHAIN_TRUTH_ONLY = ("bump", "squareness", "squareness_xz", "xz_saddle", "a_tilt", "a_lobe_x")
 """The registry's truth-only kinds this simulator draws on a chain (module doc): no diagnosis kind represents
 them, so they are not :data:`EFFECT_KINDS` (the kinds a chain model's terms may have)."""
 SIMULATED_KINDS = EFFECT_KINDS + CHAIN_TRUTH_ONLY
@@ -114,7 +184,11 @@ EFFECT_DEFAULTS = {
     "periodic": {"amplitude_um": 4.0, "period_mm": 10.0, "phase_rad": 0.7},
     "harmonic": {"amplitude_urad": 100.0, "teeth": 40, "phase_rad": 1.1},
     "interaction": {"corner_um": 6.0},
+    "a_tilt": {"k_urad": 120.0},
+    "a_lobe_x": {"amplitude_um": 6.0, "p_frac": 0.5, "width_frac": 0.15, "phase_rad": 0.4},
 }
+ROTARY_BY_LINEAR = ("a_tilt", "a_lobe_x")
+"""Truth-only kinds on a rotary axis W, local in a linear axis V (``KIND:W*V``, module doc)."""
 
 
 def _scale_key(machine: MachineTool, slot) -> object:
@@ -132,80 +206,85 @@ def _scale_key(machine: MachineTool, slot) -> object:
     return ("rotary", "e_along" if comp[1] == along else "e_across")
 
 
-def _default_profile(u, periodic, rng):
-    """Default family: cubic + one sinusoid (or harmonics 1–3 on a full turn), zero at u=0, max |.| = 1."""
-    if periodic:
-        th = 2 * np.pi * u
-        v = sum(rng.normal() / h * np.cos(h * th) + rng.normal() / h * np.sin(h * th) for h in (1, 2, 3))
+def _default_profile(u, theta, rng):
+    """Default family: cubic + one sinusoid on ``u`` in [0, 1], or harmonics 1–3 of ``theta`` (rad, a full
+    turn; None otherwise); zero at the first station, unnormalised."""
+    if theta is not None:
+        v = sum(rng.normal() / h * np.cos(h * theta) + rng.normal() / h * np.sin(h * theta) for h in (1, 2, 3))
     else:
         c = rng.normal(size=3)
         w = rng.uniform(1.0, 2.5)
         v = c[0] * u + c[1] * u**2 + c[2] * u**3 + 0.3 * rng.normal() * np.sin(2 * np.pi * w * u + rng.uniform(0, 2 * np.pi))
-    v = v - v[0]
-    return v / max(np.abs(v).max(), 1e-12)
+    return v - v[0]
 
 
-def _independent_profile(u, periodic, rng):
-    """Independent family: bumps + Chebyshev (Fourier h = 1…6 on a full turn), zero at u=0, max |.| = 1."""
-    if periodic:
+def _independent_profile(u, theta, rng):
+    """Independent family: bumps + Chebyshev on ``u``, or harmonics 1…6 (amplitudes ∝ h^-1.5) of ``theta``;
+    zero at the first station, unnormalised."""
+    if theta is not None:
         h = np.arange(1, 7)
         amp = rng.normal(size=6) / h**1.5
         ph = rng.uniform(0, 2 * np.pi, 6)
-        v = (amp[None] * np.cos(h[None] * 2 * np.pi * u[:, None] + ph[None])).sum(axis=1)
+        v = (amp[None] * np.cos(h[None] * theta[:, None] + ph[None])).sum(axis=1)
     else:
         v = np.zeros_like(u)
         for _ in range(int(rng.integers(2, 6))):
             c, w = rng.uniform(-0.1, 1.1), rng.uniform(0.08, 0.35)
             v += rng.normal() * np.exp(-0.5 * ((u - c) / w) ** 2)
         v += chebyshev.chebval(2 * u - 1, np.r_[0.0, rng.normal(size=4) / np.arange(1, 5) ** 1.2])
-    v = v - v[0]
-    return v / max(np.abs(v).max(), 1e-12)
+    return v - v[0]
 
 
 def random_chain_elements(machine: MachineTool, rng: np.random.Generator, family: str = "default",
                           n_stations: int | None = None) -> ChainElementSet:
-    """Unscaled random elements of ``family`` (module doc) on ``n_stations`` per axis."""
-    if family not in FAMILIES:
-        raise ValueError(f"Expected family in {FAMILIES}, got {family!r}")
+    """Unscaled random elements of ``family`` (module doc; drawn in :func:`recipe`'s order) on ``n_stations``
+    per axis."""
+    rec = recipe(machine, family)
     n = n_stations or (DEFAULT_STATIONS if family == "default" else TRUTH_STATIONS)
     u = np.linspace(0.0, 1.0, n)
-    stations, fun, const = {}, {}, {}
-    for a in machine.axes:
-        if machine.slots_of(a.word):
-            stations[a.column] = np.linspace(*a.stroke, n)
-    for s in machine.slots:
+    stations = {a.column: np.linspace(*a.stroke, n) for a in machine.axes if machine.slots_of(a.word)}
+    profile = _default_profile if family == "default" else _independent_profile
+    fun, const = {}, {}
+
+    def draw_scale(s, multiplier=True):
         key = _scale_key(machine, s)
         if family == "default":
-            scale = SCALE[key] * (abs(rng.normal(1.0, 0.3)) if s.is_function else 1.0)
-        else:
-            scale = float(np.exp(rng.uniform(*np.log(SCALE_RANGE[key]))))
+            return rec.scale.get(s.name, SCALE[key]) * (abs(rng.normal(1.0, 0.3)) if multiplier else 1.0)
+        return float(np.exp(rng.uniform(*np.log(rec.scale.get(s.name, SCALE_RANGE[key])))))
+
+    first = ({s.name: draw_scale(s, s.is_function) for s in machine.slots} if rec.order == "scales-first"
+             else {})
+    for s in machine.slots:
+        later = rec.order == "profile-scale" and s.is_function
+        scale = first[s.name] if first else draw_scale(s, s.is_function and not later)
         if s.is_function:
             ax = next(a for a in machine.axes if a.word == s.axis)
-            prof = (_default_profile if family == "default" else _independent_profile)(u, ax.full_turn, rng)
+            st = stations[ax.column]
+            v = profile(u, np.deg2rad(st - st[0]) if ax.full_turn else None, rng)
+            m = max(np.abs(v).max(), 1e-12)
+            fun[s.name] = scale * v / m * abs(rng.normal(1.0, 0.3)) if later else scale * (v / m)
             if ax.full_turn:
-                prof[-1] = prof[0]
-            fun[s.name] = scale * prof
+                fun[s.name][-1] = fun[s.name][0]
         else:
             const[s.name] = scale * (rng.uniform(-1.0, 1.0) if family == "default"
                                      else rng.choice([-1.0, 1.0]) * rng.uniform(0.3, 1.0))
     return ChainElementSet(machine, stations, fun, const, machine.name, machine.sha256)
 
 
-def scaled(elements: ChainElementSet, factor: float) -> ChainElementSet:
-    """Every element multiplied by ``factor``."""
-    out = elements.copy()
-    out.functions = {k: v * factor for k, v in out.functions.items()}
-    out.constants = {k: v * factor for k, v in out.constants.items()}
-    out._splines = {}
-    return out
-
-
-def volume_grid(machine: MachineTool, n_points: int = GRID_POINTS) -> np.ndarray:
-    """A product grid over the strokes, about ``n_points`` points, shape (N, k)."""
+def volume_grid(machine: MachineTool, n_points=None) -> np.ndarray:
+    """A product grid over the strokes, shape (N, k): ``n_points`` a count per axis or about that many points
+    in all; by default the machine file's ``truth.grid`` counts, or about :data:`GRID_POINTS` points."""
     k = len(machine.axes)
-    m = max(5, int(round(n_points ** (1.0 / k))))
-    g = [np.linspace(*a.stroke, m) for a in machine.axes]
+    m = max(5, int(round((n_points if np.isscalar(n_points) else GRID_POINTS) ** (1.0 / k))))
+    counts = ((n_points if n_points is not None and not np.isscalar(n_points) else None)
+              or (n_points is None and _truth_table(machine).get("grid")) or [m] * k)
+    g = [np.linspace(*a.stroke, c) for a, c in zip(machine.axes, counts)]
     return np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, k)
+
+
+def random_axes(machine: MachineTool, n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` points uniform over the strokes, shape (n, k)."""
+    return machine.stroke_lo + (machine.stroke_hi - machine.stroke_lo) * rng.random((n, len(machine.axes)))
 
 
 # -- effects -----------------------------------------------------------------------------------
@@ -227,11 +306,20 @@ def parse_effect(machine: MachineTool, text: str) -> tuple[str, tuple]:
     if not words:
         pair = (lin[0], lin[-1]) if len(lin) >= 2 else ()
         words = {"thermal": lin[:1], "periodic": lin[:1], "reversal": lin[-1:], "harmonic": rot[:1],
-                 "interaction": pair, **{k: pair for k in CHAIN_TRUTH_ONLY}}[kind]
+                 "interaction": pair, **{k: pair for k in CHAIN_TRUTH_ONLY},
+                 **{k: (rot[:1] + lin[:1]) if rot and lin else () for k in ROTARY_BY_LINEAR}}[kind]
         words = tuple(words)
     want = {"thermal": (lin, 1), "periodic": (lin, 1), "reversal": (lin + rot, 1), "harmonic": (rot, 1),
-            "interaction": (lin, 2), **{k: (lin, 2) for k in CHAIN_TRUTH_ONLY}}[kind]
-    if len(words) != want[1] or any(w not in want[0] for w in words) or len(set(words)) != len(words):
+            "interaction": (lin, 2), **{k: (lin, 2) for k in CHAIN_TRUTH_ONLY},
+            **{k: (rot + lin, 2) for k in ROTARY_BY_LINEAR}}[kind]
+    mixed = kind in ROTARY_BY_LINEAR and (words[:1] != tuple(w for w in words[:1] if w in rot)
+                                          or words[1:] != tuple(w for w in words[1:] if w in lin))
+    if (len(words) != want[1] or any(w not in want[0] for w in words) or len(set(words)) != len(words)
+            or mixed):
+        if kind in ROTARY_BY_LINEAR:
+            example = f"{kind}:{(rot or ['C'])[0]}*{(lin or ['X'])[0]}"
+            raise ValueError(f"effect {text!r}: {kind} acts on a rotary axis of {rot or 'none on this machine'}"
+                             f" and a linear axis of {lin} (e.g. {example})")
         raise ValueError(f"effect {text!r}: {kind} acts on {want[1]} {'distinct ' if want[1] > 1 else ''}"
                          f"axis word(s) of {want[0] or 'none on this machine'} (e.g. {kind}:"
                          f"{'*'.join(want[0][:want[1]]) if want[0] else 'W'}), got {list(words) or 'none'}")
@@ -252,6 +340,19 @@ def independent_effect_parameters(rng: np.random.Generator) -> dict:
         "harmonic": {"amplitude_urad": rng.uniform(60.0, 140.0), "teeth": int(rng.integers(30, 51)),
                      "phase_rad": rng.uniform(0, 2 * np.pi)},
         "interaction": {"corner_um": rng.uniform(4.0, 9.0) * rng.choice([-1.0, 1.0])},
+        # the truth-only kinds after the five (their draws leave those unchanged), used where the recipe says
+        "bump": {"amplitude_um": rng.uniform(6.0, 10.0) * rng.choice([-1.0, 1.0]),
+                 "p_frac": rng.uniform(0.3, 0.7), "q_frac": rng.uniform(0.3, 0.7),
+                 "width_frac": rng.uniform(0.14, 0.22)},
+        "a_tilt": {"k_urad": rng.uniform(80.0, 160.0) * rng.choice([-1.0, 1.0])},
+        "squareness": {"k_urad": rng.uniform(70.0, 130.0) * rng.choice([-1.0, 1.0])},
+        "squareness_xz": {"k_urad": rng.uniform(70.0, 130.0) * rng.choice([-1.0, 1.0])},
+        "a_lobe_x": {"amplitude_um": rng.uniform(4.5, 7.5) * rng.choice([-1.0, 1.0]),
+                     "p_frac": rng.uniform(0.35, 0.65), "width_frac": rng.uniform(0.12, 0.18),
+                     "phase_rad": rng.uniform(0.0, 2 * np.pi)},
+        "xz_saddle": {"amplitude_um": rng.uniform(6.0, 10.0) * rng.choice([-1.0, 1.0]),
+                      "p_frac": rng.uniform(0.35, 0.65), "q_frac": rng.uniform(0.4, 0.6),
+                      "width_frac": rng.uniform(0.12, 0.18)},
     }
 
 
@@ -275,6 +376,15 @@ class MTTruth:
     def _ax(self, word):
         j = [a.word for a in self.machine.axes].index(word)
         return j, self.machine.axes[j]
+
+    def parameters(self, name: str) -> dict:
+        """The parameters of the one effect of kind ``name`` (canonical or an alias: ``pitch``); KeyError
+        if the truth has none or several."""
+        kind = effect_kind(name).name
+        found = [p for key, p in self.effects.items() if key.split(":")[0] == kind]
+        if len(found) != 1:
+            raise KeyError(f"{len(found)} effects of kind {kind!r} in this truth (keys {list(self.effects)})")
+        return found[0]
 
     def needs(self) -> set:
         """Condition columns the effects need (``temp_c``, ``dir_z`` ...)."""
@@ -319,10 +429,14 @@ class MTTruth:
                 j2, ax2 = self._ax(words[1])
                 span = (ax.stroke[1] - ax.stroke[0]) * (ax2.stroke[1] - ax2.stroke[0])
                 v[:, idx[slot]] += p["corner_um"] * rel * (axes[:, j2] - ax2.stroke[0]) / span
+            elif kind in ROTARY_BY_LINEAR:
+                j2, ax2 = self._ax(words[1])
+                name, val = self._rotary_by_linear(kind, p, ax, pos, axes[:, j2] - ax2.stroke[0],
+                                                   ax2.stroke[1] - ax2.stroke[0])
+                v[:, idx[name]] += val
             elif kind in CHAIN_TRUTH_ONLY:
                 j2, ax2 = self._ax(words[1])
-                name, val = self._truth_only(kind, p, ax, ax2, rel / (ax.stroke[1] - ax.stroke[0]),
-                                             (axes[:, j2] - ax2.stroke[0]) / (ax2.stroke[1] - ax2.stroke[0]))
+                name, val = self._truth_only(kind, p, ax, ax2, rel, axes[:, j2] - ax2.stroke[0])
                 if name not in idx:
                     raise ValueError(f"effect {key}: the machine has no element {name} to carry it")
                 v[:, idx[name]] += val
@@ -331,12 +445,27 @@ class MTTruth:
         return v
 
     @staticmethod
-    def _truth_only(kind, p, ax, ax2, u, w) -> tuple:
-        """``(element name, values (n,))`` of a truth-only kind on linear axes ``ax``, ``ax2`` at the stroke
-        fractions ``u``, ``w`` (module doc)."""
+    def _rotary_by_linear(kind, p, ax, pos_deg, rel, span) -> tuple:
+        """``(element name, values (n,))`` of ``a_tilt`` / ``a_lobe_x`` on rotary axis ``ax`` at ``pos_deg``,
+        the linear axis at ``rel`` of its ``span`` (mm): the tilt or radial motion towards the first direction
+        across it."""
+        c, w = "xyz"[min({0, 1, 2} - {ax.along})], ax.word.lower()
+        if kind == "a_tilt":
+            return f"e{c}_{w}", p["k_urad"] * rel / span
+        s = (rel / span - p["p_frac"]) / p["width_frac"]
+        lobe = np.cos(2.0 * np.deg2rad(pos_deg) + p["phase_rad"])
+        return f"d{c}_{w}", p["amplitude_um"] * s * np.exp(0.5 - 0.5 * s * s) * lobe
+
+    @staticmethod
+    def _truth_only(kind, p, ax, ax2, rel, rel2) -> tuple:
+        """``(element name, values (n,))`` of a truth-only kind on linear axes ``ax``, ``ax2`` at ``rel``,
+        ``rel2`` mm from their strokes' starts (module doc)."""
+        span, span2 = ax.stroke[1] - ax.stroke[0], ax2.stroke[1] - ax2.stroke[0]
+        u, w = rel / span, rel2 / span2
         if kind in ("squareness", "squareness_xz"):
-            f = np.sin(np.pi * u) * (np.sin(np.pi * w) if kind == "squareness_xz" else 1.0)
-            return f"s_{''.join(sorted((ax.word.lower(), ax2.word.lower())))}", p["k_urad"] * f
+            f = p["k_urad"] * np.sin(np.pi * rel / span)
+            f = f * np.sin(np.pi * rel2 / span2) if kind == "squareness_xz" else f
+            return f"s_{''.join(sorted((ax.word.lower(), ax2.word.lower())))}", f
         third = {0, 1, 2} - {ax.along, ax2.along}
         if len(third) != 1:
             raise ValueError(f"effect {kind}:{ax.word}*{ax2.word}: the two axes move along the same direction")
@@ -350,7 +479,13 @@ class MTTruth:
     def spatial_error(self, axes, **conditions) -> np.ndarray:
         """True spatial error (μm) of the tool point in the workpiece frame, (n, k) -> (n, 3)."""
         axes = np.atleast_2d(np.asarray(axes, dtype=float))
-        return self.machine.spatial_error(axes, self.element_values(axes, **conditions))
+        return kernel_spatial_error(self.machine, axes, self.element_values(axes, **conditions))
+
+    def tool_point(self, axes, **conditions) -> np.ndarray:
+        """Where the tool really lands in the workpiece frame (mm) when commanded to ``axes``,
+        (n, k) -> (n, 3)."""
+        axes = np.atleast_2d(np.asarray(axes, dtype=float))
+        return forward(self.machine, axes) + 1e-3 * self.spatial_error(axes, **conditions)
 
     def default_conditions(self, n: int) -> dict:
         """Reference temperature, positive approach on every axis."""
@@ -362,7 +497,8 @@ class MTTruth:
         (default) the noise stream of ``seed``; a seed: only the noise redrawn, the layout unchanged."""
         m = self.machine
         k = len(m.axes)
-        r_pts, r_env, r_noise = spawn_rngs(seed, 3)
+        ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+        r_pts, r_env, r_noise = truth_rngs(ss, recipe(m, self.family))
         if noise_seed is not None:
             r_noise = np.random.default_rng(noise_seed)
         lo, hi = m.stroke_lo, m.stroke_hi
@@ -374,7 +510,7 @@ class MTTruth:
             temp = (REF_TEMP_C + rise * (1.0 - np.exp(-t / tau))
                     + 0.15 * np.sin(2 * np.pi * t / 5400.0 + r_env.uniform(0, 6.3)) + r_env.normal(0, 0.02, n))
         else:
-            u = r_pts.random((n, k))
+            u = r_pts.random((n, k))  # as random_axes
             temp = REF_TEMP_C + 4.0 * (1.0 - np.exp(-t / 2400.0)) + r_env.normal(0, 0.02, n)
         axes = lo + (hi - lo) * u
         dirs = r_env.choice([-1, 1], size=(n, k)).astype(float)
@@ -387,22 +523,23 @@ class MTTruth:
         return out
 
 
-def make_mt_truth(machine: MachineTool, seed: int, effects=(), family: str = "default") -> MTTruth:
-    """A seeded truth of ``family`` for ``machine`` (module doc); ``effects``: ``KIND[:AXES]``
-    strings, or a mapping of them to parameter overrides."""
-    if family not in FAMILIES:
-        raise ValueError(f"Expected family in {FAMILIES}, got {family!r}")
-    r_el, r_scale, r_eff = spawn_rngs(np.random.SeedSequence([seed, 0x3A7, FAMILIES.index(family)]), 3)
-    el = random_chain_elements(machine, r_el, family)
+def make_mt_truth(machine: MachineTool, seed: int, effects=(), family: str = "default",
+                  n_stations: int | None = None) -> MTTruth:
+    """A seeded truth of ``family`` for ``machine`` (module doc) on ``n_stations`` per axis (None: the
+    family's); ``effects``: ``KIND[:AXES]`` strings, or a mapping of them to parameter overrides."""
+    rec = recipe(machine, family)
+    r_el, r_scale, r_eff = truth_rngs(seed, rec)
+    el = random_chain_elements(machine, r_el, family, n_stations)
     grid = volume_grid(machine)
-    e = machine.spatial_error(grid, el.values(grid))
-    el = scaled(el, r_scale.uniform(*TARGET_MAX_RANGE_UM[family]) / np.linalg.norm(e, axis=1).max())
+    e = kernel_spatial_error(machine, grid, el.values(grid))
+    el = el.scaled(r_scale.uniform(*TARGET_MAX_RANGE_UM[family]) / np.linalg.norm(e, axis=1).max())
     eff = effects if isinstance(effects, dict) else {k: {} for k in effects}
     drawn = independent_effect_parameters(r_eff) if family == "independent" else {}
     params = {}
     for key, over in eff.items():
         kind, words = parse_effect(machine, key)
-        params[effect_key(kind, words)] = {**drawn.get(kind, {}), **(over or {})}
+        use = kind in EFFECT_KINDS or rec.draw_truth_only
+        params[effect_key(kind, words)] = {**(drawn.get(kind, {}) if use else {}), **(over or {})}
     return MTTruth(machine, el, params, seed, family)
 
 

@@ -99,7 +99,17 @@ def grinder_chain_document(grinder: dict) -> dict:
                         "description": 'read from a kind = "grinder" file'},
             "geometry": {k: float(v) for k, v in grinder["geometry"].items()},
             "work": work, "tool": tool,
-            "targets": {k: [[float(c) for c in row] for row in v] for k, v in grinder["targets"].items()}}
+            "targets": {k: [[float(c) for c in row] for row in v] for k, v in grinder["targets"].items()},
+            "truth": builtin_truth()}
+
+
+def builtin_truth() -> dict:
+    """The built-in grinder's ``[truth]`` table: a grinder file's seeded truths are drawn as the
+    built-in's."""
+    import tomllib
+    from pathlib import Path
+    with open(Path(__file__).parent / "machines" / "grinder.toml", "rb") as fh:
+        return tomllib.load(fh).get("truth", {})
 
 
 def parse_grinder_file(doc: dict, path, sha: str = "") -> MachineTool:

@@ -121,9 +121,11 @@ def builtin_machines() -> dict:
     return {p.stem: p for p in sorted(folder.glob("*.toml"))}
 
 
-FORMER_SHA256 = {"grinder": ("79f2a794bd5774bc9bf7a052890bc36a5736f3deddd4c13eddc871b2ae73ba1a",)}
-"""SHA-256 of earlier files of a built-in machine (the grinder's ``kind = "grinder"`` file before it became its
-chain file): a model or data file recorded with one of them was made on that built-in machine."""
+FORMER_SHA256 = {"grinder": ("79f2a794bd5774bc9bf7a052890bc36a5736f3deddd4c13eddc871b2ae73ba1a",
+                             "4af8f4937f34b9a9780b1fce365864b3bde34c78846494a40419e63f51bec277")}
+"""SHA-256 of earlier files of a built-in machine (the grinder's ``kind = "grinder"`` file before it became
+its chain file, and its chain file before its ``[truth]`` table): a model or data file recorded with one of
+them was made on that built-in machine."""
 
 
 def made_on(machine, sha: str | None) -> bool:

@@ -152,6 +152,9 @@ class MachineTool:
     """``[tcp]`` of the file: ``switch_on`` / ``switch_off`` (tuples of M code numbers) that switch the
     controller's tool-centre-point kinematics on and off (LinuxCNC's switchable kinematics, remapped M
     codes); None without one (:mod:`compensation.tcp`)."""
+    truth: dict = field(default_factory=dict)
+    """``[truth]`` of the file: how seeded truths of this machine are drawn
+    (:func:`errormap.chain_truth.recipe` reads and checks it); empty without one."""
     read_as: str = ""
     """The one line a command says when the file was not a chain file but was read into one (a
     ``kind = "grinder"`` file, :func:`errormap.grinder_file.parse_grinder_file`); empty for a chain file."""
@@ -476,7 +479,8 @@ class MachineTool:
 
 def parse_machine_tool(doc: dict, path, sha: str = "") -> MachineTool:
     """Validate a parsed ``kind = "machine-tool"`` file and compile its chain (``docs/how-to/machine-file.md``)."""
-    check_known_keys(doc, ("machine", "geometry", "work", "tool", "targets", "spindle", "tcp"), "", path)
+    check_known_keys(doc, ("machine", "geometry", "work", "tool", "targets", "spindle", "tcp", "truth"), "",
+                     path)
     m = check_table(doc, "machine", path)
     check_known_keys(m, ("kind", "name", "schema", "description"), "machine", path)
     name = m.get("name", "machine-tool")
@@ -527,7 +531,8 @@ def parse_machine_tool(doc: dict, path, sha: str = "") -> MachineTool:
                        tool_ets=tuple(tool_n), targets=targets, geometry=geometry, body_index=body_index,
                        path=str(path), sha256=sha, description=str(m.get("description", "")),
                        spindle=read_spindle(optional_table(doc, "spindle", path), path, mt_axes),
-                       tcp=read_tcp(optional_table(doc, "tcp", path), path, mt_axes))
+                       tcp=read_tcp(optional_table(doc, "tcp", path), path, mt_axes),
+                       truth=optional_table(doc, "truth", path, {}))
 
 
 def rotary_on_turn(a_deg, a_lo: float, unwrap: bool = True, a_start_deg: float | None = None) -> np.ndarray:

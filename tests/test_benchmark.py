@@ -45,7 +45,7 @@ def test_out_of_catalogue_conditions_run_the_loop_at_each_check_count():
     assert sorted({c.n_checks for c in ooc}) == sorted(s.ooc_checks) == [150, 800, 1600]
     assert len(ooc) == (len(s.ooc_effects) + 1) * len(s.ooc_checks)
     assert {c.name for c in ooc if c.effect == "bump"} == {f"effect=bump, checks={n}" for n in s.ooc_checks}
-    from errormap.simulator import OUT_OF_CATALOGUE
+    from errormap.effect_kinds import TRUTH_ONLY as OUT_OF_CATALOGUE
     assert set(s.ooc_effects) <= set(OUT_OF_CATALOGUE)
 
 

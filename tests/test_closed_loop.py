@@ -11,9 +11,8 @@ from errormap.chain_elements import ChainElementSet
 from errormap.machine import load_machine
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import spatial_error
-from errormap.simulator import EFFECT_DEFAULTS, random_axes, random_truth
+from errormap.chain_truth import EFFECT_DEFAULTS, TRUTH_STATIONS, make_mt_truth, random_axes
 from errormap.chain_sweeps import simulate_mt_sweeps
-from errormap.truth_families import TRUTH_STATIONS, make_truth
 from errormap.uncertainty import (ElementCovariance, covariance_path, elements_from_theta, smooth_identify,
                                   theta_design, theta_from_elements)
 
@@ -42,19 +41,19 @@ def _loop(grinder, sm, cols, tmp, **kw):
 
 @pytest.fixture(scope="module")
 def indep(grinder):
-    truth = make_truth(grinder, SEED, family="independent")
+    truth = make_mt_truth(grinder, SEED, family="independent")
     sm = smooth_identify(simulate_mt_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=SEED + 50), grinder)
     return truth, sm
 
 
 def test_independent_family_is_seeded_and_differs(grinder):
-    a = make_truth(grinder, 3, family="independent", effects=["pitch", "worm"])
-    b = make_truth(grinder, 3, family="independent", effects=["pitch", "worm"])
-    d = random_truth(grinder, 3)
+    a = make_mt_truth(grinder, 3, family="independent", effects=["pitch", "worm"])
+    b = make_mt_truth(grinder, 3, family="independent", effects=["pitch", "worm"])
+    d = make_mt_truth(grinder, 3)
     assert a.elements.stations["x_mm"].size == TRUTH_STATIONS
     np.testing.assert_array_equal(a.elements.functions["dx_x"], b.elements.functions["dx_x"])
     assert a.effects == b.effects
-    assert a.effects["pitch"]["period_mm"] != EFFECT_DEFAULTS["pitch"]["period_mm"]
+    assert a.parameters("pitch")["period_mm"] != EFFECT_DEFAULTS["periodic"]["period_mm"]
     pts = random_axes(grinder, 500, np.random.default_rng(0))
     ea, ed = ChainField(grinder, a.elements).predict(pts), ChainField(grinder, d.elements).predict(pts)
     assert np.abs(ea - ed).max() > 10.0  # a different machine, not a rescaled one
@@ -115,7 +114,7 @@ def test_update_brings_held_out_to_the_noise_floor_and_reports_no_effect(grinder
 
 @pytest.mark.slow
 def test_reversal_is_named_after_the_update(grinder, tmp_path):
-    truth = make_truth(grinder, 1, family="independent", effects=["reversal"])
+    truth = make_mt_truth(grinder, 1, family="independent", effects=["reversal"])
     sm = smooth_identify(simulate_mt_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=51), grinder)
     s, _ = _loop(grinder, sm, truth.check_measurements(800, 1.0, seed=13), tmp_path)
     e = s["effects"]
@@ -149,9 +148,9 @@ COMP_TRUE_TOL_UM = 0.01  # model = truth exactly here; the exact solver's own re
 def test_compensate_takes_the_diagnosed_model_and_its_conditions(grinder, tmp_path, capsys):
     from errormap.io import read_table
     from errormap.chain_kernel import forward
-    truth = random_truth(grinder, 3, effects=["reversal"])
+    truth = make_mt_truth(grinder, 3, effects=["reversal"])
     truth.elements.save(tmp_path / "updated_elements.json")
-    b = truth.effects["reversal"]["backlash_um"]
+    b = truth.parameters("reversal")["backlash_um"]
     term = {"kind": "reversal", "axis": "z", "element": "dz_z", "coefficients": [b], "period_mm": None, "order": None,
             "needs": ["dir_z"], "reference": {"ref_temp_c": 20.0, "ref_time_s": 0.0}}
     (tmp_path / "model.json").write_text(json.dumps({"format": "volcomp-diagnosed-model/1",
@@ -187,9 +186,9 @@ def test_compensate_takes_per_point_conditions_from_the_path_columns(grinder, tm
     the commands land on the targets on the truth under each point's own conditions."""
     from errormap.io import read_table
     from errormap.chain_kernel import forward
-    truth = random_truth(grinder, 3, effects=["reversal", "thermal"])
-    b = truth.effects["reversal"]["backlash_um"]
-    k = truth.effects["thermal"]["k_um_per_mm_c"]
+    truth = make_mt_truth(grinder, 3, effects=["reversal", "thermal"])
+    b = truth.parameters("reversal")["backlash_um"]
+    k = truth.parameters("thermal")["k_um_per_mm_c"]
     ref = {"ref_temp_c": 20.0, "ref_time_s": 0.0}
     model = _diagnosed_model(tmp_path, truth, [
         {"kind": "reversal", "axis": "z", "element": "dz_z", "coefficients": [b], "reference": ref},
@@ -233,8 +232,8 @@ def test_compensate_takes_per_point_conditions_from_the_path_columns(grinder, tm
 def test_compensate_gcode_with_a_diagnosed_model_follows_the_replanned_vertices(grinder, tmp_path):
     """A G-code path (no condition columns) with a thermal term: the option's temperature holds at
     every vertex the replan adds to the long moves, and the model residual stays at solver level."""
-    truth = random_truth(grinder, 3, effects=["thermal"])
-    k = truth.effects["thermal"]["k_um_per_mm_c"]
+    truth = make_mt_truth(grinder, 3, effects=["thermal"])
+    k = truth.parameters("thermal")["k_um_per_mm_c"]
     model = _diagnosed_model(tmp_path, truth, [{"kind": "thermal", "axis": "x", "element": "dx_x", "coefficients": [k],
                                                 "reference": {"ref_temp_c": 20.0, "ref_time_s": 0.0}}])
     src = tmp_path / "long.nc"
@@ -251,7 +250,7 @@ def test_compensate_gcode_with_a_diagnosed_model_follows_the_replanned_vertices(
 def test_an_effect_the_update_would_imitate_is_named_and_kept(grinder, tmp_path):
     """Thermal growth (a dx_x slope at the mean temperature) is partly taken up by an update made alone; the loop
     names it, re-fits it jointly with the update, and keeps the model with it."""
-    truth = make_truth(grinder, 0, family="independent", effects=["thermal"])
+    truth = make_mt_truth(grinder, 0, family="independent", effects=["thermal"])
     sm = smooth_identify(simulate_mt_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder)
     s, _ = _loop(grinder, sm, truth.check_measurements(800, 1.0, seed=14), tmp_path)
     assert s["effects"] and (s["effects"][0]["kind"], s["effects"][0]["axis"]) == ("thermal", "X")
@@ -264,7 +263,7 @@ def test_an_effect_the_element_slots_represent_is_named_as_absorbed(grinder, tmp
     """An X·Z coupling on the grinder is angular elements times lever arms: the element slots represent it over
     the checks, so the update takes it up; the loop names it as absorbed (not a missed effect) and the updated
     model reaches the held-out target."""
-    truth = make_truth(grinder, 0, family="independent", effects=["interaction"])
+    truth = make_mt_truth(grinder, 0, family="independent", effects=["interaction"])
     sm = smooth_identify(simulate_mt_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder)
     s, _ = _loop(grinder, sm, truth.check_measurements(800, 1.0, seed=14), tmp_path)
     assert ("interaction", "X*Z") in {(e["kind"], e["axis"]) for e in s["effects_absorbed"]}

@@ -67,10 +67,10 @@ def test_every_reader_sizes_first(tmp_path):
     from errormap.diagnosis.drift_models import DriftModel
     from errormap.chain_elements import ChainElementSet
     from errormap.machine import load_machine
-    from errormap.simulator import random_truth
+    from errormap.chain_truth import make_mt_truth
     from errormap.uncertainty import ElementCovariance
     grinder = load_machine("grinder")
-    el = random_truth(grinder, 3).elements
+    el = make_mt_truth(grinder, 3).elements
     loaders = {"elements.json": lambda p: ChainElementSet.load(p, grinder), "drift.json": DriftModel.load, "fleet.toml": read_fleet,
                "diag.json": read_json, "e.cov.npz": lambda p: ElementCovariance.load(p, el)}
     for name, load in loaders.items():

@@ -12,8 +12,9 @@ from errormap import effect_kinds as ek
 from errormap.diagnosis import effects as fx
 from errormap.chain_elements import ChainElementSet
 from errormap.elements import IDX
-from errormap.simulator import EFFECT_DEFAULTS, EFFECT_NAMES, OUT_OF_CATALOGUE, TruthGrinder, random_axes
-from errormap.truth_families import independent_effect_parameters
+from errormap.chain_truth import (CHAIN_TRUTH_ONLY as OUT_OF_CATALOGUE, EFFECT_DEFAULTS, MTTruth as TruthGrinder,
+                                  independent_effect_parameters, random_axes)
+from errormap.effect_kinds import SIMULATOR_NAMES as EFFECT_NAMES
 
 SEED = 11
 N_POINTS = 200
@@ -34,8 +35,8 @@ def test_every_name_is_registered_once():
 
 def test_simulator_draws_registered_kinds_only():
     assert EFFECT_NAMES == ek.SIMULATOR_NAMES
-    assert set(EFFECT_DEFAULTS) == set(ek.SIMULATOR_NAMES)
-    assert set(independent_effect_parameters(np.random.default_rng(0))) == set(ek.SIMULATOR_NAMES)
+    assert set(map(ek.simulator_name, EFFECT_DEFAULTS)) == set(ek.SIMULATOR_NAMES)
+    assert set(map(ek.simulator_name, independent_effect_parameters(np.random.default_rng(0)))) == set(ek.SIMULATOR_NAMES)
     assert set(OUT_OF_CATALOGUE) == set(ek.TRUTH_ONLY) == {"bump", "a_tilt", "squareness", "squareness_xz", "a_lobe_x",
                                                                 "xz_saddle"}
     for name in EFFECT_NAMES:
@@ -66,13 +67,13 @@ def test_the_diagnosis_fits_exactly_the_diagnosed_kinds(grinder):
         assert set(term.parameters()) == {n.format(u=fx.unit_of(cand.element)) for n, _ in spec.parameters}
 
 
-@pytest.mark.parametrize("sim, canonical, element, params, basis_args", [
+@pytest.mark.parametrize("sim, canonical, element, params, basis_args, axis_word", [
     ("pitch", "periodic", "dx_x", {"amplitude_um": 3.0, "period_mm": 7.0, "phase_rad": 0.4},
-     {"period_mm": 7.0}),
-    ("worm", "harmonic", "ex_a", {"amplitude_urad": 90.0, "teeth": 37, "phase_rad": 2.1}, {"order": 37}),
+     {"period_mm": 7.0}, "X"),
+    ("worm", "harmonic", "ex_a", {"amplitude_urad": 90.0, "teeth": 37, "phase_rad": 2.1}, {"order": 37}, "A"),
 ])
 def test_simulator_alias_is_the_same_physics_as_the_diagnosis_kind(grinder, sim, canonical, element, params,
-                                                                   basis_args):
+                                                                   basis_args, axis_word):
     """Merging ``pitch``/``periodic`` and ``worm``/``harmonic`` into one kind each is only right if
     they are the same term: the simulator's addition to the element equals the diagnosis basis
     with the amplitude and phase written as its ``s·sin + c·cos`` coefficients."""
@@ -81,7 +82,7 @@ def test_simulator_alias_is_the_same_physics_as_the_diagnosis_kind(grinder, sim,
     axes = random_axes(grinder, N_POINTS, np.random.default_rng(SEED))
     by_alias = TruthGrinder(grinder, el, {sim: params}).element_values(axes)[:, IDX[element]]
     by_name = TruthGrinder(grinder, el, {canonical: params})
-    assert set(by_name.effects) == {sim}
+    assert set(by_name.effects) == set(TruthGrinder(grinder, el, {sim: params}).effects) == {f"{canonical}:{axis_word}"}
     amp = params.get("amplitude_um", params.get("amplitude_urad"))
     coef = amp * np.array([np.cos(params["phase_rad"]), np.sin(params["phase_rad"])])
     ctx = fx.Context.build(grinder, axes, {}, fx.reference(grinder, {}))

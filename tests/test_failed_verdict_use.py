@@ -41,9 +41,9 @@ def _verdict(status):
 def diagnosed(tmp_path_factory):
     """A diagnose folder of the grinder: updated_elements.json with a failed diagnosis.json beside it."""
     from errormap.machine import load_machine
-    from errormap.simulator import random_truth
+    from errormap.chain_truth import make_mt_truth
     d = tmp_path_factory.mktemp("diag")
-    el = random_truth(load_machine("grinder"), 3).elements.save(d / "updated_elements.json")
+    el = make_mt_truth(load_machine("grinder"), 3).elements.save(d / "updated_elements.json")
     (d / "diagnosis.json").write_text(json.dumps({"verdict": _verdict("failed")}))
     (d / "pts.csv").write_text("x_mm,z_mm,a_deg\n10,20,30\n11,21,31\n12,22,32\n")
     return d, el

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from compensation.hybrid import TERM_CONSISTENT_Z, TERM_KEEP_Z, learned_stage
-from errormap.simulator import random_axes
+from errormap.chain_truth import random_axes
 from test_hybrid import BUMP_RECOVERY_REL, NOISE_UM, SEED
 
 

@@ -12,7 +12,7 @@ from errormap.chain_kernel import error_jacobian
 from errormap.elements import ELEMENT_NAMES
 from errormap.machine import load_machine
 from errormap.machine_tool import WorkRotation
-from errormap.simulator import random_axes
+from errormap.chain_truth import random_axes
 from training.residual import ResidualRegressor
 
 SEED = 0

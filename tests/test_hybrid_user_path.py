@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from errormap.machine import load_machine
-from errormap.simulator import random_axes
+from errormap.chain_truth import random_axes
 from test_hybrid import EXACT_MODEL_TOL_UM
 
 

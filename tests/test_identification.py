@@ -17,7 +17,7 @@ from errormap.chain_sweeps import simulate_mt_sweeps
 from errormap.identification import ChainIdentification, layout_problem, rigid_fit
 from errormap.io import InputError
 from errormap.machine import load_machine
-from errormap.simulator import TruthGrinder, random_axes, random_truth
+from errormap.chain_truth import MTTruth, make_mt_truth, random_axes
 from errormap.uncertainty import smooth_identify
 
 SPATIAL_TOL_UM = 0.01          # the issue's noise-free target on the tool-point error
@@ -41,7 +41,7 @@ def points(machine):
 
 @pytest.fixture(scope="module")
 def truth(machine):
-    return random_truth(machine, 3)
+    return make_mt_truth(machine, 3)
 
 
 def identify(cols, machine, gauge="first-station"):
@@ -108,7 +108,7 @@ def test_injected_element_is_recovered(machine, points, name):
     else:
         constants[name] = 40.0
     el = ChainElementSet(machine, z.stations, functions, constants, machine.name, machine.sha256)
-    truth = TruthGrinder(machine, el, {})
+    truth = MTTruth(machine, el, {})
     res = identify(simulate_mt_sweeps(truth, noise_um=0.0, seed=3), machine)
     j = ELEMENT_NAMES.index(name)
     got, want = res.elements_.values(points), el.values(points)
@@ -119,9 +119,9 @@ def test_injected_element_is_recovered(machine, points, name):
 
 def test_worm_harmonic_aliases_to_a_constant(machine, truth):
     """40 teeth at 18° stations: sin(40·a + φ) is the same at every station -> ex_a offset."""
-    tw = random_truth(machine, 3, effects=["worm"])
+    tw = make_mt_truth(machine, 3, effects=["worm"])
     got = identify(simulate_mt_sweeps(tw, noise_um=0.0, seed=1), machine).elements_.functions["ex_a"]
-    p = tw.effects["worm"]
+    p = tw.parameters("worm")
     alias = p["amplitude_urad"] * np.sin(p["phase_rad"])
     assert np.abs(got - truth.elements.functions["ex_a"] - alias).max() < ALIAS_TOL_URAD
 
@@ -137,20 +137,20 @@ def test_noisy_identification_is_bounded_and_seeded(machine, truth, points):
 
 
 def test_bidirectional_runs_are_averaged_and_reported(machine):
-    tr = random_truth(machine, 4, effects=["reversal"])
+    tr = make_mt_truth(machine, 4, effects=["reversal"])
     res = identify(simulate_mt_sweeps(tr, noise_um=0.0, seed=1, bidirectional=True), machine)
-    backlash = tr.effects["reversal"]["backlash_um"]
+    backlash = tr.parameters("reversal")["backlash_um"]
     assert res.reversal_um["Z"].max() == pytest.approx(backlash, rel=1e-6)  # a pure dz_z shift
     assert res.reversal_um["X"].max() < ELEMENT_TOL
     # the average of ±b/2 is the reversal-free Z positioning
-    plain = identify(simulate_mt_sweeps(random_truth(machine, 4), noise_um=0.0, seed=1), machine)
+    plain = identify(simulate_mt_sweeps(make_mt_truth(machine, 4), noise_um=0.0, seed=1), machine)
     assert np.abs(res.elements_.functions["dz_z"] - plain.elements_.functions["dz_z"]).max() < ELEMENT_TOL
 
 
 def test_degenerate_target_layout_is_refused(machine, truth):
     """Collinear mounts in the machine file: refused before any fitting, naming key and axis."""
     bad = grinder_variant(targets={"X": [[0.0, 0.0, 40.0], [50.0, 0.0, 40.0], [100.0, 0.0, 40.0]]})
-    cols = simulate_mt_sweeps(TruthGrinder(bad, truth.elements, {}), noise_um=0.0, seed=1)
+    cols = simulate_mt_sweeps(MTTruth(bad, truth.elements, {}), noise_um=0.0, seed=1)
     with pytest.raises(InputError, match=r"targets\.X.*collinear"):
         identify(cols, bad)
 
@@ -249,11 +249,11 @@ def test_rotary_direction_comes_from_the_chain(machine, points):
     """The identification turns A as the chain file says: on a grinder whose chain turns A
     about -x, sweeps simulated through that chain are identified to the noise-free tolerance in
     every gauge (with RotX(a) written into the method they would not be)."""
-    plain_truth = random_truth(machine, 3)
+    plain_truth = make_mt_truth(machine, 3)
     plain = simulate_mt_sweeps(plain_truth, noise_um=0.0, seed=1)
     rev = grinder_variant(edit=_a_reversed, sha_suffix="-a-reversed")
     assert next(a for a in rev.axes if a.word == "A").direction == -1.0
-    truth = random_truth(rev, 3)
+    truth = make_mt_truth(rev, 3)
     sweeps = simulate_mt_sweeps(truth, noise_um=0.0, seed=1)
     a = np.asarray(sweeps["axis"]) == "A"
     moved = np.hypot.reduce([np.asarray(sweeps[c])[a] - np.asarray(plain[c])[a] for c in ("x_mm", "y_mm", "z_mm")])

@@ -129,9 +129,9 @@ def test_the_grinders_old_closed_loop_model_loads(tmp_path):
     """``volcomp-diagnosed-model/1`` (the grinder's closed loop before the chain loop): its elements, the grinder's
     effect terms with the conditions they need, per point."""
     from errormap.chain_field import ChainField
-    from errormap.simulator import random_truth
+    from errormap.chain_truth import make_mt_truth
     g = load_machine(None)
-    el = random_truth(g, 3).elements
+    el = make_mt_truth(g, 3).elements
     el.save(tmp_path / "updated_elements.json")
     term = {"kind": "thermal", "axis": "x", "element": "dx_x", "coefficients": [0.01],
             "reference": {"ref_temp_c": 20.0, "ref_time_s": 0.0}}
@@ -241,9 +241,9 @@ def test_diagnose_starts_from_a_model_file_of_elements_and_refuses_one_with_term
 
 def test_export_refuses_the_grinders_old_closed_loop_model_naming_its_element_set(tmp_path):
     from compensation.export.sources import load_model as export_model
-    from errormap.simulator import random_truth
+    from errormap.chain_truth import make_mt_truth
     g = load_machine(None)
-    random_truth(g, 3).elements.save(tmp_path / "updated_elements.json")
+    make_mt_truth(g, 3).elements.save(tmp_path / "updated_elements.json")
     term = {"kind": "thermal", "axis": "x", "element": "dx_x", "coefficients": [0.01],
             "reference": {"ref_temp_c": 20.0, "ref_time_s": 0.0}}
     (tmp_path / "model.json").write_text(json.dumps({"format": "volcomp-diagnosed-model/1", "stage": "updated",

@@ -13,8 +13,7 @@ from errormap.chain_elements import ChainElementSet
 from errormap.identification import ChainIdentification, root_axis
 from errormap.chain_truth import FAMILIES, TARGET_MAX_RANGE_UM, MTTruth, make_mt_truth, volume_grid
 from errormap.chain_sweeps import simulate_mt_sweeps, swept_words
-from errormap.simulator import random_truth
-from errormap.simulator import volume_grid as grinder_grid
+from errormap.chain_truth import make_mt_truth
 from errormap.sweeps import read_sweeps, sweeps_from_columns, write_sweeps
 from errormap.uncertainty import smooth_identify
 
@@ -95,10 +94,10 @@ def test_effects_generic_by_axis(mill):
 
 
 def test_chain_sweeps_equal_grinder_sweeps():
-    """The grinder's truth (errormap.simulator) and the chain's (errormap.chain_truth) of the same elements
+    """The built-in grinder's truth and the grinder-chain file's (errormap.chain_truth) of the same elements
     give the same sweeps through the one simulator."""
     g, gc = load_machine(None), load_machine("grinder-chain")
-    tg = random_truth(g, 1)
+    tg = make_mt_truth(g, 1)
     el = tg.elements
     tc = MTTruth(gc, ChainElementSet(gc, el.stations, el.functions, el.constants), {})
     a = simulate_mt_sweeps(tg, noise_um=0.0, seed=3)
@@ -130,11 +129,11 @@ def test_root_axis(mill, five):
 @pytest.mark.parametrize("noise", [0.0, 2.0])
 def test_generic_identification_agrees_with_grinder(noise):
     g, gc = load_machine(None), load_machine("grinder-chain")
-    tg = random_truth(g, 1)
+    tg = make_mt_truth(g, 1)
     cols = simulate_mt_sweeps(tg, noise_um=noise, seed=3)
     eg = smooth_identify(cols, g, smooth=False, gauge="first-station").raw.elements_
     ec = ChainIdentification().fit(sweeps_from_columns(cols, axes=swept_words(gc)), gc).elements_
-    grid = grinder_grid(g, (9, 5, 13))
+    grid = volume_grid(g, (9, 5, 13))
     d = np.linalg.norm(ChainField(g, eg).predict(grid) - ChainField(gc, ec).predict(grid), axis=1)
     assert np.sqrt(np.mean(d**2)) < (NOISE_FREE_UM if noise == 0 else GRINDER_AGREE_UM)
     for k in ("dy_oa", "dz_oa", "ey_oa", "ez_oa"):  # the A-axis line: the same gauge, the same numbers
@@ -192,7 +191,7 @@ def test_cli_refusals(tmp_path, capsys, mill):
     assert "row" in line
     # a grinder element set is no model of the mill
     g = load_machine(None)
-    random_truth(g, 0).elements.save(tmp_path / "grinder.json")
+    make_mt_truth(g, 0).elements.save(tmp_path / "grinder.json")
     ck = t.check_measurements(20, seed=1)
     from errormap.io import write_csv
     write_csv(tmp_path / "checks.csv", ck)
@@ -335,15 +334,14 @@ float rounding."""
 
 @pytest.mark.parametrize("grinder_name, chain_effect, element", [
     ("bump", "bump:X*Z", "dy_x"), ("xz_saddle", "xz_saddle:X*Z", "dy_z"), ("squareness", "squareness:X*Z", "s_xz"),
-    ("squareness_xz", "squareness_xz:X*Z", "s_xz")])
+    ("squareness_xz", "squareness_xz:X*Z", "s_xz"), ("a_tilt", "a_tilt:A*X", "ey_a"), ("a_lobe_x", "a_lobe_x:A*X", "dy_a")])
 def test_truth_only_effects_on_a_chain_are_the_grinders(grinder_name, chain_effect, element):
     """``simulate --effect bump:V*W`` / ``xz_saddle:V*W`` on a chain: on the grinder's own chain file the added
     element values equal the grinder simulator's ``bump`` / ``xz_saddle``, on that element and no other."""
-    from errormap.simulator import TruthGrinder
     g, gc = load_machine(None), load_machine("grinder-chain")
     axes = np.random.default_rng(5).uniform(g.stroke_lo, g.stroke_hi, (400, 3))
-    el = random_truth(g, 0).elements
-    d_g = TruthGrinder(g, el, {grinder_name: {}}).element_values(axes) - TruthGrinder(g, el, {}).element_values(axes)
+    el = make_mt_truth(g, 0).elements
+    d_g = MTTruth(g, el, {grinder_name: {}}).element_values(axes) - MTTruth(g, el, {}).element_values(axes)
     cel = ChainElementSet.zeros(gc)
     d_c = MTTruth(gc, cel, {chain_effect: {}}).element_values(axes) - MTTruth(gc, cel, {}).element_values(axes)
     from errormap.elements import ELEMENT_NAMES
@@ -364,3 +362,28 @@ def test_truth_only_effects_through_the_cli(tmp_path):
     assert _main(["simulate", "--machine", "mill-xyz", "--seed", "0", "--checks", "20", "--effect", "squareness_xz:Y*Z",
                   "--out", str(tmp_path / "sq")]) == 0
     assert _main(["simulate", "--machine", "mill-xyz", "--effect", "bump:X", "--out", str(tmp_path / "bad")]) == 2
+
+
+@pytest.mark.parametrize("effect, element", [("a_tilt:C*Z", "ex_c"), ("a_lobe_x:C*Y", "dx_c"), ("a_tilt", "ey_a")])
+def test_rotary_by_linear_effects_on_any_rotary_axis(five, effect, element):
+    """``a_tilt`` / ``a_lobe_x`` on any rotary axis W and linear axis V (``KIND:W*V``; without axes the first of
+    each): the tilt or radial motion of W towards the first direction across it, on that element only; a linear
+    axis first is refused naming the order."""
+    el = ChainElementSet.zeros(five)
+    axes = five.stroke_lo + (five.stroke_hi - five.stroke_lo) * np.random.default_rng(3).random((200, 5))
+    d = np.abs(MTTruth(five, el, {effect: {}}).element_values(axes)).max(axis=0)
+    assert [five.slot_names[i] for i in np.flatnonzero(d)] == [element] and d.max() > 1.0
+    with pytest.raises(ValueError, match="rotary axis of"):
+        MTTruth(five, el, {"a_tilt:X*C": {}})
+
+
+def test_truth_recipe_of_a_machine_file_is_checked(mill):
+    """A machine file's ``[truth]`` table (chain_truth.recipe): a wrong order, slot or grid is one line naming the key."""
+    import dataclasses
+    from errormap.machine_checks import MachineFileError
+    for table, key in (({"default": {"order": "sideways"}}, "truth.default.order"),
+                       ({"independent": {"scale": {"dq_q": [1.0, 2.0]}}}, "truth.independent.scale.dq_q"),
+                       ({"grid": [3, 3]}, "truth.grid")):
+        with pytest.raises(MachineFileError, match=key.replace(".", r"\.")):
+            make_mt_truth(dataclasses.replace(mill, truth=table), 0, family="independent" if "independent" in table
+                          else "default")

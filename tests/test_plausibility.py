@@ -120,9 +120,9 @@ def test_no_false_alarm_on_correct_checks_of_three_chains():
 
 
 def test_grinder_checks_with_swapped_headers_are_refused(tmp_path, capsys):
-    from errormap.simulator import random_truth
+    from errormap.chain_truth import make_mt_truth
     g = load_machine(None)
-    truth = random_truth(g, SEED)
+    truth = make_mt_truth(g, SEED)
     el = truth.elements.save(tmp_path / "el.json")
     cols = truth.check_measurements(60, NOISE_UM, SEED)
     write_csv(tmp_path / "ok.csv", cols)
@@ -261,9 +261,9 @@ def _grinder_loop(g, t, cols, stated=None):
 
 @pytest.mark.slow   # two grinder closed loops: 20–80 s on the shared machine
 def test_grinder_closed_loop_verdict_fails_when_the_plain_baseline_wins():
-    from errormap.simulator import random_truth
+    from errormap.chain_truth import make_mt_truth
     g = load_machine(None)
-    t = random_truth(g, SEED)
+    t = make_mt_truth(g, SEED)
     cols = t.check_measurements(150, NOISE_UM, SEED + 1)
     good = _grinder_loop(g, t, cols)
     assert diagnosis_verdict(good)["status"] == "passed"
@@ -302,9 +302,9 @@ UNDERSTATED = 4.0
 @pytest.mark.slow   # two grinder closed loops
 def test_grinder_loop_judges_its_noise_estimate_against_the_stated_noise():
     from errormap.diagnosis.plausibility import NOISE_EXCESS
-    from errormap.simulator import random_truth
+    from errormap.chain_truth import make_mt_truth
     g = load_machine(None)
-    t = random_truth(g, SEED)
+    t = make_mt_truth(g, SEED)
     cols = t.check_measurements(150, NOISE_UM, SEED + 1)
     s = _grinder_loop(g, t, cols, stated=NOISE_UM)
     assert abs(s["noise_sigma_estimated_um"] / NOISE_UM - 1) < GRINDER_SIGMA_TOL
@@ -319,9 +319,9 @@ def test_grinder_loop_judges_its_noise_estimate_against_the_stated_noise():
 def test_grinder_diagnose_reads_the_stated_noise_and_exits_1_when_contradicted(tmp_path, capsys):
     """Without a covariance (effects on the model as it is) the verdict still judges the noise (the kept model's
     held-out residual per coordinate): the file's '# noise_um:' line, or --noise-um over it."""
-    from errormap.simulator import random_truth
+    from errormap.chain_truth import make_mt_truth
     g = load_machine(None)
-    truth = random_truth(g, SEED)
+    truth = make_mt_truth(g, SEED)
     truth.elements.save(tmp_path / "model.json")
     cols = truth.check_measurements(60, NOISE_UM, SEED)
     write_csv(tmp_path / "c.csv", cols, header_comments=[f"noise_um: {NOISE_UM / UNDERSTATED}"])

@@ -182,7 +182,7 @@ def test_report_runs_on_a_machine_tool_chain(tmp_path, capsys):
 def test_a_truth_effect_the_chain_does_not_carry_is_refused_naming_file_and_key(tmp_path, grinder):
     """A truth.json without a format key (a grinder file's simulate folder) is read on the grinder's chain, its
     effects as the chain's kinds (worm = harmonic on A, the stroke fractions renamed); an effect the chain's truth
-    cannot carry is refused naming the file and the key, never dropped."""
+    cannot carry (``drift``: not simulated) is refused naming the file and the key, never dropped."""
     t = make_mt_truth(grinder, 4)
     t.elements.save(tmp_path / "truth_elements.json")
     (tmp_path / "truth.json").write_text(json.dumps(
@@ -191,5 +191,7 @@ def test_a_truth_effect_the_chain_does_not_carry_is_refused_naming_file_and_key(
     got = load_truth(tmp_path, grinder)
     assert got.effects["harmonic:A"]["amplitude_urad"] == 90.0 and got.effects["bump:X*Z"]["q_frac"] == 0.4
     (tmp_path / "truth.json").write_text(json.dumps({"seed": 4, "effects": {"a_tilt": {"k_urad": 120.0}}}))
-    with pytest.raises(InputError, match=r"truth.json: key 'effects', 'a_tilt'"):
+    assert load_truth(tmp_path, grinder).effects["a_tilt:A*X"]["k_urad"] == 120.0   # a rotary axis' tilt, generic
+    (tmp_path / "truth.json").write_text(json.dumps({"seed": 4, "effects": {"drift": {"k_um_per_mm_h": 1.0}}}))
+    with pytest.raises(InputError, match=r"truth.json: key 'effects', 'drift'"):
         load_truth(tmp_path, grinder)

@@ -40,8 +40,8 @@ def _comparison(grinder):
     from compensation.app.workflows.compare import compare_methods
     from compensation.toolpath import flute_path
     from errormap.chain_field import ChainField
-    from errormap.simulator import random_truth
-    truth = random_truth(grinder, 11)
+    from errormap.chain_truth import make_mt_truth
+    truth = make_mt_truth(grinder, 11)
     flute = flute_path(turns=1, points_per_turn=40)
     return compare_methods(ChainField(grinder, truth.elements), flute.targets_mm, grinder,
                            methods=("traditional", "exact"), truth=truth)
@@ -53,8 +53,8 @@ def _report(root, grinder):
 
 
 def _diagnose(root, grinder):
-    from errormap.simulator import random_truth
-    truth = random_truth(grinder, 3, effects=["worm"])
+    from errormap.chain_truth import make_mt_truth
+    truth = make_mt_truth(grinder, 3, effects=["worm"])
     el = truth.elements.save(root / "el.json")
     write_csv(root / "checks.csv", truth.check_measurements(N_CHECKS, CHECK_NOISE_UM, 3))
     assert main(["diagnose", str(root / "checks.csv"), "--model", str(el), "--out", str(root / "diag")]) == 0

@@ -5,7 +5,7 @@ import pytest
 
 from errormap.io import InputError
 from errormap.machine import load_machine
-from errormap.simulator import random_axes, random_truth
+from errormap.chain_truth import make_mt_truth, random_axes
 from errormap.chain_sweeps import simulate_mt_sweeps
 from errormap.sweeps import read_sweeps, sweeps_from_columns, write_sweeps
 from errormap.transforms import apply, compose, invert
@@ -22,7 +22,7 @@ def machine():
 
 @pytest.fixture(scope="module")
 def truth(machine):
-    return random_truth(machine, 11)
+    return make_mt_truth(machine, 11)
 
 
 def test_body_frames_reproduce_the_htm_tool_point(machine, truth):

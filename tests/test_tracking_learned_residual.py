@@ -6,7 +6,7 @@ import pytest
 
 from compensation.hybrid import LEARNED_FAMILIES, LearnedResidual, learned_stage
 from errormap.machine import load_machine
-from errormap.simulator import random_axes
+from errormap.chain_truth import random_axes
 
 SEED = 0
 N_CHECKS, N_FIT = 300, 180

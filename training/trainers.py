@@ -187,7 +187,7 @@ def validation_points(machine, elements_or_field, n: int = 10_000, seed: int = 1
     """
     from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
-    from errormap.simulator import random_axes
+    from errormap.chain_truth import random_axes
     f = ChainField(machine, elements_or_field) if isinstance(elements_or_field, ChainElementSet) else elements_or_field
     axes = random_axes(machine, int(n), np.random.default_rng(seed))
     return axes, f.predict(axes)

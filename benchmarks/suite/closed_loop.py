@@ -28,7 +28,7 @@ FLUTE_CONDITIONS = ["--temp-c", "20", "--time-s", "0", "--dir-x", "1", "--dir-z"
 
 
 TRUTH_ELEMENT = {"thermal": "dx_x", "reversal": "dz_z", "pitch": "dx_x", "worm": "ex_a", "interaction": "dx_x"}
-"""The element each simulated effect acts on (errormap.simulator.TruthGrinder.element_values)."""
+"""The element each simulated effect acts on (errormap.chain_truth.MTTruth.element_values)."""
 
 
 def _implied_sign(machine, truth_element: str, found_element: str):
@@ -39,7 +39,7 @@ def _implied_sign(machine, truth_element: str, found_element: str):
     from errormap.diagnosis.effects import WCS_ELEMENTS
     from errormap.chain_kernel import error_jacobian
     from errormap.elements import IDX
-    from errormap.simulator import random_axes
+    from errormap.chain_truth import random_axes
     if found_element == truth_element:
         return 1.0
     if found_element not in WCS_ELEMENTS:
@@ -57,7 +57,7 @@ def _param_cover(effect, found, truth):
     """Whether the found effect's 95 % interval holds the parameter the truth implies for the found
     term (None if not comparable: see :func:`_implied_sign`)."""
     p = found["parameters"]
-    t = truth.effects[effect]
+    t = truth.parameters(effect)
     key = {"thermal": ("k_um_per_mm_c", "k_um_per_mm_c"), "reversal": ("backlash_um", "backlash_um"),
            "pitch": ("period_mm", "period_mm"), "worm": ("amplitude_urad", "amplitude_urad"),
            "interaction": ("corner_um", "corner_um")}[effect]
@@ -116,14 +116,13 @@ def run_case(family: str, seed: int, effect: str, flute: bool = False, also=None
     from errormap.chain_field import ChainField
     from errormap.machine import load_machine
     from errormap.seeds import spawn_seeds
-    from errormap.simulator import random_axes
-    from errormap.truth_families import make_truth
+    from errormap.chain_truth import make_mt_truth, random_axes
     from errormap.uncertainty import ElementCovariance, covariance_path
     t_cpu = time.process_time()
     eff = [] if effect == "none" else [effect]
     m = load_machine()
     noise_ss, probe_ss = spawn_seeds(seed, 2)  # the sweep noise (a CLI integer from its child) and the probe points
-    truth = make_truth(m, seed, effects=eff, family=family)
+    truth = make_mt_truth(m, seed, effects=eff, family=family)
     with tempfile.TemporaryDirectory() as td:
         td = Path(td)
         ea = sum((["--effect", e] for e in eff), [])

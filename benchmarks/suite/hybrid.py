@@ -1,6 +1,6 @@
 """The closed loop's learned-residual stage (the hybrid field) on an effect outside the loop's catalogue.
 
-Per seed and case (``bump``, ``xz_saddle``: out-of-catalogue effects of :mod:`errormap.simulator`), the user's CLI
+Per seed and case (``bump``, ``xz_saddle``: out-of-catalogue effects of :mod:`errormap.chain_truth`), the user's CLI
 path: ``volcomp sweeps`` (2 μm) → ``volcomp simulate`` (800 checks at 1 μm) → ``volcomp identify`` → ``volcomp
 diagnose`` (the learned stage on) → ``volcomp compensate VOLUME.csv --model DIR/model.json --method exact`` on
 2,000 random volume points (1 mm inside the X and Z strokes) at the reference conditions, scored by the TRUE
@@ -71,11 +71,10 @@ def run_case(family: str, seed: int, effect: str, checks: int = N_CHECKS) -> dic
     from errormap.chain_kernel import forward
     from errormap.machine import load_machine
     from errormap.seeds import spawn_seeds
-    from errormap.simulator import random_axes
-    from errormap.truth_families import make_truth
+    from errormap.chain_truth import make_mt_truth, random_axes
     m = load_machine()
     noise_ss, probe_ss = spawn_seeds(seed, 2)
-    truth = make_truth(m, seed, effects=[effect], family=family)
+    truth = make_mt_truth(m, seed, effects=[effect], family=family)
     row = {"seed": seed, "effect": effect}
     with tempfile.TemporaryDirectory() as td:
         td = Path(td)

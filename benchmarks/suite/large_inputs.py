@@ -82,7 +82,7 @@ def gcode_cpu_s(path: Path, warm: Path) -> tuple:
 def run(quick: bool, seed: int) -> dict:
     import errormap.io as eio
     from errormap.machine import load_machine
-    from errormap.simulator import random_axes
+    from errormap.chain_truth import random_axes
     n = 20_000 if quick else 1_000_000
     with tempfile.TemporaryDirectory() as d:
         csv_path, nc, warm = Path(d) / "path.csv", Path(d) / "scale.nc", Path(d) / "warm.nc"

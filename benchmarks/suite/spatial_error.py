@@ -14,7 +14,7 @@ import numpy as np
 
 from errormap.chain_field import ChainField
 from errormap.machine import load_machine
-from errormap.simulator import random_axes, random_truth
+from errormap.chain_truth import make_mt_truth, random_axes
 
 
 def measure(field, axes, repeats=3):
@@ -36,7 +36,7 @@ DATA = "default grinder, `random_truth` seed 0, 1,000,000 random axis points (qu
 
 def run(quick: bool, seed: int) -> dict:
     m = load_machine()
-    truth = random_truth(m, seed)
+    truth = make_mt_truth(m, seed)
     n = 100_000 if quick else 1_000_000
     axes = random_axes(m, n, np.random.default_rng(seed))
     t_ex, mem = measure(ChainField(m, truth.elements, chunk=200_000), axes)

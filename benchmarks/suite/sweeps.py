@@ -91,11 +91,10 @@ def loop_sweeps(family: str, seed: int):
     from errormap.chain_field import ChainField
     from errormap.machine import load_machine
     from errormap.seeds import spawn_seeds
-    from errormap.simulator import random_axes
-    from errormap.truth_families import make_truth
+    from errormap.chain_truth import make_mt_truth, random_axes
     m = load_machine()
     noise_ss, probe_ss = spawn_seeds(seed, 2)
-    truth = make_truth(m, seed, family=family)
+    truth = make_mt_truth(m, seed, family=family)
     P = random_axes(m, N_PROBE, np.random.default_rng(probe_ss))
     et = ChainField(m, truth.elements).predict(P)
     with tempfile.TemporaryDirectory() as td:
@@ -136,11 +135,10 @@ def mc_case(args) -> dict:
     from compensation.app.cli import main
     from errormap.chain_field import ChainField
     from errormap.machine import load_machine
-    from errormap.simulator import random_axes
-    from errormap.truth_families import make_truth
+    from errormap.chain_truth import make_mt_truth, random_axes
     from errormap.uncertainty import prediction_sd, smooth_identify
     m = load_machine()
-    truth = make_truth(m, seed, family=family)
+    truth = make_mt_truth(m, seed, family=family)
     P = random_axes(m, 3000, np.random.default_rng(123))
     with tempfile.TemporaryDirectory() as td:
         sw = _sweeps(main, Path(td), family, seed, 1000 + k)

@@ -5,12 +5,11 @@ import sys
 from pathlib import Path
 
 from errormap.machine import load_machine
-from errormap.simulator import EFFECT_CHOICES, EFFECT_HELP
 from compensation.app.validate import UsageError
 
 from ..families import family_of, say_read_as
 
-from ..workflows.simulate import simulate_truth, summary_lines
+from ..workflows.simulate import EFFECT_CHOICES, EFFECT_HELP, simulate_truth, summary_lines
 
 
 def register(sub):
@@ -25,13 +24,14 @@ def register(sub):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--family", choices=("default", "independent"), default="default",
                    help="truth family: default (the simulator) or independent (other shapes, magnitudes, effect "
-                        "parameters and check layout; errormap/truth_families.py)")
+                        "parameters and check layout; errormap/chain_truth.py)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--effect", action="append", default=[],
                    help="add an undeclared effect (repeatable): grinder " + EFFECT_HELP + "; a machine-tool "
                         "chain KIND[:AXES] with KIND thermal, reversal, periodic (pitch), harmonic (worm), interaction, or the "
-                        "truth-only bump, xz_saddle, squareness, squareness_xz on two linear axes, e.g. periodic:Y, harmonic:C, "
-                        "bump:X*Y; a serial arm: sag, backlash")
+                        "truth-only bump, xz_saddle, squareness, squareness_xz on two linear axes or a_tilt, "
+                        "a_lobe_x on a rotary and a linear axis, e.g. periodic:Y, harmonic:C, bump:X*Y, "
+                        "a_tilt:C*X; a serial arm: sag, backlash")
     p.add_argument("--noise-um", type=float, default=None,
                    help="measurement noise σ per axis (μm); default 1 for machine tools, 20 for a serial arm's tracker, "
                         "5 for a parallel machine's instrument")

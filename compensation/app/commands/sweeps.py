@@ -6,11 +6,12 @@ import sys
 from errormap.chain_elements import ChainElementSet
 from errormap.machine import load_machine
 from errormap.seeds import spawn_seeds
-from errormap.simulator import EFFECT_CHOICES, EFFECT_HELP, TruthGrinder
+from errormap.chain_truth import MTTruth
 from errormap.chain_sweeps import simulate_mt_sweeps, write_sweeps
 from compensation.app.validate import UsageError
 
 from ..families import family_of, say_read_as
+from ..workflows.simulate import EFFECT_CHOICES, EFFECT_HELP
 
 
 def register(sub):
@@ -28,7 +29,7 @@ def register(sub):
                         "machine-tool chain KIND[:AXES] as `volcomp simulate`")
     p.add_argument("--family", choices=("default", "independent"), default="default",
                    help="truth family: default (the simulator) or independent (other shapes, magnitudes, effect "
-                        "parameters and check layout; errormap/truth_families.py)")
+                        "parameters and check layout; errormap/chain_truth.py)")
     p.add_argument("--out", required=True, help="output sweep CSV")
     p.add_argument("--noise-um", type=float, default=2.0, help="tracker noise σ per coordinate (μm, default 2)")
     p.add_argument("--seed-noise", type=int, default=None,
@@ -44,7 +45,7 @@ def register(sub):
 NOISE_CHILD = 3
 """The noise seed derived from ``--seed`` is child 3 of ``SeedSequence(seed)`` (:func:`errormap.seeds.spawn_seeds`):
 children 0-2 are the simulator's points, environment and check noise of the same seed
-(errormap/chain_truth.py, errormap/truth_families.py), so the sweeps' noise is a stream of its own."""
+(errormap/chain_truth.py), so the sweeps' noise is a stream of its own."""
 
 
 def noise_seed(args) -> tuple[int, str]:
@@ -86,11 +87,11 @@ def _run_grinder(machine, args) -> int:
     if args.truth is not None:
         if args.effect:
             raise UsageError("--effect needs --seed (a truth element file carries no effects)")
-        truth = TruthGrinder(machine, ChainElementSet.load(args.truth, machine), {})
+        truth = MTTruth(machine, ChainElementSet.load(args.truth, machine), {})
         what = f"truth {args.truth}"
     else:
-        from errormap.truth_families import make_truth
-        truth = make_truth(machine, args.seed, effects=args.effect, family=getattr(args, "family", "default"))
+        from errormap.chain_truth import make_mt_truth
+        truth = make_mt_truth(machine, args.seed, effects=args.effect, family=getattr(args, "family", "default"))
         what = f"truth seed {args.seed} ({getattr(args, 'family', 'default')} family)"
     print(f"simulating tracker sweeps of {what} (noise {args.noise_um} um, seed {args.seed_noise}) ...",
           file=sys.stderr)

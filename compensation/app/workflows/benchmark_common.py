@@ -43,7 +43,7 @@ class BenchmarkSettings:
     base_stations: int = 21
     base_noise_um: float = 1.0
     effects: tuple = ("thermal", "reversal", "pitch", "worm", "interaction")
-    # effects no catalogue kind represents (errormap.simulator.OUT_OF_CATALOGUE), each with the closed
+    # effects no catalogue kind represents (errormap.effect_kinds.TRUTH_ONLY), each with the closed
     # loop and its learned-residual stage (the hybrid column); plus the same machine without an effect
     ooc_effects: tuple = ("bump", "a_tilt", "squareness", "a_lobe_x")
     # check counts of the out-of-catalogue conditions (each effect and none at every count: the learned

@@ -86,7 +86,7 @@ def grinder_test_points(machine, s: BenchmarkSettings) -> GrinderTestPoints:
     points: uniform over the strokes, rho >= 5 mm (away from the A axis, where the WCS is
     singular), nominal axes -> targets."""
     from errormap.chain_kernel import forward
-    from errormap.simulator import random_axes
+    from errormap.chain_truth import random_axes
 
     from ...toolpath import flute_path
     flute = flute_path(turns=s.flute_turns, points_per_turn=s.flute_points_per_turn)
@@ -104,8 +104,8 @@ def grinder_test_points(machine, s: BenchmarkSettings) -> GrinderTestPoints:
 
 def grinder_truth(machine, s: BenchmarkSettings, effect=None):
     """The simulated truth grinder of ``s.truth_seed``, with the undeclared ``effect`` if given."""
-    from errormap.simulator import random_truth
-    return random_truth(machine, s.truth_seed, effects=(effect,) if effect else ())
+    from errormap.chain_truth import make_mt_truth
+    return make_mt_truth(machine, s.truth_seed, effects=(effect,) if effect else ())
 
 
 def condition_sweeps(s: BenchmarkSettings, truth, c: GrinderCondition) -> dict:
