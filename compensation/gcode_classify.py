@@ -45,6 +45,7 @@ class _State:
         self.lathe_x = None        # a Fanuc/Haas/Siemens ISO lathe's X: "diameter", "radius" (--lathe-x; None: refused)
         self.g92 = np.zeros(k)     # the G92 offset in force (mm / deg; gcode_state._g92)
         self.g92_stored = np.zeros(k)  # the G92 offset stored (LinuxCNC parameters 5211-5219; G92.3 restores it)
+        self.last_given = {}       # axis letter -> index of the last move line that gave it (the refusals say why)
 
 
 def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=None,
@@ -392,9 +393,9 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
         words["P"] = by["P"]
     known = np.isfinite(end)
     if compensate and not known.all():
-        missing = ", ".join(a for a, k in zip(ax.words, known) if not k)
+        lacking = [a for a, k in zip(ax.words, known) if not k]
         raise _Refuse(first.start + 1, f"'{first.letter}{first.text}': motion before {ax.joined('and')} are all "
-                                       f"known (no value yet for {missing})")
+                                       f"known (no value yet for {', '.join(lacking)}){_unknown_since(st, lacking)}")
     move = GMove(idx, kind, start, end, "inch" if st.inch else "mm", st.incremental, words, motion_word,
                  compensate, known=known, diameter=st.diameter)
     if kind == "arc":
@@ -403,7 +404,19 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
         except _Refuse as r:
             raise _Refuse(r.col, f"'{first.letter}{first.text}': {r.msg}") from None
     st.pos = end
+    st.last_given.update(dict.fromkeys(axis_words, idx))
     return move
+
+
+def _unknown_since(st: _State, lacking) -> str:
+    """Why an axis has no value in the program's frame, and what gives it one: a ``G53`` line that moved it after
+    the program last gave it (machine coordinates are not the part's), else none given yet."""
+    for idx, _col, kind, axes, _text in reversed(st.events):
+        moved = ", ".join(a for a in lacking if a in axes and idx > st.last_given.get(a, -1))
+        if kind == "g53" and moved:
+            return f"; line {idx + 1} moved {moved} in machine coordinates (G53), not the part's: give it in the " \
+                   "program before this move"
+    return f"; give {', '.join(lacking)} in the program (absolute) before this move"
 
 
 def synced_move(idx, st: _State, by, axis_words, arc_words, motion_word, rapids, ax: AxisWords) -> GMove:
