@@ -370,7 +370,7 @@ class _Controller:
     """The controller's tables and active frame while :func:`program_frames` walks a program's events."""
 
     def __init__(self, path, words, offsets: WorkOffsets | None, tools: ToolTable | None):
-        self.words, self.offsets, self.tools = words, offsets, tools
+        self.path, self.words, self.offsets, self.tools = path, words, offsets, tools
         self.table = {k: dict(v) for k, v in (offsets.systems if offsets else {}).items()}
         self.tooltab = {k: v[0] for k, v in (tools.tools if tools else {}).items()}
         self.radii = {k: v[1] for k, v in (tools.tools if tools else {}).items()}
@@ -477,6 +477,19 @@ class _Controller:
             else:
                 dest.pop(n, None)
 
+    def apply(self, event) -> None:
+        """One event of :attr:`compensation.gcode.GProgram.events` ``(line, column, kind, value, text)``."""
+        line, col, kind, value, text = event
+        where = f"{self.path}: line {line + 1}, column {col}: '{text}'"
+        select = {"system": self.select_system, "tool": self.select_tool, "cutter": self.select_cutter}
+        if kind in select:
+            select[kind](value, where)
+        elif kind.startswith("g10-"):
+            self.g10(kind, value, where)
+            self.check_active(where)
+        elif kind.startswith("g92"):
+            self.g92_event(kind, value)
+
     def check_active(self, where) -> None:
         """The active tool and cutter radius are still known after a G10 line changed the tables."""
         if self.tool is not None and self.tool not in self.tooltab:
@@ -497,17 +510,9 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
     _refuse_set_from_compensated(program, events)
     c = _Controller(path, words, offsets, tools)
     first, frames = [0], [c.frame()]
-    select = {"system": c.select_system, "tool": c.select_tool, "cutter": c.select_cutter}
-    for line, col, kind, value, text in events:
-        where = f"{path}: line {line + 1}, column {col}: '{text}'"
-        if kind in select:
-            select[kind](value, where)
-        elif kind.startswith("g10-"):
-            c.g10(kind, value, where)
-            c.check_active(where)
-        elif kind.startswith("g92"):
-            c.g92_event(kind, value)
-        first.append(line)
+    for event in events:
+        c.apply(event)
+        first.append(event[0])
         frames.append(c.frame())
     notes = {"work_offsets": offsets.source if offsets else "program G10 lines",
              "work_systems_used": sorted(c.used_systems),
@@ -524,6 +529,31 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
     return ProgramFrames(np.array(first, dtype=np.int64), np.array(offs).reshape(len(first), len(words)),
                          np.array(tls, dtype=float), notes, np.array(rads, dtype=float),
                          np.array(txs, dtype=float) if c.lathe() and c.used_tools else None)
+
+
+class FrameReplay:
+    """Machine minus program axes (k,) after a program's events so far (a ``G53`` move's end placed in the
+    program's frame while it is read): the work offset, ``G92``, the tool length on Z (a lathe tool's offset
+    on X), as :meth:`ProgramFrames.shift`; NaN where not known (a table not given; a refused event: the
+    reader's :func:`program_frames` refuses it with its words)."""
+
+    def __init__(self, path, words, offsets: WorkOffsets | None, tools: ToolTable | None):
+        self.c, self.seen, self.failed = _Controller(path, words, offsets, tools), 0, False
+
+    def shift(self, events) -> np.ndarray:
+        try:
+            for event in events[self.seen:]:
+                self.c.apply(event)
+        except InputError:
+            self.failed = True
+        self.seen = len(events)
+        off, tool, _, tool_x = self.c.frame()
+        out, words = np.array(off, dtype=float), list(self.c.words)
+        if "Z" in words and np.isfinite(tool):
+            out[words.index("Z")] += tool
+        if "X" in words and np.isfinite(tool_x):
+            out[words.index("X")] += tool_x
+        return np.full(len(words), np.nan) if self.failed else out
 
 
 FROM_POSITION = ("g92", "g10-here", "g10-tool-here")

@@ -227,13 +227,21 @@ def independent_check(src: Path, written: Path, dialect: str, truth_file: Path, 
         src = written.with_suffix(written.suffix + ".flat")
         src.write_text(expanded.text, encoding="latin-1")
     try:
+        orig = _lines(src)
+        placed_src = _g53_in_frame(orig, _frame(orig, offsets, tools, "G54"))
+        if placed_src is not None and placed_src != orig:  # G53 moves placed in the program's frame
+            src = written.with_suffix(written.suffix + ".g53")
+            src.write_bytes("".join(placed_src).encode("latin-1"))
         p_src, p_out = (parse_program(f, axis_words=aw, fast=False, dialect=dia) for f in (src, bare))
         f_src, f_out = (_frame(p.lines, offsets, tools, "G54") for p in (p_src, p_out))
     except Exception as exc:  # noqa: BLE001 - reported, not hidden
         return f"not checkable: {type(exc).__name__}: {exc}"[:110]
+    src_lines = orig if src.suffix == ".g53" else p_src.lines
+    if len(src_lines) != len(p_src.lines):
+        return "not checkable: the G53 lines placed in the program's frame split into other lines"
     m_src = [m for m in p_src.moves if m.compensate]
     m_out = [m for m in p_out.moves if m.compensate]
-    keep_src = [ln for i, ln in enumerate(p_src.lines) if i not in {m.index for m in m_src}]
+    keep_src = [ln for i, ln in enumerate(src_lines) if i not in {m.index for m in m_src}]
     keep_out = [ln for i, ln in enumerate(p_out.lines) if i not in {m.index for m in m_out}]
     if keep_src != keep_out:
         bad = next((s for s, o in zip(keep_src, keep_out) if s != o), "(line count)")
@@ -262,6 +270,33 @@ def independent_check(src: Path, written: Path, dialect: str, truth_file: Path, 
         else:
             return f"WRONG: line {m.index + 1} ({p_src.lines[m.index].strip()[:40]!r}) reached by no written move"
     return f"ok: max {max(errs):.3g} um at {len(errs)} points" if errs else "not checkable: no compensated move"
+
+
+G53_RE = re.compile(r"G0*53(?![.\d])", re.IGNORECASE)
+
+
+def _g53_in_frame(lines: list, frames: list) -> list | None:
+    """The source lines with each ``G53 G0`` move written in the program's frame, independently of the reader: its
+    X Y Z words minus the line's work offset and tool length (``frames``, tests/program_checks.py ``_frame``), the
+    G53 dropped, so that the moves after it start where the controller has them (a millimetre program; the rewritten
+    line is a rapid, kept as written: not a point the check asks for). None: a G53 move that is not a G0, or in
+    inch, is not checkable here."""
+    out = []
+    inch = any(re.search(r"G0*20(?![.\d])", re.sub(r"\(.*?\)|;.*", "", ln), re.IGNORECASE) for ln in lines)
+    for ln, (off, tool) in zip(lines, frames):
+        code = re.sub(r"\(.*?\)|;.*", "", ln.rstrip("\r\n"))
+        if not G53_RE.search(code) or not re.search(r"[XYZ]", code, re.IGNORECASE):
+            out.append(ln)
+            continue
+        if inch or not re.search(r"G0*0(?![.\d])", G53_RE.sub("", code)):
+            return None
+        shift_mm = np.asarray(off, dtype=float) + [0.0, 0.0, tool if tool is not None else 0.0]
+
+        def in_frame(m):
+            return f"{m.group(1)}{float(m.group(2)) - shift_mm['XYZ'.index(m.group(1).upper())]:.6f}"
+        body = re.sub(r"([XYZ])\s*([-+]?[\d.]+)", in_frame, G53_RE.sub("", code), flags=re.IGNORECASE)
+        out.append(body + ln[len(ln.rstrip("\r\n")):])
+    return out
 
 
 def _count_tables() -> tuple:
