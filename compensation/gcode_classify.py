@@ -434,8 +434,9 @@ def _unknown_since(st: _State, lacking) -> str:
     for idx, _col, kind, axes, _text in reversed(st.events):
         moved = ", ".join(a for a in lacking if a in axes and idx > st.last_given.get(a, -1))
         if kind == "g53" and moved:
-            place = ("give the work offsets (--work-offsets FILE) to place it in the part's frame, or" if st.replay is None
-                     else "its work offset is not known (--work-offsets), or it ran under G91 or G41/G42:")
+            tables = st.replay is not None and st.replay.c.offsets is not None
+            place = ("its work offset is not known (--work-offsets), or it ran under G91 or G41/G42:" if tables
+                     else "give the work offsets (--work-offsets FILE) to place it in the part's frame, or")
             return f"; line {idx + 1} moved {moved} in machine coordinates (G53): {place} give it in the program " \
                    "before this move"
     return f"; give {', '.join(lacking)} in the program (absolute) before this move"

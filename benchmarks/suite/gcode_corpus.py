@@ -217,9 +217,12 @@ def independent_check(src: Path, written: Path, dialect: str, truth_file: Path, 
         offsets, tools = _count_tables()
     aw, dia = AxisWords.of(mill), dialect  # "auto": detected from each file, as compensate does
     try:  # a program with canned cycles is read by compensate's cycle reader, not this plain parse
-        expanded = parse_program(src, axis_words=aw, dialect=dialect).expanded
+        placed = _g53_placed(src, written, offsets, tools)
+        expanded = parse_program(placed or src, axis_words=aw, dialect=dialect).expanded
     except Exception as exc:  # noqa: BLE001 - reported, not hidden
         return f"not checkable: {type(exc).__name__}: {exc}"[:110]
+    if expanded is not None and placed is not None:
+        return "not checkable: G53 moves in a program the reader expands"
     out = [ln for ln in _lines(written) if not ln.startswith("(volcomp:")]  # the writer's header (after a '%' too)
     bare = written.with_suffix(written.suffix + ".bare")
     bare.write_bytes("".join(out).encode("latin-1"))
@@ -227,16 +230,11 @@ def independent_check(src: Path, written: Path, dialect: str, truth_file: Path, 
         src = written.with_suffix(written.suffix + ".flat")
         src.write_text(expanded.text, encoding="latin-1")
     try:
-        orig = _lines(src)
-        placed_src = _g53_in_frame(orig, _frame(orig, offsets, tools, "G54"))
-        if placed_src is not None and placed_src != orig:  # G53 moves placed in the program's frame
-            src = written.with_suffix(written.suffix + ".g53")
-            src.write_bytes("".join(placed_src).encode("latin-1"))
-        p_src, p_out = (parse_program(f, axis_words=aw, fast=False, dialect=dia) for f in (src, bare))
+        p_src, p_out = (parse_program(f, axis_words=aw, fast=False, dialect=dia) for f in (placed or src, bare))
         f_src, f_out = (_frame(p.lines, offsets, tools, "G54") for p in (p_src, p_out))
     except Exception as exc:  # noqa: BLE001 - reported, not hidden
         return f"not checkable: {type(exc).__name__}: {exc}"[:110]
-    src_lines = orig if src.suffix == ".g53" else p_src.lines
+    src_lines = _lines(src) if placed is not None else p_src.lines  # the lines a controller reads
     if len(src_lines) != len(p_src.lines):
         return "not checkable: the G53 lines placed in the program's frame split into other lines"
     m_src = [m for m in p_src.moves if m.compensate]
@@ -275,17 +273,36 @@ def independent_check(src: Path, written: Path, dialect: str, truth_file: Path, 
 G53_RE = re.compile(r"G0*53(?![.\d])", re.IGNORECASE)
 
 
+def _g53_placed(src: Path, written: Path, offsets: dict, tools: dict) -> Path | None:
+    """``src`` with its ``G53`` moves placed in the program's frame (:func:`_g53_in_frame`), written beside
+    ``written``; None where it has none. Raises ``ValueError`` where one is not checkable here."""
+    if not G53_RE.search(src.read_bytes().decode("latin-1")):
+        return None
+    sys.path.insert(0, str(HERE.parent / "tests"))
+    from program_checks import _frame
+    lines = _lines(src)
+    placed = _g53_in_frame(lines, _frame(lines, offsets, tools, "G54"))
+    if placed is None:
+        raise ValueError("a G53 move that is not a G0, or in inch, is not placed here")
+    if placed == lines:
+        return None
+    out = written.with_suffix(written.suffix + ".g53")
+    out.write_bytes("".join(placed).encode("latin-1"))
+    return out
+
+
 def _g53_in_frame(lines: list, frames: list) -> list | None:
     """The source lines with each ``G53 G0`` move written in the program's frame, independently of the reader: its
     X Y Z words minus the line's work offset and tool length (``frames``, tests/program_checks.py ``_frame``), the
     G53 dropped, so that the moves after it start where the controller has them (a millimetre program; the rewritten
     line is a rapid, kept as written: not a point the check asks for). None: a G53 move that is not a G0, or in
     inch, is not checkable here."""
-    out = []
+    out, selected = [], False
     inch = any(re.search(r"G0*20(?![.\d])", re.sub(r"\(.*?\)|;.*", "", ln), re.IGNORECASE) for ln in lines)
     for ln, (off, tool) in zip(lines, frames):
         code = re.sub(r"\(.*?\)|;.*", "", ln.rstrip("\r\n"))
         if not G53_RE.search(code) or not re.search(r"[XYZ]", code, re.IGNORECASE):
+            selected |= bool(re.search(r"(G154|G1[12]\d|G54\.1|G59\.[123]|G5[4-9])(?![.\d])", code.upper()))
             out.append(ln)
             continue
         if inch or not re.search(r"G0*0(?![.\d])", G53_RE.sub("", code)):
@@ -295,6 +312,7 @@ def _g53_in_frame(lines: list, frames: list) -> list | None:
         def in_frame(m):
             return f"{m.group(1)}{float(m.group(2)) - shift_mm['XYZ'.index(m.group(1).upper())]:.6f}"
         body = re.sub(r"([XYZ])\s*([-+]?[\d.]+)", in_frame, G53_RE.sub("", code), flags=re.IGNORECASE)
+        body += "" if selected else " G54"  # placed in the power-on system (the frames' G54): selecting it is no change
         out.append(body + ln[len(ln.rstrip("\r\n")):])
     return out
 
