@@ -419,13 +419,14 @@ def _g53_end(st: _State, axis_words, ax: AxisWords) -> None:
     if st.replay is None or st.incremental or st.cutter != "G40" or not axis_words:
         return
     shift = st.replay.shift(st.events)
-    st.system = st.system or st.replay.c.system  # placed in the power-on system: selecting it is no change
     pos = st.pos.copy()
     for j, a in enumerate(ax.words):
         if a in axis_words and not (a == "X" and (st.diameter or st.lathe_x == "diameter")):
             scale = MM_PER_INCH if st.inch and not ax.is_rotary[j] else 1.0
             pos[j] = axis_words[a].value * scale - shift[j]
     st.pos = pos
+    if all(np.isfinite(pos[ax.words.index(a)]) for a in axis_words):
+        st.system = st.system or st.replay.system  # placed in the power-on system: selecting it is no change
 
 
 def _unknown_since(st: _State, lacking) -> str:
@@ -434,7 +435,7 @@ def _unknown_since(st: _State, lacking) -> str:
     for idx, _col, kind, axes, _text in reversed(st.events):
         moved = ", ".join(a for a in lacking if a in axes and idx > st.last_given.get(a, -1))
         if kind == "g53" and moved:
-            tables = st.replay is not None and st.replay.c.offsets is not None
+            tables = st.replay is not None and st.replay.offsets_given
             place = ("its work offset is not known (--work-offsets), or it ran under G91 or G41/G42:" if tables
                      else "give the work offsets (--work-offsets FILE) to place it in the part's frame, or")
             return f"; line {idx + 1} moved {moved} in machine coordinates (G53): {place} give it in the program " \

@@ -540,6 +540,15 @@ class FrameReplay:
     def __init__(self, path, words, offsets: WorkOffsets | None, tools: ToolTable | None):
         self.c, self.seen, self.failed = _Controller(path, words, offsets, tools), 0, False
 
+    @property
+    def system(self) -> str:
+        """The work system in force after the events replayed (the power-on ``G54`` before any)."""
+        return self.c.system
+
+    @property
+    def offsets_given(self) -> bool:
+        return self.c.offsets is not None
+
     def shift(self, events) -> np.ndarray:
         try:
             for event in events[self.seen:]:
