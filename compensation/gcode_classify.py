@@ -433,8 +433,8 @@ def _unknown_since(st: _State, lacking) -> str:
     """Why an axis has no value in the program's frame, and what gives it one: a ``G53`` line that moved it after
     the program last gave it (machine coordinates are not the part's), else none given yet."""
     for idx, _col, kind, axes, _text in reversed(st.events):
-        moved = ", ".join(a for a in lacking if a in axes and idx > st.last_given.get(a, -1))
-        if kind == "g53" and moved:
+        moved = kind == "g53" and ", ".join(a for a in lacking if a in axes and idx > st.last_given.get(a, -1))
+        if moved:
             tables = st.replay is not None and st.replay.offsets_given
             place = ("its work offset is not known (--work-offsets), or it ran under G91 or G41/G42:" if tables
                      else "give the work offsets (--work-offsets FILE) to place it in the part's frame, or")
