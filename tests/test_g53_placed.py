@@ -185,7 +185,8 @@ def test_a_linuxcnc_spiral_arc_is_compensated_within_a_micrometre(tmp_path, tabl
     assert verdict.startswith("ok: ") and float(verdict.split()[2]) <= TOL_POINT_UM, verdict
 
 
-@pytest.mark.parametrize("text", ["G21 G90 G40 G54\nG1 X1 Y2 F100\n", "G21 G90 G49\nG53 G0 Z0\nG54 G40\nG1 X1 Y1 F100\n"])
+@pytest.mark.parametrize("text", ["G21 G90 G40 G54\nG1 X1 Y2 F100\n",
+                                  "G21 G90 G49\nG53 G0 Z0\nG54 G40\nG1 X1 Y1 F100\n"])
 def test_a_move_before_z_is_known_after_g40_or_g49_is_refused_not_crashed(tmp_path, text):
     """Events with no value (G40, G49) before the move: the refusal says why, no TypeError (LinuxCNC's
     plasmatest.ngc writes 'G90 G40' and never gives Z)."""

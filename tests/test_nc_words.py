@@ -340,8 +340,8 @@ def test_a_g10_changing_the_active_tool_length_is_refused(tmp_path, ax, line, di
 ])
 def test_linuxcnc_reads_centre_arcs_with_its_own_radius_tolerance(tmp_path, ax, arc, dialect, refused):
     """LinuxCNC 2.9 (interp_arc.cc arc_data_ijk; G-code reference, "Center Format Arcs", "It is an error if"): an
-    error when the radii differ by d > 100 · 2·0.01·√2 mm, or by d > 2·0.01·√2 mm (G21) *and* more than 0.1 % of
-    the radius; otherwise run as a spiral (radius linear in the angle), as read here. ``refused``: the refusal's
+    error when the radii differ by d > 100 · 2·0.01·√2 mm, or by d > 2·0.01·√2 mm (G21) *and* more than 0.1 %
+    of the radius; otherwise run as a spiral (radius linear in the angle), as read here. ``refused``: the refusal's
     words, or (r1 − r0 mm, the centre's X mm) of the arc read."""
     text = f"G21 G55\nG0 X0 Y0 Z0\nG1 X0 F9\n{arc}\nM2\n"
     if isinstance(refused, tuple):
