@@ -33,12 +33,13 @@ MAX_SEGMENTS_PER_MOVE = 100_000
 
 
 def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None,
-                        dialect: str | None = None, cycles: str | None = None) -> GProgram:
+                        dialect: str | None = None, cycles: str | None = None, tables: tuple | None = None) -> GProgram:
     """Read a G-code file for the machine-tool chain ``machine``: :func:`compensation.gcode.parse_program`
     with its axis words, the rotary words of the axes the exact solver keeps kept as programmed, a
     solved rotary axis (a lathe's C) written like a linear one (module docstring). Moves'
     ``start``/``end`` are in ``machine.axis_columns`` order. ``cycles``: drilling canned cycles refused
-    (None), kept or expanded (:mod:`compensation.nc_cycles`)."""
+    (None), kept or expanded (:mod:`compensation.nc_cycles`). ``tables``: ``(work offsets, tool table)``, as
+    :func:`compensation.gcode.parse_program` takes them (a ``G53`` move's end placed in the program's frame)."""
     words = AxisWords.of(machine, keep_rotary=True)
     from .solvers.chain_exact import solved_and_kept
     try:
@@ -65,7 +66,8 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
     # for again (blanking TCP words cannot add a dialect word)
     prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=words,
                          dialect=named, cycles=None if cycles is None else partial(cycle_pass, mode=cycles),
-                         data=data, found=(dia, evidence) if named == "auto" and dia is not None else None)
+                         data=data, found=(dia, evidence) if named == "auto" and dia is not None else None,
+                         tables=tables)
     if pre is not None:
         attach(prog, pre)
     if pre is not None or (dialect == "auto" and name is not None):

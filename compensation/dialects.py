@@ -153,11 +153,14 @@ HAAS_EXTENDED_MAX = 99
 SIEMENS_NATIVE = ("Siemens native mode (G290: CALL/PCALL/MCALL and L subprogram calls, R parameters) is not the ISO "
                   "dialect: the siemens-iso dialect reads ISO-mode (G291) programs, whose calls are M98 P; post the "
                   "program in ISO mode")
-LINUXCNC_ARC_TOL = (2 * 0.01 * 2 ** 0.5, 2 * 0.001 * 2 ** 0.5 * 25.4, 0.001)
-"""LinuxCNC's defaults (``interp_internal.hh`` CENTER_ARC_RADIUS_TOLERANCE_MM / _INCH, SPIRAL_RELATIVE_TOLERANCE;
-``interp_arc.cc`` arc_data_ijk: an error when the absolute *or* the relative difference is exceeded): end
-points or centre rounded to 0.01 mm / 0.001 inch pass; the arc is then run as a spiral whose radius changes
-linearly with the angle, as the reader reads it."""
+LINUXCNC_ARC_TOL = (2 * 0.01 * 2 ** 0.5, 2 * 0.001 * 2 ** 0.5 * 25.4, 0.001, 100.0)
+"""LinuxCNC's rule on a centre-format arc whose start and end radii differ by d: ``(tol mm, tol under G20 in mm,
+rel, cap factor)``, its defaults (``interp_internal.hh`` CENTER_ARC_RADIUS_TOLERANCE_MM / _INCH = 2·0.01·√2 mm /
+2·0.001·√2 inch, the INI's [RS274NGC] CENTER_ARC_RADIUS_TOLERANCE_* where set; SPIRAL_RELATIVE_TOLERANCE 0.001).
+LinuxCNC 2.9 (``interp_arc.cc`` arc_data_ijk and arc_data_comp_ijk; the G-code reference, "Center Format Arcs",
+"It is an error if") refuses only when d > cap · tol, or when d > rel · the larger radius *and* d > tol: every
+arc within tol runs (28.3 μm; 71.8 μm under G20), whatever its radius. It is run as a spiral whose radius changes
+linearly with the angle (posemath's circle: radius + spiral · angle / total angle), as the reader reads it."""
 SPLINES = {"G5": "a cubic spline (G5 X Y I J P Q)", "G5.1": "a quadratic spline (G5.1 X Y I J)",
            "G5.2": "a NURBS block (G5.2 X Y P [L] lines, then G5.3)", "G5.3": "the end of a NURBS block"}
 """LinuxCNC G-code reference, "G5 Cubic spline", "G5.1 Quadratic spline": motion codes, read exactly

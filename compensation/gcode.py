@@ -64,6 +64,7 @@ from errormap.io import InputError, not_a_file
 from . import gcode_kernels as gscan
 from .gcode_classify import _classify, _State
 from .gcode_state import MM_PER_INCH, _Refuse
+from .nc_state import FrameReplay
 from .gcode_table import _BULK_PASS, MoveTable, _bulk_move, _forward_fill, _LazyMoves, _Lines, _piece_from_move
 from .gcode_words import (AxisWords, BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, GProgram, RAPIDS_CHOICES, _err,
                           check_program_bytes, default_axis_words, g80_note, split_lines)
@@ -83,7 +84,8 @@ BULK_MIN_RUN = 32
 
 def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None,
                   fast: bool = True, axis_words: AxisWords | None = None, dialect: str | None = None,
-                  cycles=None, data: bytes | None = None, found: tuple | None = None, lathe_x: str | None = None) -> GProgram:
+                  cycles=None, data: bytes | None = None, found: tuple | None = None, lathe_x: str | None = None,
+                  tables: tuple | None = None) -> GProgram:
     """Read a G-code file into a :class:`GProgram` (see the module docstring).
 
     ``found``: ``(Dialect, evidence)`` already recognised from these bytes under ``dialect="auto"`` (a
@@ -108,7 +110,11 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     ``cycles``: None refuses drilling canned cycles; a pass ``(text, path, dialect name, expanded or
     None) -> Expanded or None`` that makes them plain moves (the machine-tool chains give
     :func:`compensation.nc_cycles.cycle_pass`) reads them. ``data``: the file's bytes as a pre-pass left
-    them (:func:`compensation.tcp.tcp_prepass`; None: read from ``path``).
+    them (:func:`compensation.tcp.tcp_prepass`; None: read from ``path``). ``tables``: ``(work offsets, tool
+    table)`` the program runs with (:mod:`compensation.nc_state`; either None: not given, the program's own
+    ``G10`` lines only): a ``G53`` move's end is then placed in the program's frame (machine axis minus work
+    offset, ``G92`` and tool length), so the moves after it are known; None: the axes a ``G53`` moves are
+    unknown until the program gives them.
     """
     path = Path(path)
     if rapids not in RAPIDS_CHOICES:
@@ -126,7 +132,8 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     check_program_bytes(path, data)
     dia, evidence = found if found is not None and dialect == "auto" else _dialect_of(path, data, dialect)
     try:  # the allow-list refuses every mark of a subprogram, macro or parameter: a program without
-        return _g80_noted(_parse_data(path, data, rapids, block_delete, fast, ax, dia, evidence, lathe_x))  # full speed
+        return _g80_noted(_parse_data(path, data, rapids, block_delete, fast, ax, dia, evidence, lathe_x,  # full speed
+                                      tables))
     except InputError as plain_refusal:
         from . import nc_expand
         from .gcode_classify import ProgramState
@@ -143,7 +150,7 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
             raise plain_refusal from None
     try:
         prog = _parse_data(path, expanded.text.encode("latin-1"), rapids, block_delete, fast, ax, dia, evidence,
-                           lathe_x)
+                           lathe_x, tables)
     except InputError as exc:
         raise expanded.relocate(exc) from None
     prog.expanded = expanded
@@ -160,11 +167,12 @@ def _g80_noted(prog: GProgram) -> GProgram:
 
 
 def _parse_data(path: Path, data: bytes, rapids, block_delete, fast: bool, ax: AxisWords, dia,
-                evidence: str, lathe_x: str | None = None) -> GProgram:
+                evidence: str, lathe_x: str | None = None, tables: tuple | None = None) -> GProgram:
+    replay = None if tables is None else (lambda: FrameReplay(path, ax.words, *tables))
     if fast and _bulk_words(ax):
-        prog = _parse_blockwise(path, rapids, block_delete, data, ax, dia, lathe_x)
+        prog = _parse_blockwise(path, rapids, block_delete, data, ax, dia, lathe_x, replay)
     else:
-        prog = _parse_lines(path, rapids, block_delete, data, ax, dia, lathe_x)
+        prog = _parse_lines(path, rapids, block_delete, data, ax, dia, lathe_x, replay)
     prog.dialect, prog.dialect_evidence = dia.name, evidence
     return prog
 
@@ -186,10 +194,12 @@ def _dialect_of(path, data: bytes, dialect) -> tuple:
         raise InputError(f"{path}: {exc}") from None
 
 
-def _parse_lines(path, rapids, block_delete, data: bytes, ax: AxisWords, dia, lathe_x=None) -> GProgram:
-    """The per-line reader (the reference)."""
+def _parse_lines(path, rapids, block_delete, data: bytes, ax: AxisWords, dia, lathe_x=None, replay=None) -> GProgram:
+    """The per-line reader (the reference). ``replay``: None, or a maker of the
+    :class:`compensation.nc_state.FrameReplay` that places a ``G53`` move's end (:func:`parse_program`'s ``tables``)."""
     lines = split_lines(data.decode("latin-1"))
     st = _State(len(ax.words))
+    st.replay = replay() if replay is not None else None
     st.dialect, st.lathe_x, st.diameter = dia, lathe_x, lathe_x == "diameter"
     classes, moves = [], []
     for idx, line in enumerate(lines):
@@ -220,7 +230,7 @@ def _no_motion(path, ax: AxisWords) -> InputError:
 
 
 def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: AxisWords, dia=None,
-                     lathe_x: str | None = None) -> GProgram:
+                     lathe_x: str | None = None, replay=None) -> GProgram:
     buf = np.frombuffer(data, np.uint8)
     starts, ends = gscan.line_bounds(buf)
     lines = _Lines(data.decode("latin-1"), starts, np.append(starts[1:], buf.size))
@@ -253,6 +263,7 @@ def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: Axi
 
     st = _State(len(ax.words))
     st.dialect, st.lathe_x, st.diameter = dia, lathe_x, lathe_x == "diameter"
+    st.replay = replay() if replay is not None else None
     classes = ["pass"] * n
     moved = []  # ordinals (k0, k1) of the bulk moves read
     pieces, objects = [], []

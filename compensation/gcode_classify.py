@@ -46,6 +46,7 @@ class _State:
         self.g92 = np.zeros(k)     # the G92 offset in force (mm / deg; gcode_state._g92)
         self.g92_stored = np.zeros(k)  # the G92 offset stored (LinuxCNC parameters 5211-5219; G92.3 restores it)
         self.last_given = {}       # axis letter -> index of the last move line that gave it (the refusals say why)
+        self.replay = None         # nc_state.FrameReplay: a G53 move's end in the program's frame (None: no tables)
 
 
 def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=None,
@@ -289,7 +290,9 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     if "dialect mode" in groups:
         return _dialect_mode(idx, st, groups, by, axis_words, arc_words), None
     if "nonmodal" in groups and groups["nonmodal"][0] == "G53":
-        return _machine_coordinates(idx, st, groups, axis_words, arc_words, ax), None
+        cls = _machine_coordinates(idx, st, groups, axis_words, arc_words, ax)
+        _g53_end(st, axis_words, ax)
+        return cls, None
     if "nonmodal" in groups and groups["nonmodal"][0] in ("G28", "G30"):
         return _reference_return(st, groups, axis_words, arc_words, ax, rapids, idx)
     # RS274NGC / LinuxCNC: G4 uses no axis words, so a G4 line's axis words are the motion mode's (dwell, then move)
@@ -413,14 +416,35 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
     return move
 
 
+def _g53_end(st: _State, axis_words, ax: AxisWords) -> None:
+    """A ``G53`` move's end in the program's frame: machine axis minus the frame the controller has then (work
+    offset, ``G92``, tool length on Z; :class:`compensation.nc_state.FrameReplay`), so that later moves start
+    from it exactly. Left unknown without tables, under ``G91`` (LinuxCNC refuses G53 there, Fanuc ignores
+    it), with cutter compensation on (LinuxCNC refuses) or for a lathe's X in diameter mode."""
+    if st.replay is None or st.incremental or st.cutter != "G40" or not axis_words:
+        return
+    shift = st.replay.shift(st.events)
+    pos = st.pos.copy()
+    for j, a in enumerate(ax.words):
+        if a in axis_words and not (a == "X" and (st.diameter or st.lathe_x == "diameter")):
+            scale = MM_PER_INCH if st.inch and not ax.is_rotary[j] else 1.0
+            pos[j] = axis_words[a].value * scale - shift[j]
+    st.pos = pos
+    if all(np.isfinite(pos[ax.words.index(a)]) for a in axis_words):
+        st.system = st.system or st.replay.system  # placed in the power-on system: selecting it is no change
+
+
 def _unknown_since(st: _State, lacking) -> str:
     """Why an axis has no value in the program's frame, and what gives it one: a ``G53`` line that moved it after
     the program last gave it (machine coordinates are not the part's), else none given yet."""
     for idx, _col, kind, axes, _text in reversed(st.events):
-        moved = ", ".join(a for a in lacking if a in axes and idx > st.last_given.get(a, -1))
-        if kind == "g53" and moved:
-            return f"; line {idx + 1} moved {moved} in machine coordinates (G53), not the part's: give it in the " \
-                   "program before this move"
+        moved = kind == "g53" and ", ".join(a for a in lacking if a in axes and idx > st.last_given.get(a, -1))
+        if moved:
+            tables = st.replay is not None and st.replay.offsets_given
+            place = ("its work offset is not known (--work-offsets), or it ran under G91 or G41/G42:" if tables
+                     else "give the work offsets (--work-offsets FILE) to place it in the part's frame, or")
+            return f"; line {idx + 1} moved {moved} in machine coordinates (G53): {place} give it in the program " \
+                   "before this move"
     return f"; give {', '.join(lacking)} in the program (absolute) before this move"
 
 
@@ -486,7 +510,7 @@ def _arc_geometry(st, move, arc_words, scale, ax: AxisWords, first) -> dict:
     u0, v0, u1, v1 = move.start[ju], move.start[jv], move.end[ju], move.end[jv]
     tol = getattr(st.dialect, "arc_radius_tol", None)
     tols = ({"abs_tol_mm": ARC_RADIUS_TOL_INCH_MM} if st.inch else {}) if tol is None else \
-        {"abs_tol_mm": tol[1] if st.inch else tol[0], "rel_tol": tol[2]}
+        {"abs_tol_mm": tol[1] if st.inch else tol[0], "rel_tol": tol[2], "cap": tol[3]}
     tols["rule"] = ARC_RADIUS_RULES.get(getattr(st.dialect, "name", None), "")
     return {"ju": ju, "jv": jv, **plane_arc(u0, v0, u1, v1, st.mode, arc_words, (u_c, v_c), st.arc_abs, scale,
                                              first, pair=f"{u_c}/{v_c}", both=f"{u_c} and {v_c}", **tols)}
@@ -501,11 +525,15 @@ is set per machine and is not in the program, so the reader keeps its own bound.
 
 
 def plane_arc(u0, v0, u1, v1, mode, arc_words, centre_words, arc_abs, scale, first, pair, both,
-              abs_tol_mm: float = ARC_RADIUS_TOL_MM, rel_tol: float | None = None, rule: str = "") -> dict:
+              abs_tol_mm: float = ARC_RADIUS_TOL_MM, rel_tol: float | None = None, rule: str = "",
+              cap: float | None = None) -> dict:
     """Centre, radii and sweep of a G2/G3 (``mode``) arc from (u0, v0) to (u1, v1) mm in its plane's
     (u, v) coordinates; ``centre_words`` the words giving the centre's u and v offsets (G18: K, I; G17:
     I, J), or ``R``; ``pair`` / ``both`` how the refusals name them; ``rule`` the controller's rule on radii that
-    differ (:data:`ARC_RADIUS_RULES`), named in that refusal. Returns ``uc vc r0 r1 theta0 sweep``."""
+    differ (:data:`ARC_RADIUS_RULES`), named in that refusal. Radii that differ by d are refused when d >
+    ``abs_tol_mm``; with ``rel_tol`` and ``cap`` (LinuxCNC's rule, :data:`compensation.dialects.LINUXCNC_ARC_TOL`)
+    only when d > ``cap`` · ``abs_tol_mm`` or d exceeds both ``abs_tol_mm`` and ``rel_tol`` · the larger radius.
+    Returns ``uc vc r0 r1 theta0 sweep``."""
     u_c, v_c = centre_words
     ccw = mode == "G3"
     if "R" in arc_words:
@@ -536,8 +564,10 @@ def plane_arc(u0, v0, u1, v1, mode, arc_words, centre_words, arc_abs, scale, fir
     r1 = math.hypot(u1 - uc, v1 - vc)
     if r0 < 1e-9:
         raise _Refuse(first.start + 1, "arc of zero radius")
-    if abs(r1 - r0) > abs_tol_mm or (rel_tol is not None and abs(r1 - r0) > rel_tol * max(r0, r1)):
-        limit = f"{abs_tol_mm * 1e3:.4g} μm" + (f" or {rel_tol:.2%} of the radius" if rel_tol is not None else "")
+    d = abs(r1 - r0)
+    if d > abs_tol_mm and (rel_tol is None or d > cap * abs_tol_mm or d > rel_tol * max(r0, r1)):
+        limit = f"{abs_tol_mm * 1e3:.4g} μm" if rel_tol is None else (
+            f"{cap * abs_tol_mm:.4g} mm, or both {abs_tol_mm * 1e3:.4g} μm and {rel_tol:.2%} of the radius")
         raise _Refuse(first.start + 1, f"arc start and end radii differ by {abs(r1 - r0) * 1e3:.3f} μm "
                                        f"(more than {limit}{rule}): correct the end point or the centre")
     t0 = math.atan2(v0 - vc, u0 - uc)

@@ -158,7 +158,8 @@ ALLOWED_G = {
                       "the error left (field gradient x tool radius, --tool-table) is reported"),
     "G42": ("cutter", "cutter radius compensation right, D: as G41"),
     "G53": ("nonmodal", "machine coordinates for this line (G0/G1): passed through unchanged, not compensated; "
-                        "the axes it moves are unknown in program coordinates afterwards"),
+                        "its end placed in the program's frame where the work offsets are given, else the axes it "
+                        "moves are unknown afterwards"),
     "G43": ("length", "tool length offset H (the tool table's length, --tool-table): machine Z = program Z + length"),
     "G49": ("length", "tool length offset off"),
     "G10": ("nonmodal", "L2 Pn: sets work offset n; L1 Pn Z.. R..: sets tool n (read as data, in program order)"),

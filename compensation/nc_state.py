@@ -407,7 +407,7 @@ class _Controller:
     """The controller's tables and active frame while :func:`program_frames` walks a program's events."""
 
     def __init__(self, path, words, offsets: WorkOffsets | None, tools: ToolTable | None):
-        self.words, self.offsets, self.tools = words, offsets, tools
+        self.path, self.words, self.offsets, self.tools = path, words, offsets, tools
         self.table = {k: dict(v) for k, v in (offsets.systems if offsets else {}).items()}
         self.tooltab = {k: v[0] for k, v in (tools.tools if tools else {}).items()}
         self.radii = {k: v[1] for k, v in (tools.tools if tools else {}).items()}
@@ -538,6 +538,22 @@ class _Controller:
     def words_rotate(self) -> bool:
         return "X" in self.words and "Y" in self.words
 
+    def apply(self, event) -> None:
+        """One event of :attr:`compensation.gcode.GProgram.events` ``(line, column, kind, value, text)``."""
+        line, col, kind, value, text = event
+        where = f"{self.path}: line {line + 1}, column {col}: '{text}'"
+        select = {"system": self.select_system, "tool": self.select_tool, "cutter": self.select_cutter}
+        if kind in select:
+            select[kind](value, where)
+        elif kind.startswith("g10-"):
+            self.g10(kind, value, where)
+            self.check_active(where)
+        elif kind.startswith("g92") or kind in ("g52", "shift-end"):
+            if kind != "shift-end" and self.rotation() != 0.0:
+                raise InputError(f"{where}: a G92/G52 shift while the work system {self.system} is rotated (G10 L2 "
+                                 "R): LinuxCNC adds it to rotated coordinates; cancel the rotation (R0) first")
+            self.g92_event(kind, value)
+
     def check_active(self, where) -> None:
         """The active tool and cutter radius are still known after a G10 line changed the tables."""
         if self.tool is not None and self.tool not in self.tooltab:
@@ -558,20 +574,9 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
     _refuse_set_from_compensated(program, events)
     c = _Controller(path, words, offsets, tools)
     first, frames = [0], [c.frame()]
-    select = {"system": c.select_system, "tool": c.select_tool, "cutter": c.select_cutter}
-    for line, col, kind, value, text in events:
-        where = f"{path}: line {line + 1}, column {col}: '{text}'"
-        if kind in select:
-            select[kind](value, where)
-        elif kind.startswith("g10-"):
-            c.g10(kind, value, where)
-            c.check_active(where)
-        elif kind.startswith("g92") or kind in ("g52", "shift-end"):
-            if kind != "shift-end" and c.rotation() != 0.0:
-                raise InputError(f"{where}: a G92/G52 shift while the work system {c.system} is rotated (G10 L2 R): "
-                                 "LinuxCNC adds it to rotated coordinates; cancel the rotation (R0) first")
-            c.g92_event(kind, value)
-        first.append(line)
+    for event in events:
+        c.apply(event)
+        first.append(event[0])
         frames.append(c.frame())
     notes = {"work_offsets": offsets.source if offsets else "program G10 lines",
              "work_systems_used": sorted(c.used_systems),
@@ -600,6 +605,42 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
                          np.array(tls, dtype=float), notes, np.array(rads, dtype=float),
                          np.array(txs, dtype=float) if c.lathe() and c.used_tools else None,
                          rots if np.any(rots != 0.0) else None)
+
+
+class FrameReplay:
+    """Machine minus program axes (k,) after a program's events so far (a ``G53`` move's end placed in the
+    program's frame while it is read): the work offset, ``G92``, the tool length on Z (a lathe tool's offset
+    on X), as :meth:`ProgramFrames.shift`; NaN where not known (a table not given; a refused event: the
+    reader's :func:`program_frames` refuses it with its words)."""
+
+    def __init__(self, path, words, offsets: WorkOffsets | None, tools: ToolTable | None):
+        self.c, self.seen, self.failed = _Controller(path, words, offsets, tools), 0, False
+
+    @property
+    def system(self) -> str:
+        """The work system in force after the events replayed (the power-on ``G54`` before any)."""
+        return self.c.system
+
+    @property
+    def offsets_given(self) -> bool:
+        return self.c.offsets is not None
+
+    def shift(self, events) -> np.ndarray:
+        try:
+            for event in events[self.seen:]:
+                self.c.apply(event)
+        except InputError:
+            self.failed = True
+        self.seen = len(events)
+        off, tool, _, tool_x, rotation = self.c.frame()
+        if np.nan_to_num(rotation) != 0.0:  # a rotated system: the G53 point's X Y in it is not carried
+            self.failed = True
+        out, words = np.array(off, dtype=float), list(self.c.words)
+        if "Z" in words and np.isfinite(tool):
+            out[words.index("Z")] += tool
+        if "X" in words and np.isfinite(tool_x):
+            out[words.index("X")] += tool_x
+        return np.full(len(words), np.nan) if self.failed else out
 
 
 FROM_POSITION = ("g92", "g10-here", "g10-tool-here")

@@ -328,21 +328,26 @@ def test_a_g10_changing_the_active_tool_length_is_refused(tmp_path, ax, line, di
 
 
 @pytest.mark.parametrize("arc, dialect, refused", [
-    ("G2 X20 Y0 I10.004 J0", "linuxcnc", None),  # 8 μm on r 10 mm: within 28.3 μm and 0.1 % (LinuxCNC accepts)
+    ("G2 X20 Y0 I10.004 J0", "linuxcnc", (-0.008, 10.004)),  # 8 μm on r 10 mm: within 28.3 μm (LinuxCNC runs it)
     ("G2 X20 Y0 I10.004 J0", None, "more than 2 μm"),  # the reader's own 2 μm without the controller
-    ("G2 X20 Y0 I10.03 J0", "linuxcnc", "more than 28.28 μm or 0.10% of the radius"),  # 60 μm: absolute exceeded
-    ("G2 X2 Y0 I1.004 J0", "linuxcnc", "or 0.10% of the radius"),  # 8 μm on r 1 mm: relative exceeded
+    # 60 μm (0.6 %): above 28.3 μm and 0.1 % both
+    ("G2 X20 Y0 I10.03 J0", "linuxcnc", "more than 2.828 mm, or both 28.28 μm and 0.10% of the radius"),
+    ("G2 X2 Y0 I1.004 J0", "linuxcnc", (-0.008, 1.004)),  # 8 μm on r 1 mm (0.8 %): within 28.3 μm, so it runs
+    ("G2 X6000 Y0 I3000.05 J0", "linuxcnc", (-0.1, 3000.05)),  # 100 μm on r 3 m (0.0033 %): within 0.1 %, runs
+    ("G2 X20000 Y0 I10001.5 J0", "linuxcnc", "more than 2.828 mm"),  # 3 mm on r 10 m (0.03 %): above 100 · 28.3 μm
     # Fanuc: its tolerance is a machine parameter (3410), not in the program: the reader's 2 μm, the rule named
     ("G2 X20 Y0 I10.004 J0", "fanuc", "(more than 2 μm; Fanuc: parameter 3410 sets the tolerance"),
 ])
 def test_linuxcnc_reads_centre_arcs_with_its_own_radius_tolerance(tmp_path, ax, arc, dialect, refused):
-    """LinuxCNC (interp_arc.cc arc_data_ijk): an error when the radii differ by more than 2·0.01·√2 mm (G21)
-    or more than 0.1 % of the radius; otherwise run as a spiral (radius linear in the angle), as read here."""
+    """LinuxCNC 2.9 (interp_arc.cc arc_data_ijk; G-code reference, "Center Format Arcs", "It is an error if"): an
+    error when the radii differ by d > 100 · 2·0.01·√2 mm, or by d > 2·0.01·√2 mm (G21) *and* more than 0.1 %
+    of the radius; otherwise run as a spiral (radius linear in the angle), as read here. ``refused``: the refusal's
+    words, or (r1 − r0 mm, the centre's X mm) of the arc read."""
     text = f"G21 G55\nG0 X0 Y0 Z0\nG1 X0 F9\n{arc}\nM2\n"
-    if refused is None:
+    if isinstance(refused, tuple):
         _, moves, _, _ = _frames(tmp_path, ax, text, dialect)
         a = moves[-1].arc
-        assert abs((a["r1"] - a["r0"]) - (-0.008)) < TOL_MM * 1e3 and np.isclose(a["uc"], 10.004)
+        assert abs((a["r1"] - a["r0"]) - refused[0]) < TOL_MM * 1e3 and np.isclose(a["uc"], refused[1])
     else:
         assert f"p.nc: line 4, column 4: 'X" in (err := _refused(tmp_path, ax, text, dialect)) and refused in err, err
 

@@ -73,13 +73,16 @@ Heidenhain-ISO-like ``:`` block format.
 
 Blind sample (program_corpus/README.md "The blind sample": 40 public 3-axis milling programs drawn on 2026-12-03 by
 a rule written before any fetch, from repositories with no other row; rows marked :data:`SAMPLE_MARK`, reported as
-their own figures by :func:`sample_figures`): accepted 26/40 by the reader, 0 crashed (2 of the 26, an inch router
-program 11 in wide, are then refused by the stroke guard at the count's part zero); silently wrong 0 of 24 checked
-(one reported before this work was the check's own error: it read a CRLF program through universal newlines; the
-written bytes were the source's). The 14 refusals: 6 Fusion 360 for Personal Use programs whose ``G1 ... F5000.``
-("instead of G0") follows ``G53 G0 Z0.`` before ``G43 Z H`` (Z set in machine coordinates), 2 ``#600 = ?``
-operator placeholders, a bare ``G43``, CR-only line ends, an ``E1`` on a rapid, ``M252``, a template with ``M39``
-and ``X___``, a training program's deliberate ``Y.3.75``.
+their own figures by :func:`sample_figures`): accepted 26/40 by the reader at first, 32/40 once a ``G53`` move's end
+is placed in the program's frame from the tables (the 6 Fusion 360 for Personal Use programs whose ``G1 ...
+F5000.`` ("instead of G0") follows ``G53 G0 Z0.`` before ``G43 Z H``); 0 crashed. Of the 32, 24 are compensated and
+checked (silently wrong 0 of 24; one reported before was the check's own error: it read a CRLF program through
+universal newlines); 8 are refused by the stroke guard: 2, an inch router program 11 in wide, at the count's part
+zero, and the 6 G53 programs, whose first feed move runs at the Z home (machine Z 0, the top of the stroke), where
+the correction's +Z would pass the stroke end (with ``--allow`` every programmed point is reproduced within
+0.0008 um by the independent check). The 8 refusals: 2 ``#600 = ?`` operator placeholders, a bare ``G43``, CR-only
+line ends, an ``E1`` on a rapid, ``M252``, a template with ``M39`` and ``X___``, a training program's deliberate
+``Y.3.75``.
 
 nc_files newly accepted: ``systems.ngc`` (G92.1), ``threading.ngc`` (G33 on the lathe), ``mmount.ngc`` (G33.1; its
 compensation is then refused by the stroke guard: its three fixture stations G55-G57 all sit at the count's one
@@ -217,9 +220,12 @@ def independent_check(src: Path, written: Path, dialect: str, truth_file: Path, 
         offsets, tools = _count_tables()
     aw, dia = AxisWords.of(mill), dialect  # "auto": detected from each file, as compensate does
     try:  # a program with canned cycles is read by compensate's cycle reader, not this plain parse
-        expanded = parse_program(src, axis_words=aw, dialect=dialect).expanded
+        placed = _g53_placed(src, written, offsets, tools)
+        expanded = parse_program(placed or src, axis_words=aw, dialect=dialect).expanded
     except Exception as exc:  # noqa: BLE001 - reported, not hidden
         return f"not checkable: {type(exc).__name__}: {exc}"[:110]
+    if expanded is not None and placed is not None:
+        return "not checkable: G53 moves in a program the reader expands"
     out = [ln for ln in _lines(written) if not ln.startswith("(volcomp:")]  # the writer's header (after a '%' too)
     bare = written.with_suffix(written.suffix + ".bare")
     bare.write_bytes("".join(out).encode("latin-1"))
@@ -227,13 +233,16 @@ def independent_check(src: Path, written: Path, dialect: str, truth_file: Path, 
         src = written.with_suffix(written.suffix + ".flat")
         src.write_text(expanded.text, encoding="latin-1")
     try:
-        p_src, p_out = (parse_program(f, axis_words=aw, fast=False, dialect=dia) for f in (src, bare))
+        p_src, p_out = (parse_program(f, axis_words=aw, fast=False, dialect=dia) for f in (placed or src, bare))
         f_src, f_out = (_frame(p.lines, offsets, tools, "G54") for p in (p_src, p_out))
     except Exception as exc:  # noqa: BLE001 - reported, not hidden
         return f"not checkable: {type(exc).__name__}: {exc}"[:110]
+    src_lines = _lines(src) if placed is not None else p_src.lines  # the lines a controller reads
+    if len(src_lines) != len(p_src.lines):
+        return "not checkable: the G53 lines placed in the program's frame split into other lines"
     m_src = [m for m in p_src.moves if m.compensate]
     m_out = [m for m in p_out.moves if m.compensate]
-    keep_src = [ln for i, ln in enumerate(p_src.lines) if i not in {m.index for m in m_src}]
+    keep_src = [ln for i, ln in enumerate(src_lines) if i not in {m.index for m in m_src}]
     keep_out = [ln for i, ln in enumerate(p_out.lines) if i not in {m.index for m in m_out}]
     if keep_src != keep_out:
         bad = next((s for s, o in zip(keep_src, keep_out) if s != o), "(line count)")
@@ -262,6 +271,54 @@ def independent_check(src: Path, written: Path, dialect: str, truth_file: Path, 
         else:
             return f"WRONG: line {m.index + 1} ({p_src.lines[m.index].strip()[:40]!r}) reached by no written move"
     return f"ok: max {max(errs):.3g} um at {len(errs)} points" if errs else "not checkable: no compensated move"
+
+
+G53_RE = re.compile(r"G0*53(?![.\d])", re.IGNORECASE)
+
+
+def _g53_placed(src: Path, written: Path, offsets: dict, tools: dict) -> Path | None:
+    """``src`` with its ``G53`` moves placed in the program's frame (:func:`_g53_in_frame`), written beside
+    ``written``; None where it has none, or one that is not a ``G0`` (the source is then read as written)."""
+    if not G53_RE.search(src.read_bytes().decode("latin-1")):
+        return None
+    sys.path.insert(0, str(HERE.parent / "tests"))
+    from program_checks import _frame
+    lines = _lines(src)
+    placed = _g53_in_frame(lines, _frame(lines, offsets, tools, "G54"))
+    if placed is None or placed == lines:
+        return None
+    out = written.with_suffix(written.suffix + ".g53")
+    out.write_bytes("".join(placed).encode("latin-1"))
+    return out
+
+
+def _g53_in_frame(lines: list, frames: list) -> list | None:
+    """The source lines with each ``G53 G0`` move written in the program's frame, independently of the reader: its
+    X Y Z words (in the line's units, ``G20``/``G21`` read by pattern) minus the line's work offset and tool length
+    (``frames``, tests/program_checks.py ``_frame``), the G53 dropped, so that the moves after it start where the
+    controller has them (the rewritten line is a rapid, kept as written: not a point the check asks for). None: a
+    G53 move that is not a G0."""
+    out, selected, inch = [], False, False
+    for ln, (off, tool) in zip(lines, frames):
+        code = re.sub(r"\(.*?\)|;.*", "", ln.rstrip("\r\n"))
+        units = re.findall(r"G0*2([01])(?![.\d])", code, re.IGNORECASE)
+        inch = units[-1] == "0" if units else inch
+        if not G53_RE.search(code) or not re.search(r"[XYZ]", code, re.IGNORECASE):
+            selected |= bool(re.search(r"(G154|G1[12]\d|G54\.1|G59\.[123]|G5[4-9])(?![.\d])", code.upper()))
+            out.append(ln)
+            continue
+        if not re.search(r"G0*0(?![.\d])", G53_RE.sub("", code)):
+            return None
+        shift_mm = np.asarray(off, dtype=float) + [0.0, 0.0, tool if tool is not None else 0.0]
+        unit_mm = 25.4 if inch else 1.0
+
+        def in_frame(m):
+            mm = float(m.group(2)) * unit_mm - shift_mm["XYZ".index(m.group(1).upper())]
+            return f"{m.group(1)}{mm / unit_mm:.9f}"
+        body = re.sub(r"([XYZ])\s*([-+]?[\d.]+)", in_frame, G53_RE.sub("", code), flags=re.IGNORECASE)
+        body += "" if selected else " G54"  # placed in the power-on system (the frames' G54): selecting it is no change
+        out.append(body + ln[len(ln.rstrip("\r\n")):])
+    return out
 
 
 def _count_tables() -> tuple:

@@ -87,7 +87,7 @@ def read_tool_path(path, machine, s, field_=None) -> ToolPath:
         raise UsageError(f"--lathe-x: the machine {machine.name!r} is not a lathe (no [spindle]); leave it out")
     else:
         prog = parse_chain_program(path, machine, rapids=s.rapids, block_delete=s.block_delete, dialect=s.dialect,
-                                   cycles=s.cycles)
+                                   cycles=s.cycles, tables=(s.work_offsets, s.tool_table))
     frames = program_frames(prog, s.work_offsets, s.tool_table)
     refuse_unknown_frames(prog, frames, s.work_offsets)
     k = len(machine.axes)
