@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -15,8 +15,35 @@ from errormap.stats import residual_stats
 
 from .benchmark_common import (EFFECTS_LOOP, EXPERIMENT, FEATURE_REUSE_TOL_UM, LEARNED_GRID, PATH_CONDITIONS,
                                TRUTH_CONDITIONS, USER_LOOP, BenchmarkSettings, RowLog, Tracker, bench_row, rng_streams,
-                               say, with_volume)
-from .benchmark_loop import at_conditions, loop_models
+                               say, scored, with_volume)
+
+
+def at_conditions(field_, mt, conditions: dict):
+    """``field_`` with ``conditions`` (``{name: value}``) for the conditions its terms need."""
+    from .compensate import field_conditions
+    return field_conditions(field_, {c: conditions[c] for c in getattr(field_, "needs", ())}, mt)
+
+
+def loop_models(machine, model_path, conditions: dict) -> dict:
+    """``{"parametric": (terms, stage, field), "hybrid": ...}`` of a diagnose run's ``model.json``: the loop
+    alone (without the learned part; its ``loop_alone`` elements and terms when the base was backfitted) and
+    the kept model, each at ``conditions`` (the benchmark's flute conditions)."""
+    import json
+    from errormap.chain_elements import ChainElementSet
+    from errormap.diagnosis.loop_model import ChainModelField, read_terms
+    from ...model_file import read_model
+    kept = read_model(model_path, machine).field   # checks the file (format, machine) before it is read here
+    doc = json.loads(Path(model_path).read_text(encoding="utf-8"))
+    # the loop alone had the terms the learned part replaced
+    alone = doc.get("loop_alone") or {"elements": doc["elements"],
+                                      "terms": doc["terms"] + doc.get("base_terms_replaced", [])}
+    elements = ChainElementSet.load(Path(model_path).parent / alone["elements"], machine)
+    key = "loop_alone" if "loop_alone" in doc else "terms"
+    base = ChainModelField(machine, elements, read_terms(alone["terms"], machine, model_path, key))
+    return {"parametric": (alone["terms"], doc.get("base_stage", doc["kept_stage"]),
+                           at_conditions(base, machine, conditions)),
+            "hybrid": (doc["terms"], doc["kept_stage"], at_conditions(kept, machine, conditions))}
+
 
 @dataclass
 class GrinderCondition:
@@ -205,11 +232,10 @@ class GrinderBench:
     the condition adds an undeclared effect. Measurement, identification, training and the TRUE
     residual are the functions and classes above; this class only puts the rows together."""
 
-    def __init__(self, machine, s: BenchmarkSettings, tracker: Tracker):
-        self.m, self.s = machine, s
+    def __init__(self, machine, s: BenchmarkSettings, log: RowLog):
+        self.m, self.s, self.log = machine, s, log
         self.points = grinder_test_points(machine, s)
-        self.trainer = NetworkTrainer(machine, tracker, self.points.nominal_axes[:2])
-        self.log = RowLog(tracker)
+        self.trainer = NetworkTrainer(machine, log.tracker, self.points.nominal_axes[:2])
 
     @property
     def rows(self) -> list:
@@ -244,8 +270,7 @@ class GrinderBench:
         say(f"grinder: parametric, {label}")
         ex = self._compensate(truth, field_, "exact")
         row = bench_row(self.m.name, "grinder", "parametric", label, closed_loop=False, solver="exact",
-                   fit_seconds=id_s, identify_seconds=id_s, compensate_seconds_per_point=ex["seconds_per_point"],
-                   true_rms_um=ex["true_rms_um"], true_max_um=ex["true_max_um"], solvers={"exact": ex}, **common)
+                   fit_seconds=id_s, identify_seconds=id_s, **scored(ex), solvers={"exact": ex}, **common)
         self.log.add(with_volume(row, self._volume(truth, field_)))
         return field_, row
 
@@ -267,9 +292,8 @@ class GrinderBench:
                    fit_seconds=id_s + fit.seconds, identify_seconds=id_s, train_seconds=fit.seconds,
                    training_run_id=fit.run_id, reused_training_of=reused,
                    train_val_rms_um=fit.metrics.get("val_rms_um"), train_val_max_um=fit.metrics.get("val_max_um"),
-                   train_iterations=fit.metrics.get("iterations"),
-                   compensate_seconds_per_point=ex["seconds_per_point"], true_rms_um=ex["true_rms_um"],
-                   true_max_um=ex["true_max_um"], solvers={"exact": ex, "batched-ga": ga}, **common)
+                   train_iterations=fit.metrics.get("iterations"), **scored(ex),
+                   solvers={"exact": ex, "batched-ga": ga}, **common)
         self.log.add(with_volume(row, vol))
         return mlp, row
 
@@ -332,9 +356,8 @@ class GrinderBench:
                     sol["batched-ga"] = self._compensate(truth, field_, "batched-ga", idx=self.points.ga_idx)
                 row = bench_row(self.m.name, "grinder", path, label, closed_loop=True, loop_method=USER_LOOP,
                            solver="exact", fit_seconds=id_s + loop_s, identify_seconds=id_s, diagnosis_seconds=loop_s,
-                           compensate_seconds_per_point=sol["exact"]["seconds_per_point"],
-                           true_rms_um=sol["exact"]["true_rms_um"], true_max_um=sol["exact"]["true_max_um"],
-                           solvers=sol, effects_found=[f"{e['kind']}:{e['axis']}:{e['element']}" for e in terms],
+                           **scored(sol["exact"]), solvers=sol,
+                           effects_found=[f"{e['kind']}:{e['axis']}:{e['element']}" for e in terms],
                            stage=stage, n_checks=len(checks),
                            checks_rms_before_um=summary["stages"]["identified"]["held_out"]["rms_um"],
                            checks_rms_after_um=rms_after[path],
@@ -372,43 +395,17 @@ class GrinderBench:
                                                "reused_training_of") if base_row.get(k) is not None}
         row = bench_row(self.m.name, "grinder", base_row["path"], label, closed_loop=True, loop_method=EFFECTS_LOOP,
                    solver="exact", fit_seconds=base_row["fit_seconds"] + diag_s, diagnosis_seconds=diag_s,
-                   compensate_seconds_per_point=sol["exact"]["seconds_per_point"],
-                   true_rms_um=sol["exact"]["true_rms_um"], true_max_um=sol["exact"]["true_max_um"],
-                   solvers=sol, effects_found=found, n_checks=len(checks),
+                   **scored(sol["exact"]), solvers=sol, effects_found=found, n_checks=len(checks),
                    checks_rms_before_um=d["stages"]["identified"]["held_out"]["rms_um"],
                    checks_rms_after_um=d["held_out_rms_um"],
                    **{**common, "n_measurements": common["n_measurements"] + len(checks)}, **extra)
         self.log.add(with_volume(row, vol))
         return d, row
 
-    def paper_network_row(self) -> None:
-        """The learned path at the base condition with the paper's network (10-15-25-15-10, sigmoid, A raw)
-        and the same LM budget: what the architecture choice costs."""
-        from training.model import PAPER_HIDDEN
-        s = self.s
-        c = GrinderCondition(f"stations={s.base_stations}, noise={s.base_noise_um:g}um", "network", s.base_stations,
-                             s.base_noise_um)
-        truth = grinder_truth(self.m, s, None)
-        elements, id_s, n_meas = identify_from_sweeps(self.m, s, truth, c)
-        label = f"{c.name}, paper network {'-'.join(map(str, PAPER_HIDDEN))} sigmoid"
-        paper = replace(s, hidden=PAPER_HIDDEN, activation="sigmoid", a_encoding="raw")
-        fit, _, _ = self.trainer.train(elements, label, paper)
-        ex = self._compensate(truth, fit.field, "exact")
-        unc_rms, unc_max = uncompensated_true(self.points, truth)
-        self.log.add(bench_row(self.m.name, "grinder", "learned", label, group="network", stations=c.stations,
-                          noise_um=c.noise_um, effect=None, closed_loop=False, solver="exact",
-                          test_path=f"flute ({len(self.points.targets_mm)} points)", n_measurements=n_meas,
-                          uncompensated_rms_um=unc_rms, uncompensated_max_um=unc_max,
-                          fit_seconds=id_s + fit.seconds, identify_seconds=id_s, train_seconds=fit.seconds,
-                          training_run_id=fit.run_id, train_val_rms_um=fit.metrics.get("val_rms_um"),
-                          train_val_max_um=fit.metrics.get("val_max_um"), train_iterations=fit.metrics.get("iterations"),
-                          compensate_seconds_per_point=ex["seconds_per_point"], true_rms_um=ex["true_rms_um"],
-                          true_max_um=ex["true_max_um"], solvers={"exact": ex}))
 
-
-def run_grinder(machine, s: BenchmarkSettings, tracker: Tracker) -> list[dict]:
-    """Both paths on every grinder condition; rows in condition order."""
-    g = GrinderBench(machine, s, tracker)
+def run_grinder(machine, s: BenchmarkSettings, log: RowLog, out_dir=None) -> list:
+    """Both paths on every grinder condition, rows in condition order into ``log``; nothing is skipped."""
+    g = GrinderBench(machine, s, log)
     for c in grinder_conditions(s):
         try:
             g.run_condition(c)
@@ -417,12 +414,6 @@ def run_grinder(machine, s: BenchmarkSettings, tracker: Tracker) -> list[dict]:
             done = {r["path"] for r in g.rows if r["condition"].startswith(c.name)}
             for path in ("parametric", "learned"):
                 if path not in done:
-                    g.log.add(bench_row(machine.name, "grinder", path, c.name, available=False, group=c.group,
-                                   not_available=f"condition failed: {type(exc).__name__}: {exc}"))
-    if s.paper_network:
-        try:
-            g.paper_network_row()
-        except Exception as exc:
-            g.log.add(bench_row(machine.name, "grinder", "learned", "paper network", available=False, group="network",
-                           not_available=f"failed: {type(exc).__name__}: {exc}"))
-    return g.rows
+                    log.add(bench_row(machine.name, "grinder", path, c.name, available=False, group=c.group,
+                                      not_available=f"condition failed: {type(exc).__name__}: {exc}"))
+    return []
