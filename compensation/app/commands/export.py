@@ -23,7 +23,7 @@ from errormap.machine import load_machine
 
 from compensation.app.validate import UsageError
 
-from ..families import family_of, say_read_as
+from ..families import family_of, refuse_model_family, say_read_as
 from ..workflows.controller_tables import DriftSettings, TableSettings, export_drift, export_table
 from ... import export as ex
 from ...fields import FAILED_VERDICT
@@ -143,6 +143,9 @@ def run(args) -> int:
     if machine is not None:   # an arm or a parallel machine: no controller table (the registry's gap), nothing read
         family_of(machine).target("export")
         say_read_as(machine)
+    if args.fmt != "drift":   # an arm's or a parallel machine's calibration: the registry's gap, in one line
+        from ...fields import resolve_model
+        refuse_model_family("export", resolve_model(args.model))
     args.model_verdict = model_verdict(args)   # before any work: a failed diagnosis is refused unless allowed
     drift_only = {"--sample-period-s": args.sample_period_s, "--log": args.log, "--sim": args.sim,
                   "--sim-seed": args.sim_seed}
