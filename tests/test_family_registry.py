@@ -239,8 +239,8 @@ def test_refusals_are_one_line_naming_the_option_and_nothing_is_written(argv, wo
     ("arm", ["report", "--model", "M", "--flute"], ["serial arm", "not yet:", "compensate --machine"]),
     ("parallel", ["report", "--model", "M", "--flute"], ["parallel machine", "not yet:", "leg-command"]),
 ])
-def test_an_arm_or_parallel_model_given_to_export_or_report_is_refused_by_its_family(family, argv, words, tmp_path,
-                                                                                      capsys):
+def test_an_arm_or_parallel_model_to_export_or_report_is_refused_by_its_family(family, argv, words, tmp_path,
+                                                                               capsys):
     """Without --machine the model file tells the family: its gap in one line, not a machine mismatch."""
     from compensation.app.cli import main
     model = tmp_path / "model.json"

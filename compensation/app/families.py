@@ -299,8 +299,9 @@ def refuse_model_family(command: str, src) -> None:
               "pkm-calibration": PARALLEL}.get(src.kind)
     if family is not None and command not in family.targets:
         g, name = family.gaps[command], KIND_NAMES[src.kind]
-        raise UsageError(f"{src.path or src.spec}: {'an' if name[0] in 'aeiou' else 'a'} {name}: volcomp {command} "
-                         f"does not run on a {family.name}: {g.word}: {g.reason}")
+        article = "an" if name[0] in "aeiou" else "a"
+        raise UsageError(f"{src.path or src.spec}: {article} {name}: volcomp {command} does not run on a "
+                         f"{family.name}: {g.word}: {g.reason}")
 
 
 def say_read_as(machine) -> None:

@@ -256,9 +256,9 @@ class Widths:
                              f"{MAX_NETWORK_PARAMS:,} (the paper's 10,15,25,15,10 has {network_params((10, 15, 25, 15, 10)):,})")
 
 
-def check_lm_size(n_points: int, hidden, a_encoding: str) -> None:
-    """Refuse an LM fit whose Jacobian (3n × P) and Hessian (P × P), float64, exceed :data:`MAX_LM_BYTES`."""
-    p = network_params(hidden, a_encoding)
+def check_lm_size(n_points: int, p: int) -> None:
+    """Refuse an LM fit of ``p`` network parameters whose Jacobian (3n × P) and Hessian (P × P),
+    float64, exceed :data:`MAX_LM_BYTES`."""
     need = 8 * (3 * n_points * p + p * p)
     if need > MAX_LM_BYTES:
         n_max = max(0, (MAX_LM_BYTES // 8 - p * p) // (3 * p))

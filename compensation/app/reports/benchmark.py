@@ -19,12 +19,9 @@ PLOT_FLOOR_UM = 0.01
 
 
 def _stop(s: dict, prefix: str) -> str:
-    """How training stopped, from the settings: ``{prefix}_iter`` iterations, an optional
-    ``{prefix}_s`` wall-clock limit (older benchmark.json files have only the time budget)."""
-    it, secs = s.get(f"{prefix}_iter"), s.get(f"{prefix}_s")
-    if it is None:
-        return f"for at most {secs:g} s"
-    return f"for {it} iterations" + (f" (at most {secs:g} s)" if secs is not None else "")
+    """How training stopped: ``{prefix}_iter`` iterations of the settings, an optional ``{prefix}_s``."""
+    secs = s[f"{prefix}_s"]
+    return f"for {s[f'{prefix}_iter']} iterations" + (f" (at most {secs:g} s)" if secs is not None else "")
 
 
 def verdict_failed(r) -> bool:
@@ -360,39 +357,3 @@ def render_html(doc: dict) -> str:
                        grinder=grinder, chains=chains, arms=arms, pkm=pkm, cost_figure=_cost_plot(doc),
                        train_stop=_stop(s, "train"), pkm_train_stop=_stop(s, "pkm_train"))
 
-
-def markdown_table(doc: dict) -> str:
-    """The main table (one line per machine and condition, both paths side by side) as Markdown."""
-    by = {}
-    for r in doc["rows"]:
-        by.setdefault((r["machine_kind"], r["condition"]), {})[r["path"]] = r
-    hybrid = any(r["path"] == "hybrid" for r in doc["rows"])
-    lines = ["| machine | condition | measurements | parametric RMS / max μm | learned RMS / max μm | "
-             + ("hybrid RMS / max μm | volume RMS par / hybrid μm | " if hybrid else "")
-             + "uncompensated RMS μm | fit s (par / learned) | compensate ms/point (par / learned) |",
-             "|---|---|---|---|---|" + ("---|---|" if hybrid else "") + "---|---|---|"]
-
-    def cell(r, a, b, scale=1.0):
-        if r is None or not r.get("available"):
-            return "n/a" if r is None else f"n/a: {r.get('not_available')}"
-        va, vb = r.get(a), r.get(b)
-        f = (lambda v: num(None if v is None else v * scale))
-        mark = "verdict failed, not counted: " if verdict_failed(r) else ""
-        return mark + (f"{f(va)} / {f(vb)}" if b else f(va))
-
-    for (kind, cond), d in by.items():
-        p, l = d.get("parametric"), d.get("learned")
-        any_r = p or l
-        fit = " / ".join(num(None if x is None else x.get("fit_seconds")) for x in (p, l))
-        comp = " / ".join(num(None if x is None or x.get("compensate_seconds_per_point") is None
-                              else 1e3 * x["compensate_seconds_per_point"]) for x in (p, l))
-        h = d.get("hybrid")
-        hy = ""
-        if hybrid:
-            vol = "—" if h is None or not h.get("available") else \
-                f"{num((p or {}).get('volume_rms_um'))} / {num(h.get('volume_rms_um'))}"
-            hy = ("— | " if h is None else f"{cell(h, 'true_rms_um', 'true_max_um')}"
-                  f"{'' if not h.get('available') else (' (kept)' if h.get('learned_kept') else ' (declined)')} | ") + f"{vol} | "
-        lines.append(f"| {kind} | {cond} | {any_r.get('n_measurements')} | {cell(p, 'true_rms_um', 'true_max_um')} | "
-                     f"{cell(l, 'true_rms_um', 'true_max_um')} | {hy}{num(any_r.get('uncompensated_rms_um'))} | {fit} | {comp} |")
-    return "\n".join(lines)
