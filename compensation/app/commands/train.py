@@ -138,8 +138,8 @@ def _print_fit(args, res, physics: str, kept: str) -> None:
     print(f"{'fit error (μm)':<16}{'max':>10}{'rms':>10}{'max dx':>10}{'max dy':>10}{'max dz':>10}")
     if args.physics != "none":
         n = res.params["physics_stations"]
-        print(f"physical part alone ({physics} fitted to the feature points, {n} stations per axis): train max "
-              f"{m['physics_train_max_um']:.4f} μm, val max {m['physics_val_max_um']:.4f} μm{kept}")
+        print(f"physical part alone ({physics} fitted to the feature points, {n} stations per axis): "
+              f"train max {m['physics_train_max_um']:.4f} μm, val max {m['physics_val_max_um']:.4f} μm{kept}")
     for p in ("train", "val"):
         print(f"{p + ' (' + str(res.params['n_' + p]) + ' pts)':<16}" + "".join(
             f"{m[k]:>10.4f}" for k in (f"{p}_max_um", f"{p}_rms_um", f"{p}_max_dx_um", f"{p}_max_dy_um",
