@@ -176,18 +176,9 @@ def load_chain_model(path, machine, prior: bool = False):
     ``volcomp-elements/1``) and its covariance beside it (``NAME.cov.npz``) when present:
     ``(elements, (slot names, stations, Σ) or None, covariance path or None)``. ``prior``: Σ as the prior of
     an element update, with the smoother's ``prior_extra`` on its diagonal (:func:`read_chain_covariance`)."""
-    from errormap.chain_elements import ELEMENTS_FORMAT, ChainElementSet
+    from errormap.chain_elements import ChainElementSet
     p = Path(path)
-    if not p.is_file():
-        raise InputError(f"{p}: no such model file (a machine tool takes an element-set file)")
-    try:
-        fmt = json.loads(read_document_text(p, "a model or element set")).get("format")
-    except (json.JSONDecodeError, AttributeError, RecursionError):
-        fmt = None
-    if fmt != ELEMENTS_FORMAT:
-        raise InputError(f"{p}: key 'format': expected {ELEMENTS_FORMAT!r} (an element set of {machine.name!r}), "
-                         f"got {fmt!r}")
-    el = ChainElementSet.load(p, machine)
+    el = ChainElementSet.load(p, machine)   # read once: its format, then the set (errors name file and key)
     cp = companion_path(p, ".cov.npz")
     if not cp.is_file():
         return el, None, None
