@@ -35,6 +35,17 @@ class UsageError(ValueError):
 MAX_ERROR_CHARS = 300
 
 
+def caused_by_interrupt(exc: BaseException) -> bool:
+    """Whether ``exc`` is a Ctrl-C: a KeyboardInterrupt, or an error it caused (its cause or context)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 def one_line(msg: str, limit: int = MAX_ERROR_CHARS) -> str:
     """``msg`` on one line, cut in the middle to at most ``limit`` characters."""
     s = " ".join(str(msg).split())
