@@ -33,20 +33,10 @@ def verdict_failed(r) -> bool:
 def _rows(doc, kinds=None, group=None, path=None, available=True):
     """The rows of ``doc`` of machines of ``kinds`` (a family's, :mod:`compensation.app.families`; None: all),
     ``group`` and ``path``; ``available``: True the rows that ran (and passed their verdict), None all."""
-    out = []
-    for r in doc["rows"]:
-        if kinds is not None and r["machine_kind"] not in kinds:
-            continue
-        if group and r.get("group") != group:
-            continue
-        if path and r["path"] != path:
-            continue
-        if available is not None and bool(r.get("available")) != available:
-            continue
-        if available and verdict_failed(r):
-            continue
-        out.append(r)
-    return out
+    return [r for r in doc["rows"] if (kinds is None or r["machine_kind"] in kinds)
+            and (not group or r.get("group") == group) and (not path or r["path"] == path)
+            and (available is None or bool(r.get("available")) == available)
+            and not (available and verdict_failed(r))]
 
 
 def _line_plot(doc, kinds, select, xkey, xlabel, title, alt) -> Figure | None:
@@ -82,10 +72,8 @@ def _effects_plot(doc) -> Figure | None:
     bars = [("parametric", False), ("parametric", True), ("learned", False), ("learned", True)]
     w = 0.2
     for j, (p, loop) in enumerate(bars):
-        vals = []
-        for e in effects:
-            v = [r["true_rms_um"] for r in rows if r["effect"] == e and r["path"] == p and bool(r.get("closed_loop")) == loop]
-            vals.append(v[0] if v else np.nan)
+        vals = [next((r["true_rms_um"] for r in rows if r["effect"] == e and r["path"] == p
+                      and bool(r.get("closed_loop")) == loop), np.nan) for e in effects]
         ax.bar(np.arange(len(effects)) + (j - 1.5) * w, vals, w, color=PATH_COLORS[p], alpha=1.0 if loop else 0.45,
                label=f"{p}, {'after' if loop else 'before'} closed loop")
     ax.set_xticks(np.arange(len(effects)))
@@ -287,26 +275,23 @@ ARM_COLS = [("condition", "condition"), ("path", "path"), ("stage", "stage"), ("
             ("compensate_seconds_per_point", "compensate (CPU s/point)")]
 
 
+def _sub_table(rows, key: str, label: str, cols) -> Table:
+    """A line per entry of each row's ``key`` dict (``solvers``, ``per_path``), named in column ``label``."""
+    out = [{"path": r["path"], "condition": r["condition"], label: name, **d}
+           for r in rows for name, d in (r.get(key) or {}).items()]
+    return _table(out, [("condition", "condition"), ("path", "path"), (label, label), *cols])
+
+
 def _solver_table(rows) -> Table:
-    out = []
-    for r in rows:
-        for name, d in (r.get("solvers") or {}).items():
-            out.append({"path": r["path"], "condition": r["condition"], "solver": name, **d})
-    cols = [("condition", "condition"), ("path", "path"), ("solver", "solver"), ("points", "points"),
-            ("true_rms_um", "true RMS (μm)"), ("true_max_um", "true max (μm)"),
-            ("model_max_um", "model residual max (μm)"), ("seconds_per_point", "s/point"),
-            ("failures", "not converged")]
-    return _table(out, cols)
+    return _sub_table(rows, "solvers", "solver", [
+        ("points", "points"), ("true_rms_um", "true RMS (μm)"), ("true_max_um", "true max (μm)"),
+        ("model_max_um", "model residual max (μm)"), ("seconds_per_point", "s/point"),
+        ("failures", "not converged")])
 
 
 def _per_path_table(rows) -> Table:
-    out = []
-    for r in rows:
-        for name, d in (r.get("per_path") or {}).items():
-            out.append({"path": r["path"], "condition": r["condition"], "test path": name, **d})
-    cols = [("condition", "condition"), ("path", "path"), ("test path", "test path"),
-            ("true_rms_um", "true RMS (μm)"), ("true_max_um", "true max (μm)")]
-    return _table(out, cols)
+    return _sub_table(rows, "per_path", "test path",
+                      [("true_rms_um", "true RMS (μm)"), ("true_max_um", "true max (μm)")])
 
 
 def render_html(doc: dict) -> str:
