@@ -59,7 +59,7 @@ DEFAULT_MACHINES = ("grinder", "hexapod", "tripod")
 def run(args) -> int:
     from ..workflows.benchmark import BenchmarkSettings, quick_settings, run_benchmark
     s = quick_settings() if args.quick else BenchmarkSettings()
-    for k in ("train_iter", "train_s", "seed", "truth_seed"):   # ranges: compensation/app/validate.py, checked
+    for k in ("train_iter", "train_s", "seed", "truth_seed"):   # ranges checked before run (validate.py)
         if getattr(args, k) is not None:
             setattr(s, k, getattr(args, k))
     if args.checks:   # each >= 1 and <= MAX_CHECKS (validate.py), checked before run
