@@ -44,7 +44,7 @@ COMMAND_MODULES = list(COMMAND_HELP)
 def version() -> str:
     """The installed distribution's version, else the package's ``__version__``."""
     try:
-        from importlib.metadata import PackageNotFoundError, version as _v
+        from importlib.metadata import version as _v
         return _v("volcomp")
     except Exception:  # not installed (run from a source tree)
         from errormap import __version__

@@ -477,6 +477,17 @@ def _probe_writable(flag: str, text: str, folder) -> None:
         pass
 
 
+def allowed_verdict(verdict) -> str | None:
+    """``failed-verdict (FILE: verdict failed: REASONS)``: what an output records of a failed diagnosis
+    verdict used with ``--allow failed-verdict`` (``verdict``: :func:`compensation.fields.check_verdict`'s
+    record); None when none was overridden."""
+    if not verdict or not verdict.get("overridden_by"):
+        return None
+    from compensation.fields import FAILED_VERDICT
+    reasons = "; ".join(verdict["reasons"]) or "no reasons recorded"
+    return f"{FAILED_VERDICT} ({verdict['file']}: verdict failed: {reasons})"
+
+
 EXIT_FAILED_VERDICT = 1
 """A diagnosis that ran but whose verdict failed (its model loses to a plain baseline, or the noise it estimates
 is far above the stated one): the files are written, with the verdict in them, and the status is 1 (as

@@ -19,8 +19,7 @@ from compensation.app.validate import UsageError
 from ...evaluate import load_truth
 from ...fields import CHAIN_MODEL_FORMAT, FAILED_VERDICT, MODEL_FORMAT, check_verdict, resolve_model
 from ...model_file import read_model
-from ...nc_state import MACHINE, read_work_offsets
-from ...pathio import read_path
+from ...nc_state import read_work_offsets
 from ..families import family_of, refuse_model_family
 from ..options import add_flute_arguments, add_method_arguments, add_units_option, flute_from_args, parse_methods
 from ..reports.methods import print_table, write_report
