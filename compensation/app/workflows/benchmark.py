@@ -39,6 +39,7 @@ def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, 
     Returns the ``benchmark.json`` document (``rows``, ``settings``, ``environment``, ``paths``).
     """
     from ..reports.benchmark import render_html
+    from ..reports.toolkit import write_page
     s = settings or BenchmarkSettings()
     for m in machines:  # a kind no family holds, or one that does not run it: refused before any work
         try:
@@ -68,11 +69,7 @@ def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, 
                              "sha256": getattr(m, "sha256", "")} for m in machines]}
         out.mkdir(parents=True, exist_ok=True)
         json_path = write_json(out / "benchmark.json", doc)
-        from errormap.io import atomic_write
-        html_path = out / "report.html"
-        page = render_html(doc)
-        with atomic_write(html_path, "w", encoding="utf-8") as fh:
-            fh.write(page)
+        html_path = write_page(out / "report.html", render_html(doc))
         doc["paths"] = {"json": str(json_path), "html": str(html_path)}
         status = "FINISHED"
         avail = [r for r in rows if r["available"]]
