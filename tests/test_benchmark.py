@@ -65,7 +65,7 @@ def _ooc_doc():
 
 
 def test_conclusion_is_computed_from_the_rows():
-    from compensation.app.reports.benchmark import conclusion_lines, markdown_table
+    from compensation.app.reports.benchmark import conclusion_lines
     lines = conclusion_lines(_ooc_doc())
     bump = next(line for line in lines if line.startswith("effect=bump"))
     # 0.8 / 0.7 against the machine without the effect; 1.4 / 0.8 against the parametric loop
@@ -75,8 +75,6 @@ def test_conclusion_is_computed_from_the_rows():
     doc = _ooc_doc()
     doc["rows"][1]["volume_rms_um"] = 0.4  # other figures, other text: nothing is written by hand
     assert "×3.5" in " ".join(conclusion_lines(doc))
-    table = markdown_table(_ooc_doc())
-    assert "hybrid RMS / max μm" in table and "(kept)" in table and "(declined)" in table
 
 
 def test_quick_settings_are_a_subset_of_the_default():
@@ -242,7 +240,6 @@ def test_summary_counts_the_hybrid_against_the_loop_on_the_same_checks():
 def test_a_row_whose_model_verdict_failed_is_marked_and_never_counted():
     """A row whose model's verdict failed (key model_verdict) is shown with its reasons but counts in no win, no
     summary line and no headline: here the learned rows would otherwise win stations=21 (1.0 < 2.0 μm)."""
-    from compensation.app.reports.benchmark import markdown_table
     doc = _doc()
     bad = next(r for r in doc["rows"] if r["path"] == "learned" and r["condition"] == "stations=21")
     bad.update(true_rms_um=1.0, model_verdict={"status": "failed", "reasons": ["loses to the plain baseline"]})
@@ -253,7 +250,6 @@ def test_a_row_whose_model_verdict_failed_is_marked_and_never_counted():
     page = render_html(doc)
     assert "not counted: its model&#39;s verdict FAILED: loses to the plain baseline" in page
     assert "model verdict" in page
-    assert "verdict failed, not counted: 1.00 / 10.0" in markdown_table(doc)
     bad["model_verdict"] = {"status": "passed", "reasons": []}      # passed: counted as before
     assert "<b>learned</b>" in verdicts(doc)[1]
 
@@ -350,7 +346,7 @@ def test_quick_benchmark_end_to_end(tmp_path):
 
 def test_a_failing_learned_path_is_reported_not_faked(monkeypatch, grinder):
     import training.trainers
-    from compensation.app.workflows.benchmark_common import Tracker
+    from compensation.app.workflows.benchmark_common import RowLog, Tracker
     from compensation.app.workflows.benchmark_flute import run_grinder
 
     def broken(*a, **k):
@@ -359,7 +355,9 @@ def test_a_failing_learned_path_is_reported_not_faked(monkeypatch, grinder):
     s = quick_settings()
     s.effects, s.volume_points, s.flute_turns, s.flute_points_per_turn = (), 0, 0.25, 40
     s.ooc_effects = ()
-    rows = run_grinder(grinder, s, Tracker(None, enabled=False))
+    log = RowLog(Tracker(None, enabled=False))
+    assert run_grinder(grinder, s, log) == []
+    rows = log.rows
     par = [r for r in rows if r["path"] == "parametric"]
     lrn = [r for r in rows if r["path"] == "learned"]
     assert len(par) == len(lrn) == 1
@@ -431,13 +429,13 @@ def _chain_settings(**kw):
 def test_chain_benchmark_rows_are_the_users_path_judged_by_the_truth(tmp_path):
     """mill-xyz, no effect: simulate → sweeps → identify → diagnose → exact compensation of the body
     diagonals; the loop's model beats the identified set, which beats no compensation; the files stay."""
-    from compensation.app.workflows.benchmark_common import RowLog, Tracker, bench_row, rng_streams
+    from compensation.app.workflows.benchmark_common import RowLog, Tracker
     from compensation.app.workflows.chain_benchmark import run_chain
     from errormap.machine import load_machine
     m = load_machine("mill-xyz")
     s = _chain_settings()
     log = RowLog(Tracker(None, enabled=False))
-    skipped = run_chain(m, s, log, tmp_path, bench_row, rng_streams(s.seed), lambda msg: None)
+    skipped = run_chain(m, s, log, tmp_path)
     assert skipped == []
     before, after, learned = log.rows
     assert learned["path"] == "learned" and learned["available"] and not learned["closed_loop"]
@@ -460,12 +458,12 @@ def test_chain_benchmark_rows_are_the_users_path_judged_by_the_truth(tmp_path):
 def test_chain_benchmark_runs_its_loop_once_per_check_count(tmp_path):
     """--checks N (repeatable) on a chain: one row after the closed loop per count, the same truth, each loop on
     its own n checks (files beside the default run's), the learned row once."""
-    from compensation.app.workflows.benchmark_common import RowLog, Tracker, bench_row, rng_streams
+    from compensation.app.workflows.benchmark_common import RowLog, Tracker
     from compensation.app.workflows.chain_benchmark import run_chain
     from errormap.machine import load_machine
     s = _chain_settings(chain_checks=(300, 150), train_iter=5)
     log = RowLog(Tracker(None, enabled=False))
-    assert run_chain(load_machine("mill-xyz"), s, log, tmp_path, bench_row, rng_streams(s.seed), lambda m: None) == []
+    assert run_chain(load_machine("mill-xyz"), s, log, tmp_path) == []
     before, a300, a150, learned = log.rows
     assert [r["condition"] for r in (a300, a150)] == ["effect=none (after closed loop, checks=300)",
                                                       "effect=none (after closed loop, checks=150)"]
@@ -480,7 +478,7 @@ def test_chain_benchmark_runs_its_loop_once_per_check_count(tmp_path):
 
 
 def test_chain_benchmark_says_why_a_chain_or_an_effect_is_left_out(tmp_path):
-    from compensation.app.workflows.benchmark_common import RowLog, Tracker, bench_row, rng_streams
+    from compensation.app.workflows.benchmark_common import RowLog, Tracker
     from compensation.app.workflows.chain_benchmark import chain_effects, run_chain
     from errormap.machine import load_machine
     src = (Path(__file__).resolve().parents[1] / "errormap" / "machines" / "lathe-xzc.toml").read_text()
@@ -488,7 +486,7 @@ def test_chain_benchmark_says_why_a_chain_or_an_effect_is_left_out(tmp_path):
     lathe = load_machine(tmp_path / "half-turn.toml")   # a C that is no full turn: no judging path
     log = RowLog(Tracker(None, enabled=False))
     s = _chain_settings()
-    skipped = run_chain(lathe, s, log, tmp_path, bench_row, rng_streams(0), lambda msg: None)
+    skipped = run_chain(lathe, s, log, tmp_path)
     assert log.rows == [] and len(skipped) == 1 and "three linear axes" in skipped[0]["why"]
     kept, why = chain_effects(load_machine("mill-xyz"), ("thermal", "worm", "bump"))
     assert kept == [("thermal", "thermal:X")]
@@ -560,11 +558,11 @@ def test_conclusion_lines_per_check_count():
 # -- the out-of-catalogue loop: the user's path (volcomp identify → volcomp diagnose) -------------------
 def _small_bench(grinder):
     """A GrinderBench on a short flute (0.25 turn, 40 points), no volume points, no MLflow."""
-    from compensation.app.workflows.benchmark_common import Tracker
+    from compensation.app.workflows.benchmark_common import RowLog, Tracker
     from compensation.app.workflows.benchmark_flute import GrinderBench
     s = quick_settings()
     s.volume_points, s.flute_turns, s.flute_points_per_turn, s.ga_points = 0, 0.25, 40, 8
-    return GrinderBench(grinder, s, Tracker(None, enabled=False))
+    return GrinderBench(grinder, s, RowLog(Tracker(None, enabled=False)))
 
 
 def test_out_of_catalogue_loop_runs_the_users_path_and_other_loops_the_effect_search(grinder, monkeypatch):
@@ -626,7 +624,7 @@ def test_out_of_catalogue_rows_are_volcomp_identify_then_diagnose(grinder, tmp_p
     model = json.loads((d / "model.json").read_text())
     # the loop alone (model.json's loop_alone, or model.json without its learned part) and the kept model, each read
     # from the files `volcomp diagnose` wrote, at the benchmark's path conditions
-    from compensation.app.workflows.benchmark_loop import loop_models
+    from compensation.app.workflows.benchmark_flute import loop_models
     models = loop_models(grinder, d / "model.json", PATH_CONDITIONS)
     assert models["parametric"][1] in ("updated", "updated_plus_effects", "updated_alone")   # the elements were updated
     for path in ("hybrid", "parametric"):

@@ -242,9 +242,9 @@ def test_lm_memory_bounded(tmp_path):
     from compensation.app.validate import UsageError
     p = network_params((10, 15, 25, 15, 10))
     n_fit = (MAX_LM_BYTES // 8 - p * p) // (3 * p)
-    check_lm_size(n_fit, (10, 15, 25, 15, 10), "raw")  # at the limit: accepted
+    check_lm_size(n_fit, p)  # at the limit: accepted
     with pytest.raises(UsageError, match="over the limit of 4 GiB"):
-        check_lm_size(n_fit + 1, (10, 15, 25, 15, 10), "raw")
+        check_lm_size(n_fit + 1, p)
 
 
 @pytest.mark.slow  # over 5 CPU s in the fresh-clone CI run of 2026-11-24 (tier rule)

@@ -231,3 +231,22 @@ def test_refusals_are_one_line_naming_the_option_and_nothing_is_written(argv, wo
     assert len(err) == 1 and len(words_only) < MAX_MESSAGE_CHARS, err
     assert all(w in err[0] for w in words), err[0]
     assert not out.exists()
+
+
+@pytest.mark.parametrize("family, argv, words", [
+    ("arm", ["export", "M", "--format", "grid"], ["serial arm", "not yet:", "controller format"]),
+    ("parallel", ["export", "M", "--format", "linuxcnc"], ["parallel machine", "not yet:", "interpolate"]),
+    ("arm", ["report", "--model", "M", "--flute"], ["serial arm", "not yet:", "compensate --machine"]),
+    ("parallel", ["report", "--model", "M", "--flute"], ["parallel machine", "not yet:", "leg-command"]),
+])
+def test_an_arm_or_parallel_model_to_export_or_report_is_refused_by_its_family(family, argv, words, tmp_path,
+                                                                               capsys):
+    """Without --machine the model file tells the family: its gap in one line, not a machine mismatch."""
+    from compensation.app.cli import main
+    model = tmp_path / "model.json"
+    model.write_text('{"format": "volcomp-model/1", "family": "%s"}' % family)
+    out = tmp_path / "out"
+    assert main([str(model) if a == "M" else a for a in argv] + ["--out", str(out)]) == 2
+    err = [ln for ln in capsys.readouterr().err.strip().splitlines() if ln]
+    assert len(err) == 1 and str(model) in err[0] and all(w in err[0] for w in words), err
+    assert not out.exists()

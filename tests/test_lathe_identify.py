@@ -95,12 +95,12 @@ LATHE_HELD_OUT_OVER_FLOOR = 1.5
 
 @pytest.mark.slow
 def test_benchmark_rows_on_the_lathe_are_the_users_path(tmp_path):
-    from compensation.app.workflows.benchmark_common import RowLog, Tracker, bench_row, quick_settings, rng_streams
+    from compensation.app.workflows.benchmark_common import RowLog, Tracker, quick_settings
     from compensation.app.workflows.chain_benchmark import run_chain
     s = quick_settings()
     s.effects, s.volume_points, s.chain_path_points = (), 0, 10
     log = RowLog(Tracker(None, enabled=False))
-    assert run_chain(load_machine(LATHE), s, log, tmp_path, bench_row, rng_streams(s.seed), lambda msg: None) == []
+    assert run_chain(load_machine(LATHE), s, log, tmp_path) == []
     before, after, learned = log.rows
     assert learned["path"] == "learned"   # judged on mill-xyz (tests/test_benchmark.py); here it runs or says why
     assert learned["available"] or learned["not_available"].startswith("training failed")

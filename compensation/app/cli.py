@@ -13,7 +13,7 @@ import sys
 
 # UsageError and the one-line error format live in validate (stdlib only, imports nothing of ours);
 # commands and workflows import them from there, never from this module (it imports every command)
-from compensation.app.validate import MAX_ERROR_CHARS, UsageError, one_line  # noqa: F401
+from compensation.app.validate import MAX_ERROR_CHARS, UsageError, caused_by_interrupt, one_line  # noqa: F401
 
 # sub-commands and their one-line help, in the order `volcomp --help` lists them; command
 # ``a-b`` lives in ``compensation/app/commands/a_b.py``; tests/test_cli_foundation.py checks that
@@ -44,7 +44,7 @@ COMMAND_MODULES = list(COMMAND_HELP)
 def version() -> str:
     """The installed distribution's version, else the package's ``__version__``."""
     try:
-        from importlib.metadata import PackageNotFoundError, version as _v
+        from importlib.metadata import version as _v
         return _v("volcomp")
     except Exception:  # not installed (run from a source tree)
         from errormap import __version__
@@ -136,19 +136,9 @@ def main(argv=None) -> int:
         # ("ImportError: initialization failed", the KeyboardInterrupt as its cause)
         # and a Ctrl-C swallowed inside a C callback can leave a library broken (numba: "no compiled
         # object yet"): an error while an interrupt is pending is that interrupt's consequence
-        if _caused_by_interrupt(exc) or pending["interrupt"]:
+        if caused_by_interrupt(exc) or pending["interrupt"]:
             return _interrupted(command, as_program, pending)
         raise
-
-
-def _caused_by_interrupt(exc: BaseException) -> bool:
-    seen = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, KeyboardInterrupt):
-            return True
-        seen.add(id(exc))
-        exc = exc.__cause__ or exc.__context__
-    return False
 
 
 # A Ctrl-C that lands inside a C callback (numba's compiler calls back into Python while it

@@ -290,6 +290,20 @@ def family_kind(machine) -> str:
     return "grinder" if is_grinder_chain(machine) else machine.kind
 
 
+def refuse_model_family(command: str, src) -> None:
+    """Refuse (one line, the registry's gap) a model of a family that does not run ``command``: an arm's or a
+    parallel machine's calibration (``src``: :class:`compensation.fields.ModelSource`) given to ``export`` or
+    ``report``, which would otherwise be read against the default machine tool."""
+    from ..fields import KIND_NAMES
+    family = {"arm-model": ARM, "arm-calibration": ARM, "pkm-model": PARALLEL,
+              "pkm-calibration": PARALLEL}.get(src.kind)
+    if family is not None and command not in family.targets:
+        g, name = family.gaps[command], KIND_NAMES[src.kind]
+        article = "an" if name[0] in "aeiou" else "a"
+        raise UsageError(f"{src.path or src.spec}: {article} {name}: volcomp {command} does not run on a "
+                         f"{family.name}: {g.word}: {g.reason}")
+
+
 def say_read_as(machine) -> None:
     """Say on stderr, in its one line, that the machine file was read into another form (a ``kind = "grinder"``
     file as its chain, ``MachineTool.read_as``); nothing for any other file."""

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from errormap.io import OUTPUT_LOCK_NAME as LOCK_NAME  # the lock file's name, shared with the writers
 
-from .validate import UsageError
+from .validate import UsageError, caused_by_interrupt
 
 CLEANUP_TRIES = 100
 """A Ctrl-C is re-sent every 0.25 s until the command has stopped (cli.REARM_S): the cleanup
@@ -166,16 +166,9 @@ def _cleanup(folder: Path, before: set | None, created: Path | None, lock: Folde
 
 
 def _is_interrupt(exc: BaseException, interrupted) -> bool:
-    """A Ctrl-C: a KeyboardInterrupt, an error it caused (its cause or context), or any error while
-    ``interrupted()`` says one is pending (cli.main's handler)."""
-    seen = set()
-    e = exc
-    while e is not None and id(e) not in seen:
-        if isinstance(e, KeyboardInterrupt):
-            return True
-        seen.add(id(e))
-        e = e.__cause__ or e.__context__
-    return bool(interrupted and interrupted())
+    """A Ctrl-C (:func:`~compensation.app.validate.caused_by_interrupt`), or any error while ``interrupted()``
+    says one is pending (cli.main's handler)."""
+    return caused_by_interrupt(exc) or bool(interrupted and interrupted())
 
 
 def _prepare(path: Path, kind: str, flag: str, folder: Path):

@@ -35,6 +35,17 @@ class UsageError(ValueError):
 MAX_ERROR_CHARS = 300
 
 
+def caused_by_interrupt(exc: BaseException) -> bool:
+    """Whether ``exc`` is a Ctrl-C: a KeyboardInterrupt, or an error it caused (its cause or context)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 def one_line(msg: str, limit: int = MAX_ERROR_CHARS) -> str:
     """``msg`` on one line, cut in the middle to at most ``limit`` characters."""
     s = " ".join(str(msg).split())
@@ -256,9 +267,9 @@ class Widths:
                              f"{MAX_NETWORK_PARAMS:,} (the paper's 10,15,25,15,10 has {network_params((10, 15, 25, 15, 10)):,})")
 
 
-def check_lm_size(n_points: int, hidden, a_encoding: str) -> None:
-    """Refuse an LM fit whose Jacobian (3n × P) and Hessian (P × P), float64, exceed :data:`MAX_LM_BYTES`."""
-    p = network_params(hidden, a_encoding)
+def check_lm_size(n_points: int, p: int) -> None:
+    """Refuse an LM fit of ``p`` network parameters whose Jacobian (3n × P) and Hessian (P × P),
+    float64, exceed :data:`MAX_LM_BYTES`."""
     need = 8 * (3 * n_points * p + p * p)
     if need > MAX_LM_BYTES:
         n_max = max(0, (MAX_LM_BYTES // 8 - p * p) // (3 * p))
@@ -464,6 +475,17 @@ def _probe_writable(flag: str, text: str, folder) -> None:
         os.unlink(probe)
     except OSError:  # pragma: no cover - a file we just made
         pass
+
+
+def allowed_verdict(verdict) -> str | None:
+    """``failed-verdict (FILE: verdict failed: REASONS)``: what an output records of a failed diagnosis
+    verdict used with ``--allow failed-verdict`` (``verdict``: :func:`compensation.fields.check_verdict`'s
+    record); None when none was overridden."""
+    if not verdict or not verdict.get("overridden_by"):
+        return None
+    from compensation.fields import FAILED_VERDICT
+    reasons = "; ".join(verdict["reasons"]) or "no reasons recorded"
+    return f"{FAILED_VERDICT} ({verdict['file']}: verdict failed: {reasons})"
 
 
 EXIT_FAILED_VERDICT = 1

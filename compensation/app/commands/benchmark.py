@@ -47,8 +47,6 @@ def register(sub):
     p.set_defaults(func=run)
 
 
-
-
 def _name(row) -> str:
     """The kind for the built-in kinds, the machine's name for a chain file (several chains share a kind)."""
     return row["machine"] if family_of_kind(row["machine_kind"]).facts.chain else row["machine_kind"]
@@ -61,16 +59,11 @@ DEFAULT_MACHINES = ("grinder", "hexapod", "tripod")
 def run(args) -> int:
     from ..workflows.benchmark import BenchmarkSettings, quick_settings, run_benchmark
     s = quick_settings() if args.quick else BenchmarkSettings()
-    if args.train_iter is not None:  # ranges: compensation/app/validate.py, checked before run
-        s.train_iter = args.train_iter
-    if args.train_s is not None:
-        s.train_s = args.train_s
+    for k in ("train_iter", "train_s", "seed", "truth_seed"):   # ranges checked before run (validate.py)
+        if getattr(args, k) is not None:
+            setattr(s, k, getattr(args, k))
     if args.checks:   # each >= 1 and <= MAX_CHECKS (validate.py), checked before run
         s.ooc_checks = s.chain_checks = tuple(dict.fromkeys(args.checks))
-    if args.seed is not None:
-        s.seed = args.seed
-    if args.truth_seed is not None:
-        s.truth_seed = args.truth_seed
     if args.machine:
         machines = [load_machine(p) for p in args.machine]
     else:

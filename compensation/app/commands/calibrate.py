@@ -46,7 +46,7 @@ def register(subparsers):
     pkm.kinds = ("hexapod", "tripod")
     pkm.add_argument("--no-scales", action="store_true", help="keep the leg scales at the machine file's values "
                      "(default: identify them)")
-    pkm.add_argument("--scales", action="store_true", help=argparse_suppress())
+    pkm.add_argument("--scales", action="store_true", help=argparse.SUPPRESS)
     pkm.add_argument("--no-loop", action="store_true", help="skip the loop on leg residuals")
     pkm.add_argument("--no-register", action="store_true", help="the instrument frame is the machine frame")
     pkm.add_argument("--lever-mm", type=float, default=None, help="weight of orientation residuals (mm per rad; "
@@ -85,11 +85,6 @@ class KindHelp(argparse.Action):
                     a.help = argparse.SUPPRESS
         parser.print_help()
         parser.exit()
-
-
-def argparse_suppress():
-    import argparse
-    return argparse.SUPPRESS
 
 
 DEFAULT_MACHINE = "hexapod"

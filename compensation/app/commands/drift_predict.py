@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from compensation.app.validate import UsageError
+from compensation.app.validate import UsageError, allowed_verdict
 
 
 def register(sub):
@@ -87,9 +87,8 @@ def run(args) -> int:
               file=sys.stderr)
     head = [f"model: {args.model}", f"log: {args.log}", f"log time unit: {log.notes['time_unit']}",
             f"log temperature units: {log.notes['units']}"]
-    if verdict and verdict.get("overridden_by"):
-        head.append(f"allowed: {FAILED_VERDICT} ({verdict['file']}: verdict failed: "
-                    f"{'; '.join(verdict['reasons']) or 'no reasons recorded'})")
+    if allowed_verdict(verdict):
+        head.append(f"allowed: {allowed_verdict(verdict)}")
     cols = compensation_columns(log, model)       # raises naming any input the model needs and the log lacks
     d = input_novelty(model, log)
     if d is not None:

@@ -23,7 +23,7 @@ from errormap.machine import load_machine
 
 from compensation.app.validate import UsageError
 
-from ..families import family_of, say_read_as
+from ..families import family_of, refuse_model_family, say_read_as
 from ..workflows.controller_tables import DriftSettings, TableSettings, export_drift, export_table
 from ... import export as ex
 from ...fields import FAILED_VERDICT
@@ -143,6 +143,9 @@ def run(args) -> int:
     if machine is not None:   # an arm or a parallel machine: no controller table (the registry's gap), nothing read
         family_of(machine).target("export")
         say_read_as(machine)
+    if args.fmt != "drift":   # an arm's or a parallel machine's calibration: the registry's gap, in one line
+        from ...fields import resolve_model
+        refuse_model_family("export", resolve_model(args.model))
     args.model_verdict = model_verdict(args)   # before any work: a failed diagnosis is refused unless allowed
     drift_only = {"--sample-period-s": args.sample_period_s, "--log": args.log, "--sim": args.sim,
                   "--sim-seed": args.sim_seed}
@@ -161,19 +164,10 @@ def run(args) -> int:
         seed=args.seed, truth=args.truth, diagnosis=args.diagnosis, points=args.points,
         region=parse_region(args.region, machine), force=args.force, tracking_uri=args.tracking_uri,
         model_verdict=args.model_verdict)
-    info = export_table(settings, machine, on_check=_print_check, on_note=print)
+    info = export_table(settings, machine, on_note=print,
+                        on_check=lambda check, truth: print(*format_check(check, truth), sep="\n"))
     _print_written(Path(args.out), list(info["files"]), info, args.tolerance_um)
     return 0
-
-
-def _print_check(check, has_truth) -> None:
-    for line in format_check(check, has_truth):
-        print(line)
-
-
-def _print_drift_check(check) -> None:
-    for line in format_drift_check(check):
-        print(line)
 
 
 def _print_written(out: Path, names, info, tolerance_um) -> None:
@@ -198,7 +192,7 @@ def run_drift(args) -> int:
     settings = DriftSettings(model=args.model, out=args.out, tolerance_um=args.tolerance_um,
                              sample_period_s=args.sample_period_s, log=args.log, sim=args.sim, sim_seed=args.sim_seed,
                              force=args.force, model_verdict=args.model_verdict)
-    info = export_drift(settings, on_check=_print_drift_check)
+    info = export_drift(settings, on_check=lambda check: print(*format_drift_check(check), sep="\n"))
     _print_written(Path(args.out), [ex.DRIFT_FILE], info, args.tolerance_um)
     return 0
 

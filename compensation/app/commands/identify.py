@@ -80,43 +80,34 @@ def run(args) -> int:
     if args.truth and not args.plot:   # never read and ignored
         raise UsageError("--truth is overlaid on the plots: give --plot PREFIX too")
     boot = _bootstrap(args)
+    truth = ChainElementSet.load(args.truth, machine) if args.truth else None
     if target == "chain":
+        from ..reports.identification import plot_chain_elements as plot
         from ..workflows.measurement import identify_chain_files
         print(f"identifying {machine.name} from {', '.join(args.sweeps)} ...", file=sys.stderr)
         res, el_path, cov_path, report = identify_chain_files(machine, args.sweeps, args.out, report=args.report,
                                                               noise_um=args.noise_um, gauge=args.gauge,
                                                               smooth=not args.raw, **boot)
-        for line in res.summary_lines():
-            print(line)
-        print(f"wrote elements: {el_path}")
-        print(f"wrote covariance: {cov_path}")
-        print(f"wrote report: {report}")
-        print(f"wrote model: {_model_file(machine, el_path, cov_path, args)}")
-        if args.plot:
-            from ..reports.identification import plot_chain_elements
-            truth = (truth_in_gauge(machine, ChainElementSet.load(args.truth, machine), args.gauge,
-                                    res.elements_.stations) if args.truth else None)
-            for p in plot_chain_elements(res.elements_, args.plot, truth):
-                print(f"wrote plot: {p}")
-        return 0
-    truth = ChainElementSet.load(args.truth, machine) if args.truth else None
-    sweeps = read_sweeps(args.sweeps, machine)
-    say_read_as(machine)   # a kind = "grinder" file read as its chain; the inputs read: refusals above stay one line
-    print(f"identifying from {', '.join(args.sweeps)} ...", file=sys.stderr)
-    ident = identify_elements(machine, args.sweeps, args.out, report=args.report, noise_um=args.noise_um,
-                              smooth=not args.raw, gauge=args.gauge, sweeps=sweeps, **boot)
-    elements = ident.result.elements_
-    for line in ident.summary_lines():
+        elements, lines = res.elements_, res.summary_lines()
+    else:
+        plot = plot_elements
+        sweeps = read_sweeps(args.sweeps, machine)
+        say_read_as(machine)   # a kind = "grinder" file read as its chain, said once the inputs are read
+        print(f"identifying from {', '.join(args.sweeps)} ...", file=sys.stderr)
+        ident = identify_elements(machine, args.sweeps, args.out, report=args.report, noise_um=args.noise_um,
+                                  smooth=not args.raw, gauge=args.gauge, sweeps=sweeps, **boot)
+        elements = ident.result.elements_
+        lines = ident.summary_lines() + iso_summary_lines(elements)
+        el_path, cov_path, report = ident.elements_path, ident.covariance_path, ident.report_path
+    for line in lines:
         print(line)
-    for line in iso_summary_lines(elements):
-        print(line)
-    print(f"wrote elements: {ident.elements_path}")
-    print(f"wrote covariance: {ident.covariance_path}")
-    print(f"wrote report: {ident.report_path}")
-    print(f"wrote model: {_model_file(machine, ident.elements_path, ident.covariance_path, args)}")
+    print(f"wrote elements: {el_path}")
+    print(f"wrote covariance: {cov_path}")
+    print(f"wrote report: {report}")
+    print(f"wrote model: {_model_file(machine, el_path, cov_path, args)}")
     if args.plot:
         if truth is not None:  # in the identified gauge and squareness split, so like is compared with like
             truth = truth_in_gauge(machine, truth, args.gauge, elements.stations)
-        for p in plot_elements(elements, args.plot, truth):
+        for p in plot(elements, args.plot, truth):
             print(f"wrote plot: {p}")
     return 0

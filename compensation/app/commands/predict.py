@@ -10,7 +10,7 @@ from errormap.field import machine_axes
 from errormap.machine import load_machine
 from errormap.units import check_units
 
-from compensation.app.validate import UsageError
+from compensation.app.validate import UsageError, allowed_verdict
 
 from ..families import family_of
 from ..options import add_units_option
@@ -61,12 +61,6 @@ def _check_volume(args, table, axes, field, machine) -> int:
     hint = "; positions in μm rather than mm?" if far.any() else ""
     raise InputError(f"{table.path}: row {table.row_number(i)}: {reasons[0]} ({len(bad)} of {len(axes)} points "
                      f"outside the calibrated volume{hint}); pass --allow extrapolate to predict there anyway")
-
-
-def _verdict_line(verdict: dict) -> str:
-    """The header line that records a failed diagnosis verdict used on request (``--allow failed-verdict``)."""
-    return (f"allowed: {FAILED_VERDICT} ({verdict['file']}: verdict failed: "
-            f"{'; '.join(verdict['reasons']) or 'no reasons recorded'})")
 
 
 def _band_columns(sd, band) -> dict:
@@ -206,7 +200,7 @@ def _run_machine_tool(machine, args) -> int:
                 coverage="path", units=args.units, option="--units")
     src = resolve_model(args.model)  # by content: the file's format key, a model folder, an MLflow reference
     verdict = check_verdict(src.path, FAILED_VERDICT in args.allow)  # a failed diagnosis: refused unless allowed
-    allowed = [_verdict_line(verdict)] if verdict and verdict.get("overridden_by") else []
+    allowed = [f"allowed: {allowed_verdict(verdict)}"] if allowed_verdict(verdict) else []
     model = read_model(args.model, machine, args.tracking_uri, source=src)
     tail = [f"model: {src.description}", f"model_kind: {src.kind}", f"model_holds: {', '.join(model.holds())}",
             f"units: {args.units}"]

@@ -19,9 +19,8 @@ from compensation.app.validate import UsageError
 from ...evaluate import load_truth
 from ...fields import CHAIN_MODEL_FORMAT, FAILED_VERDICT, MODEL_FORMAT, check_verdict, resolve_model
 from ...model_file import read_model
-from ...nc_state import MACHINE, read_work_offsets
-from ...pathio import read_path
-from ..families import family_of
+from ...nc_state import read_work_offsets
+from ..families import family_of, refuse_model_family
 from ..options import add_flute_arguments, add_method_arguments, add_units_option, flute_from_args, parse_methods
 from ..reports.methods import print_table, write_report
 from ..workflows.compare import compare_methods
@@ -164,6 +163,7 @@ def run(args) -> int:
     targets, nominal, path_info = _flute(args, machine) if args.flute else _tool_path(args, machine)
     truth = load_truth(args.truth, machine) if args.truth else None
     source = resolve_model(args.model)  # by content: format key, model folder or MLflow reference
+    refuse_model_family("report", source)   # an arm's or a parallel machine's calibration: the registry's gap
     verdict = check_verdict(source.path, FAILED_VERDICT in args.allow)  # a failed diagnosis: refused unless allowed
     print(f"report: model {source.description}", file=sys.stderr)
     model = read_model(args.model, machine, args.tracking_uri, source=source)

@@ -104,8 +104,8 @@ def run(args) -> int:
     if args.a_encoding is None:
         settings = dataclasses.replace(settings, a_encoding="raw")
     if args.trainer == "lm":
-        from ..validate import check_lm_size
-        check_lm_size(len(fp.axes), hidden, args.a_encoding or "raw")
+        from ..validate import check_lm_size, network_params
+        check_lm_size(len(fp.axes), network_params(hidden, args.a_encoding or "raw"))
     fp.check_units(_grinder_machine(fp))
     validation = _read_validation(args.validation) if args.validation else None
 
@@ -117,25 +117,33 @@ def run(args) -> int:
     tracking = TrackSettings(tracking_uri=args.tracking_uri, run_name=args.run_name,
                              tags={"featurepoints_file": str(Path(args.featurepoints).resolve())})
     res = fit_field(fp, settings, validation=validation, tracking=tracking, out_dir=out)
-    m = res.metrics
     print(f"run id: {res.run_id}")
     print(f"stopped after {res.history.iterations} iterations, {res.seconds:.1f} s: {res.history.stop_reason}")
     if res.history.stop_reason.startswith("time budget"):
         print(f"the wall-clock budget decided where training stopped; --max-iter {res.history.iterations} "
               "(without --max-time) reproduces this model")
-    print(f"{'fit error (μm)':<16}{'max':>10}{'rms':>10}{'max dx':>10}{'max dy':>10}{'max dz':>10}")
-    if args.physics != "none":
-        print(f"physical part alone (element set fitted to the feature points, {res.params['physics_stations']} "
-              f"stations per axis): train max {m['physics_train_max_um']:.4f} μm, val max {m['physics_val_max_um']:.4f} μm")
-    for p in ("train", "val"):
-        print(f"{p + ' (' + str(res.params['n_' + p]) + ' pts)':<16}" + "".join(
-            f"{m[k]:>10.4f}" for k in (f"{p}_max_um", f"{p}_rms_um", f"{p}_max_dx_um", f"{p}_max_dy_um", f"{p}_max_dz_um")))
+    _print_fit(args, res, "element set", "")
     print(f"wrote model: {out / 'model'}")
     print(f"wrote model file: {_model_file(out, _grinder_machine(fp), args, res.run_id)}")
     print(f"wrote plots: {out / 'fit_error_xz.png'}, {out / 'fit_featurepoints.png'}")
     print(f"wrote metrics: {out / 'metrics.json'}")
     print(f"load it with: --model runs:/{res.run_id}/model")
     return 0
+
+
+def _print_fit(args, res, physics: str, kept: str) -> None:
+    """The fit-error table: the physical part alone (``physics`` fitted to the feature points, ``kept``
+    appended), then max / RMS / per-component max on the training and the validation points (μm)."""
+    m = res.metrics
+    print(f"{'fit error (μm)':<16}{'max':>10}{'rms':>10}{'max dx':>10}{'max dy':>10}{'max dz':>10}")
+    if args.physics != "none":
+        n = res.params["physics_stations"]
+        print(f"physical part alone ({physics} fitted to the feature points, {n} stations per axis): "
+              f"train max {m['physics_train_max_um']:.4f} μm, val max {m['physics_val_max_um']:.4f} μm{kept}")
+    for p in ("train", "val"):
+        print(f"{p + ' (' + str(res.params['n_' + p]) + ' pts)':<16}" + "".join(
+            f"{m[k]:>10.4f}" for k in (f"{p}_max_um", f"{p}_rms_um", f"{p}_max_dx_um", f"{p}_max_dy_um",
+                                       f"{p}_max_dz_um")))
 
 
 def _grinder_machine(fp):
@@ -187,13 +195,9 @@ def _run_chain(args, fp, settings, max_iter, max_time, hidden) -> int:
                          "turn to encode (a full-turn rotary axis is always (cos, sin), a linear axis one scaled input)")
     from training.chain_model import ChainMLPField, fit_chain_field
     if args.trainer == "lm":
-        from ..validate import MAX_LM_BYTES
-        p = ChainMLPField.for_machine(machine, settings.a_encoding, hidden=hidden).n_params
-        need = 8 * (3 * len(fp.axes) * p + p * p)
-        if need > MAX_LM_BYTES:
-            raise UsageError(f"--trainer lm: {len(fp.axes):,} feature points x {p:,} network parameters need "
-                             f"{need / 2**30:.3g} GiB for the Jacobian, over the limit of {MAX_LM_BYTES / 2**30:g} "
-                             "GiB (or --trainer adam / lbfgs)")
+        from ..validate import check_lm_size
+        net = ChainMLPField.for_machine(machine, settings.a_encoding, hidden=hidden)
+        check_lm_size(len(fp.axes), net.n_params)
     validation = _read_validation(args.validation, machine.axis_columns) if args.validation else None
     out = Path(args.out)
     print(f"training {args.trainer} on {len(fp.axes)} feature points of the machine-tool chain {machine.name!r} "
@@ -203,15 +207,8 @@ def _run_chain(args, fp, settings, max_iter, max_time, hidden) -> int:
     m = res.metrics
     print(f"stopped after {res.history.iterations} iterations, {res.seconds:.1f} s "
           f"({m['train_cpu_seconds']:.1f} CPU s): {res.history.stop_reason}")
-    print(f"{'fit error (μm)':<16}{'max':>10}{'rms':>10}{'max dx':>10}{'max dy':>10}{'max dz':>10}")
-    if args.physics != "none":
-        print(f"physical part alone (the chain's element set fitted to the feature points, "
-              f"{res.params['physics_stations']} stations per axis): train max {m['physics_train_max_um']:.4f} μm, "
-              f"val max {m['physics_val_max_um']:.4f} μm" + (" (kept alone: the network did not improve it)"
-                                                             if m["physics_alone_kept"] else ""))
-    for p in ("train", "val"):
-        print(f"{p + ' (' + str(res.params['n_' + p]) + ' pts)':<16}" + "".join(
-            f"{m[k]:>10.4f}" for k in (f"{p}_max_um", f"{p}_rms_um", f"{p}_max_dx_um", f"{p}_max_dy_um", f"{p}_max_dz_um")))
+    _print_fit(args, res, "the chain's element set", " (kept alone: the network did not improve it)"
+               if m["physics_alone_kept"] else "")
     print(f"{'baseline (OLS)':<16}{m['baseline_ols_val_max_um']:>10.4f}{m['baseline_ols_val_rms_um']:>10.4f}"
           "   (affine least squares on the axes, same validation points)")
     print(f"wrote model: {out / 'model'} (inputs {', '.join(machine.axis_columns)}; machine {machine.name})")

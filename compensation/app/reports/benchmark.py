@@ -19,12 +19,9 @@ PLOT_FLOOR_UM = 0.01
 
 
 def _stop(s: dict, prefix: str) -> str:
-    """How training stopped, from the settings: ``{prefix}_iter`` iterations, an optional
-    ``{prefix}_s`` wall-clock limit (older benchmark.json files have only the time budget)."""
-    it, secs = s.get(f"{prefix}_iter"), s.get(f"{prefix}_s")
-    if it is None:
-        return f"for at most {secs:g} s"
-    return f"for {it} iterations" + (f" (at most {secs:g} s)" if secs is not None else "")
+    """How training stopped: ``{prefix}_iter`` iterations of the settings, an optional ``{prefix}_s``."""
+    secs = s[f"{prefix}_s"]
+    return f"for {s[f'{prefix}_iter']} iterations" + (f" (at most {secs:g} s)" if secs is not None else "")
 
 
 def verdict_failed(r) -> bool:
@@ -36,20 +33,10 @@ def verdict_failed(r) -> bool:
 def _rows(doc, kinds=None, group=None, path=None, available=True):
     """The rows of ``doc`` of machines of ``kinds`` (a family's, :mod:`compensation.app.families`; None: all),
     ``group`` and ``path``; ``available``: True the rows that ran (and passed their verdict), None all."""
-    out = []
-    for r in doc["rows"]:
-        if kinds is not None and r["machine_kind"] not in kinds:
-            continue
-        if group and r.get("group") != group:
-            continue
-        if path and r["path"] != path:
-            continue
-        if available is not None and bool(r.get("available")) != available:
-            continue
-        if available and verdict_failed(r):
-            continue
-        out.append(r)
-    return out
+    return [r for r in doc["rows"] if (kinds is None or r["machine_kind"] in kinds)
+            and (not group or r.get("group") == group) and (not path or r["path"] == path)
+            and (available is None or bool(r.get("available")) == available)
+            and not (available and verdict_failed(r))]
 
 
 def _line_plot(doc, kinds, select, xkey, xlabel, title, alt) -> Figure | None:
@@ -85,10 +72,8 @@ def _effects_plot(doc) -> Figure | None:
     bars = [("parametric", False), ("parametric", True), ("learned", False), ("learned", True)]
     w = 0.2
     for j, (p, loop) in enumerate(bars):
-        vals = []
-        for e in effects:
-            v = [r["true_rms_um"] for r in rows if r["effect"] == e and r["path"] == p and bool(r.get("closed_loop")) == loop]
-            vals.append(v[0] if v else np.nan)
+        vals = [next((r["true_rms_um"] for r in rows if r["effect"] == e and r["path"] == p
+                      and bool(r.get("closed_loop")) == loop), np.nan) for e in effects]
         ax.bar(np.arange(len(effects)) + (j - 1.5) * w, vals, w, color=PATH_COLORS[p], alpha=1.0 if loop else 0.45,
                label=f"{p}, {'after' if loop else 'before'} closed loop")
     ax.set_xticks(np.arange(len(effects)))
@@ -290,26 +275,23 @@ ARM_COLS = [("condition", "condition"), ("path", "path"), ("stage", "stage"), ("
             ("compensate_seconds_per_point", "compensate (CPU s/point)")]
 
 
+def _sub_table(rows, key: str, label: str, cols) -> Table:
+    """A line per entry of each row's ``key`` dict (``solvers``, ``per_path``), named in column ``label``."""
+    out = [{"path": r["path"], "condition": r["condition"], label: name, **d}
+           for r in rows for name, d in (r.get(key) or {}).items()]
+    return _table(out, [("condition", "condition"), ("path", "path"), (label, label), *cols])
+
+
 def _solver_table(rows) -> Table:
-    out = []
-    for r in rows:
-        for name, d in (r.get("solvers") or {}).items():
-            out.append({"path": r["path"], "condition": r["condition"], "solver": name, **d})
-    cols = [("condition", "condition"), ("path", "path"), ("solver", "solver"), ("points", "points"),
-            ("true_rms_um", "true RMS (μm)"), ("true_max_um", "true max (μm)"),
-            ("model_max_um", "model residual max (μm)"), ("seconds_per_point", "s/point"),
-            ("failures", "not converged")]
-    return _table(out, cols)
+    return _sub_table(rows, "solvers", "solver", [
+        ("points", "points"), ("true_rms_um", "true RMS (μm)"), ("true_max_um", "true max (μm)"),
+        ("model_max_um", "model residual max (μm)"), ("seconds_per_point", "s/point"),
+        ("failures", "not converged")])
 
 
 def _per_path_table(rows) -> Table:
-    out = []
-    for r in rows:
-        for name, d in (r.get("per_path") or {}).items():
-            out.append({"path": r["path"], "condition": r["condition"], "test path": name, **d})
-    cols = [("condition", "condition"), ("path", "path"), ("test path", "test path"),
-            ("true_rms_um", "true RMS (μm)"), ("true_max_um", "true max (μm)")]
-    return _table(out, cols)
+    return _sub_table(rows, "per_path", "test path",
+                      [("true_rms_um", "true RMS (μm)"), ("true_max_um", "true max (μm)")])
 
 
 def render_html(doc: dict) -> str:
@@ -360,39 +342,3 @@ def render_html(doc: dict) -> str:
                        grinder=grinder, chains=chains, arms=arms, pkm=pkm, cost_figure=_cost_plot(doc),
                        train_stop=_stop(s, "train"), pkm_train_stop=_stop(s, "pkm_train"))
 
-
-def markdown_table(doc: dict) -> str:
-    """The main table (one line per machine and condition, both paths side by side) as Markdown."""
-    by = {}
-    for r in doc["rows"]:
-        by.setdefault((r["machine_kind"], r["condition"]), {})[r["path"]] = r
-    hybrid = any(r["path"] == "hybrid" for r in doc["rows"])
-    lines = ["| machine | condition | measurements | parametric RMS / max μm | learned RMS / max μm | "
-             + ("hybrid RMS / max μm | volume RMS par / hybrid μm | " if hybrid else "")
-             + "uncompensated RMS μm | fit s (par / learned) | compensate ms/point (par / learned) |",
-             "|---|---|---|---|---|" + ("---|---|" if hybrid else "") + "---|---|---|"]
-
-    def cell(r, a, b, scale=1.0):
-        if r is None or not r.get("available"):
-            return "n/a" if r is None else f"n/a: {r.get('not_available')}"
-        va, vb = r.get(a), r.get(b)
-        f = (lambda v: num(None if v is None else v * scale))
-        mark = "verdict failed, not counted: " if verdict_failed(r) else ""
-        return mark + (f"{f(va)} / {f(vb)}" if b else f(va))
-
-    for (kind, cond), d in by.items():
-        p, l = d.get("parametric"), d.get("learned")
-        any_r = p or l
-        fit = " / ".join(num(None if x is None else x.get("fit_seconds")) for x in (p, l))
-        comp = " / ".join(num(None if x is None or x.get("compensate_seconds_per_point") is None
-                              else 1e3 * x["compensate_seconds_per_point"]) for x in (p, l))
-        h = d.get("hybrid")
-        hy = ""
-        if hybrid:
-            vol = "—" if h is None or not h.get("available") else \
-                f"{num((p or {}).get('volume_rms_um'))} / {num(h.get('volume_rms_um'))}"
-            hy = ("— | " if h is None else f"{cell(h, 'true_rms_um', 'true_max_um')}"
-                  f"{'' if not h.get('available') else (' (kept)' if h.get('learned_kept') else ' (declined)')} | ") + f"{vol} | "
-        lines.append(f"| {kind} | {cond} | {any_r.get('n_measurements')} | {cell(p, 'true_rms_um', 'true_max_um')} | "
-                     f"{cell(l, 'true_rms_um', 'true_max_um')} | {hy}{num(any_r.get('uncompensated_rms_um'))} | {fit} | {comp} |")
-    return "\n".join(lines)

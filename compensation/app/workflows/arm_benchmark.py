@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .benchmark_common import bench_row, say
+
 ARM_SOLVER = "Newton on the calibrated chain, tool orientation kept (volcomp compensate)"
 
 
@@ -32,9 +34,9 @@ def _landing_um(chain, truth, geo, learner, q_prog, target):
     return 1000.0 * np.linalg.norm(truth.base_frame_point(chain, sol.q) - target, axis=1), dt, sol.converged
 
 
-def run_arm(machine, s, log, out_dir, row, note) -> None:
+def run_arm(machine, s, log, out_dir) -> list:
     """Add the arm rows of ``machine`` (a serial chain) to ``log`` (:class:`RowLog`); a failing condition is a
-    row marked not available, never skipped."""
+    row marked not available, never skipped (returns no skipped condition)."""
     from errormap.arm_poses import read_arm_poses
 
     from .arm_calibration import calibrate_arm, errors_mm, held_out_verdict
@@ -45,7 +47,7 @@ def run_arm(machine, s, log, out_dir, row, note) -> None:
     for k, effects in enumerate(s.arm_effects):
         cname = "+".join(effects) if effects else "none"
         d = base / cname
-        note(f"{machine.name}: {cname}: simulate → calibrate → compensate")
+        say(f"{machine.name}: {cname}: simulate → calibrate → compensate")
         common = {"noise_um": s.arm_noise_um, "noise_floor_um": floor_um, "effect": cname,
                   "n_measurements": s.arm_poses, "n_held_out": s.arm_checks, "measurements_dir": str(d)}
         try:
@@ -62,8 +64,8 @@ def run_arm(machine, s, log, out_dir, row, note) -> None:
             fit_s = time.process_time() - t0
         except Exception as exc:  # a failing condition is reported, never faked
             for path in ("plain LSQ", "parametric", "hybrid"):
-                log.add(row(machine.name, "serial", path, cname, available=False,
-                            not_available=f"{type(exc).__name__}: {exc}", **common))
+                log.add(bench_row(machine.name, "serial", path, cname, available=False,
+                                  not_available=f"{type(exc).__name__}: {exc}", **common))
             continue
         unc_stats = {"uncompensated_rms_um": float(np.sqrt(np.mean(unc ** 2))), "uncompensated_max_um": float(unc.max())}
         kept = core["kept_stage"]
@@ -79,12 +81,15 @@ def run_arm(machine, s, log, out_dir, row, note) -> None:
             extra = ({"learned_kept": learner is not None, "kept_stage": kept, "model_verdict": verdict}
                      if path == "hybrid" else {})
             if not ok.all():
-                log.add(row(machine.name, "serial", path, cname, available=False, stage=stage,
-                            not_available=f"{int((~ok).sum())} of {len(ok)} program points did not converge or left "
-                                          "the joint limits", **common, **unc_stats, **extra))
+                why = (f"{int((~ok).sum())} of {len(ok)} program points did not converge or left the "
+                       "joint limits")
+                log.add(bench_row(machine.name, "serial", path, cname, available=False, stage=stage,
+                                  not_available=why, **common, **unc_stats, **extra))
                 continue
-            log.add(row(machine.name, "serial", path, cname, solver=ARM_SOLVER, stage=stage,
-                        test_path=f"joint program ({len(q_prog)} well-conditioned points)",
-                        true_rms_um=float(np.sqrt(np.mean(e ** 2))), true_max_um=float(e.max()),
-                        checks_rms_after_um=float(1000.0 * np.sqrt(np.mean(held ** 2))),
-                        fit_seconds=fit_s, compensate_seconds_per_point=dt, **common, **unc_stats, **extra))
+            log.add(bench_row(machine.name, "serial", path, cname, solver=ARM_SOLVER, stage=stage,
+                              test_path=f"joint program ({len(q_prog)} well-conditioned points)",
+                              true_rms_um=float(np.sqrt(np.mean(e ** 2))), true_max_um=float(e.max()),
+                              checks_rms_after_um=float(1000.0 * np.sqrt(np.mean(held ** 2))),
+                              fit_seconds=fit_s, compensate_seconds_per_point=dt, **common, **unc_stats,
+                              **extra))
+    return []

@@ -18,7 +18,7 @@ from errormap.arm_frames import base_rotation, to_base_frame
 from errormap.arm_poses import tracker_grid_columns, tracker_grid_points
 from errormap.io import read_table, write_csv
 
-from compensation.app.validate import UsageError
+from compensation.app.validate import UsageError, allowed_verdict
 
 from ...arm_compensation import model_point
 from ...model_file import read_model
@@ -72,7 +72,7 @@ def arm_predict_settings_of(model, out, band, allow) -> ArmPredictSettings:
 
 def run_arm_predict(chain, points, settings: ArmPredictSettings) -> int:
     """``volcomp predict`` of the joint configurations (or tracker-grid poses) in ``points`` on a serial arm."""
-    from ...fields import FAILED_VERDICT, check_verdict
+    from ...fields import check_verdict
     model, band = settings.model, settings.band
     cal = read_model(model, chain, family="arm").calibration.require_base_frame(model)
     geo, learner, band_c = cal.geometric, cal.learner, cal.band_scale
@@ -90,9 +90,8 @@ def run_arm_predict(chain, points, settings: ArmPredictSettings) -> int:
     cols.update({c: d[:, i] for i, c in enumerate(("dx_mm", "dy_mm", "dz_mm"))})
     meta = [f"machine: {chain.name}", f"model: {model}",
             "x_mm..z_mm: calibrated tool point, dx_mm..dz_mm: calibrated minus nominal, both in the robot's base frame"]
-    if verdict and verdict.get("overridden_by"):
-        meta.insert(0, f"allowed: {FAILED_VERDICT} ({verdict['file']}: verdict failed: "
-                       f"{'; '.join(verdict['reasons']) or 'no reasons recorded'})")
+    if allowed_verdict(verdict):
+        meta.insert(0, f"allowed: {allowed_verdict(verdict)}")
     if measured is not None:
         e = measured - p
         cols.update({c: e[:, i] for i, c in enumerate(("ex_mm", "ey_mm", "ez_mm"))})

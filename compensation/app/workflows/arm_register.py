@@ -17,7 +17,7 @@ from errormap.arm_register import MIN_POSES, choose_candidate, fit_frame, regist
 from errormap.io import InputError, write_json
 from training.arm_residual import RotatedResidual
 
-from compensation.app.validate import UsageError
+from compensation.app.validate import UsageError, allowed_verdict
 
 from ...calibration_models import calibration_model_document
 from ...model_file import read_model
@@ -95,7 +95,7 @@ def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: in
     verdict failed is refused (InputError naming it and the reasons) unless ``allow_failed_verdict``
     (``--allow failed-verdict``): then ``registration.allowed`` records it, and the calibration's own failed verdict
     stays in the output (every later use refuses it again unless allowed)."""
-    from ...fields import FAILED_VERDICT, check_verdict
+    from ...fields import check_verdict
     m = read_model(model, chain, family="arm")          # refuses what is not an arm calibration of this chain
     geo, learner, doc = m.calibration.geometric, m.calibration.learner, m.doc
     verdict = check_verdict(model, allow_failed_verdict)
@@ -149,9 +149,7 @@ def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: in
         "learned_why": ((sessions or {}).get("why", {}).get("learned") or across.get("why")) if dropped else
                        (choice["why"] if had_learner else None),
         "across_sessions": None if sessions is None else {"carried": carried, "why": sessions.get("why")},
-        "allowed": (f"{FAILED_VERDICT} ({verdict['file']}: verdict failed: "
-                    f"{'; '.join(verdict['reasons']) or 'no reasons recorded'})"
-                    if verdict and verdict.get("overridden_by") else None),
+        "allowed": allowed_verdict(verdict),
         "temperature_c": temperature_summary(data), "temperature_change_c": _temperature_change(doc, data),
         "residual_kind": "measured residual (measured − model) on the session's poses after the first n_fit_poses, "
                          "position norm, mm"}

@@ -7,9 +7,9 @@ records every run in MLflow under one parent run, and writes ``DIR/benchmark.jso
 (:mod:`compensation.app.reports.benchmark`). The paths, conditions, settings and rows per machine family are
 described in docs/reference/benchmark.md.
 
-The rows are in :mod:`.benchmark_flute` (the built-in machine's flute; ``loop_method``: :data:`.benchmark_common.USER_LOOP`
-or :data:`.benchmark_common.EFFECTS_LOOP`), :mod:`.benchmark_parallel`, :mod:`.chain_benchmark` and :mod:`.arm_benchmark`; what they
-share in :mod:`.benchmark_common`. Every figure is measured in this run; a part that cannot run is reported as not
+The rows are in :mod:`.benchmark_flute` (the built-in machine's flute), :mod:`.benchmark_parallel`,
+:mod:`.chain_benchmark` and :mod:`.arm_benchmark` (one signature, :data:`BENCH_BY_TARGET`); what they share in
+:mod:`.benchmark_common`. Every figure is measured in this run; a part that cannot run is reported as not
 available with the reason, never filled in.
 """
 from __future__ import annotations
@@ -21,42 +21,15 @@ from pathlib import Path
 from errormap.io import write_json
 
 from ..families import family_kind, family_of
-from .benchmark_common import (PATH_CONDITIONS, BenchmarkSettings, RowLog, Tracker, bench_row, quick_settings,
-                               rng_streams, say)
+from .arm_benchmark import run_arm
+from .benchmark_common import PATH_CONDITIONS, BenchmarkSettings, RowLog, Tracker, quick_settings, say
 from .benchmark_flute import run_grinder
 from .benchmark_parallel import run_pkm
+from .chain_benchmark import run_chain
 
-
-def _bench_grinder(m, s, tracker, out_dir):
-    return run_grinder(m, s, tracker), []
-
-
-def _bench_pkm(m, s, tracker, out_dir):
-    conds = None
-    if not family_of(m).facts.paper_paths:  # one condition: the tripod has no paper test path
-        conds = {(s.pkm_base_poses, s.pkm_base_noise_um): "baseline"}
-    return run_pkm(m, s, tracker, conds), []
-
-
-def _bench_chain(m, s, tracker, out_dir):
-    """A chain file: the user's path per condition (workflows/chain_benchmark.py)."""
-    from .chain_benchmark import run_chain
-    log = RowLog(tracker)
-    skipped = run_chain(m, s, log, out_dir, bench_row, rng_streams(s.seed), say)
-    return log.rows, skipped
-
-
-def _bench_arm(m, s, tracker, out_dir):
-    """An arm: simulate → calibrate → compensate per condition (workflows/arm_benchmark.py)."""
-    from .arm_benchmark import run_arm
-    log = RowLog(tracker)
-    run_arm(m, s, log, out_dir, bench_row, say)
-    return log.rows, []
-
-
-BENCH_BY_TARGET = {"grinder": _bench_grinder, "parallel": _bench_pkm, "chain": _bench_chain, "arm": _bench_arm}
+BENCH_BY_TARGET = {"grinder": run_grinder, "parallel": run_pkm, "chain": run_chain, "arm": run_arm}
 """Each family's benchmark (its registry target, :mod:`compensation.app.families`):
-``(machine, settings, tracker, out_dir) -> (rows, skipped)``."""
+``(machine, settings, row log, out_dir) -> skipped conditions``, the rows added to the log."""
 
 
 def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, tracking_uri: str | None = None,
@@ -66,6 +39,7 @@ def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, 
     Returns the ``benchmark.json`` document (``rows``, ``settings``, ``environment``, ``paths``).
     """
     from ..reports.benchmark import render_html
+    from ..reports.toolkit import write_page
     s = settings or BenchmarkSettings()
     for m in machines:  # a kind no family holds, or one that does not run it: refused before any work
         try:
@@ -95,11 +69,7 @@ def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, 
                              "sha256": getattr(m, "sha256", "")} for m in machines]}
         out.mkdir(parents=True, exist_ok=True)
         json_path = write_json(out / "benchmark.json", doc)
-        from errormap.io import atomic_write
-        html_path = out / "report.html"
-        page = render_html(doc)
-        with atomic_write(html_path, "w", encoding="utf-8") as fh:
-            fh.write(page)
+        html_path = write_page(out / "report.html", render_html(doc))
         doc["paths"] = {"json": str(json_path), "html": str(html_path)}
         status = "FINISHED"
         avail = [r for r in rows if r["available"]]
@@ -115,14 +85,12 @@ def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, 
 
 
 def _run_machines(machines, s: BenchmarkSettings, tracker: Tracker, out_dir):
-    rows, skipped = [], []
+    log, skipped = RowLog(tracker), []
     for m in machines:
         t0 = time.perf_counter()
-        r, k = BENCH_BY_TARGET[family_of(m).target("benchmark")](m, s, tracker, out_dir)
-        rows += r
-        skipped += k
+        skipped += BENCH_BY_TARGET[family_of(m).target("benchmark")](m, s, log, out_dir)
         say(f"{family_kind(m)} done in {time.perf_counter() - t0:.0f} s")
-    return rows, skipped
+    return log.rows, skipped
 
 
 def _cpus() -> int:

@@ -61,7 +61,6 @@ class BenchmarkSettings:
     hidden: tuple = (10, 15, 25, 15, 10)   # the paper's network (LM + off-grid model selection)
     activation: str = "sigmoid"
     a_encoding: str = "raw"
-    paper_network: bool = False            # extra row with the paper's network: it is the default now
     ga_points: int = 100
     ga_generations: int = 400
     flute_turns: float = 7.0
@@ -99,7 +98,7 @@ def quick_settings() -> BenchmarkSettings:
     """The ``--quick`` variant (a test runs it): fewer conditions, tiny training, path subsets."""
     return BenchmarkSettings(stations=(21,), noises_um=(1.0,), effects=("thermal",), n_checks=200,
                              ooc_effects=("bump",), ooc_checks=(200,),
-                             train_iter=60, hidden=(8, 8), activation="tanh", a_encoding="periodic", paper_network=False,
+                             train_iter=60, hidden=(8, 8), activation="tanh", a_encoding="periodic",
                              ga_points=20, ga_generations=100, flute_turns=1.0, flute_points_per_turn=200,
                              volume_points=50,
                              pkm_poses=(50,), pkm_noises_um=(5.0,), pkm_base_poses=50, pkm_train_iter=50,
@@ -227,6 +226,12 @@ class RowLog:
         if row.get("available"):
             say(f"  {row['path']:10s} {row['condition']}: true RMS {row['true_rms_um']:.3f} um, max "
                  f"{row['true_max_um']:.3f} um, fit {row['fit_seconds']:.1f} s")
+
+
+def scored(sol: dict) -> dict:
+    """A row's head figures from one solver's TRUE-residual result: RMS, max and seconds per point."""
+    return {"true_rms_um": sol["true_rms_um"], "true_max_um": sol["true_max_um"],
+            "compensate_seconds_per_point": sol["seconds_per_point"]}
 
 
 def with_volume(row: dict, vol) -> dict:

@@ -6,17 +6,45 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from errormap.stats import residual_stats
 
+from ..families import family_kind
 from .benchmark_common import (EFFECTS_LOOP, EXPERIMENT, FEATURE_REUSE_TOL_UM, LEARNED_GRID, PATH_CONDITIONS,
                                TRUTH_CONDITIONS, USER_LOOP, BenchmarkSettings, RowLog, Tracker, bench_row, rng_streams,
-                               say, with_volume)
-from .benchmark_loop import at_conditions, loop_models
+                               say, scored, with_volume)
+
+
+def at_conditions(field_, mt, conditions: dict):
+    """``field_`` with ``conditions`` (``{name: value}``) for the conditions its terms need."""
+    from .compensate import field_conditions
+    return field_conditions(field_, {c: conditions[c] for c in getattr(field_, "needs", ())}, mt)
+
+
+def loop_models(machine, model_path, conditions: dict) -> dict:
+    """``{"parametric": (terms, stage, field), "hybrid": ...}`` of a diagnose run's ``model.json``: the loop
+    alone (without the learned part; its ``loop_alone`` elements and terms when the base was backfitted) and
+    the kept model, each at ``conditions`` (the benchmark's flute conditions)."""
+    import json
+    from errormap.chain_elements import ChainElementSet
+    from errormap.diagnosis.loop_model import ChainModelField, read_terms
+    from ...model_file import read_model
+    kept = read_model(model_path, machine).field   # checks the file (format, machine) before it is read here
+    doc = json.loads(Path(model_path).read_text(encoding="utf-8"))
+    # the loop alone had the terms the learned part replaced
+    alone = doc.get("loop_alone") or {"elements": doc["elements"],
+                                      "terms": doc["terms"] + doc.get("base_terms_replaced", [])}
+    elements = ChainElementSet.load(Path(model_path).parent / alone["elements"], machine)
+    key = "loop_alone" if "loop_alone" in doc else "terms"
+    base = ChainModelField(machine, elements, read_terms(alone["terms"], machine, model_path, key))
+    return {"parametric": (alone["terms"], doc.get("base_stage", doc["kept_stage"]),
+                           at_conditions(base, machine, conditions)),
+            "hybrid": (doc["terms"], doc["kept_stage"], at_conditions(kept, machine, conditions))}
+
 
 @dataclass
 class GrinderCondition:
@@ -166,6 +194,7 @@ class NetworkTrainer:
 
     def __init__(self, machine, tracker: Tracker, warm_up_axes):
         self.m, self.tracker, self.warm_up_axes = machine, tracker, warm_up_axes
+        self.kind = family_kind(machine)
         self.cache = []  # (network settings, feature-point errors, fit result, seconds, condition)
 
     def train(self, elements, cond_name: str, s: BenchmarkSettings):
@@ -182,17 +211,17 @@ class NetworkTrainer:
         val = validation_points(self.m, elements, n=2000, seed=streams["validation"])
         # model selection on other off-grid points of the same identified model (not the validation set)
         sel = validation_points(self.m, elements, n=2000, seed=streams["selection"])
-        say(f"grinder: training the network ({cond_name}, LM, {s.train_iter} iterations"
+        say(f"{self.kind}: training the network ({cond_name}, LM, {s.train_iter} iterations"
              + (f", ≤ {s.train_s:g} s)" if s.train_s is not None else ")"))
         t0 = time.perf_counter()
         tr = self.tracker
         settings = TrainSettings(trainer="lm", max_iter=s.train_iter, seed=s.seed,
                                  max_time_s=math.inf if s.train_s is None else s.train_s,
                                  hidden=s.hidden, activation=s.activation, a_encoding=s.a_encoding)
-        tracking = TrackSettings(track=tr.enabled,
-                                 tracking_uri=tr.uri if tr.enabled else None,
-                                 parent_run_id=tr.parent_id, run_name=f"grinder/learned/train/{cond_name}",
-                                 experiment=EXPERIMENT, tags={"benchmark_condition": cond_name})
+        tracking = TrackSettings(track=tr.enabled, tracking_uri=tr.uri if tr.enabled else None,
+                                 parent_run_id=tr.parent_id, experiment=EXPERIMENT,
+                                 run_name=f"{self.kind}/learned/train/{cond_name}",
+                                 tags={"benchmark_condition": cond_name})
         res = fit_field(fp, settings, validation=val, selection=sel, tracking=tracking, quiet=True)
         secs = time.perf_counter() - t0
         res.field.jacobian(self.warm_up_axes)  # torch.func warm-up, so that compensation timings exclude it
@@ -205,15 +234,18 @@ class GrinderBench:
     the condition adds an undeclared effect. Measurement, identification, training and the TRUE
     residual are the functions and classes above; this class only puts the rows together."""
 
-    def __init__(self, machine, s: BenchmarkSettings, tracker: Tracker):
-        self.m, self.s = machine, s
+    def __init__(self, machine, s: BenchmarkSettings, log: RowLog):
+        self.m, self.s, self.log, self.kind = machine, s, log, family_kind(machine)
         self.points = grinder_test_points(machine, s)
-        self.trainer = NetworkTrainer(machine, tracker, self.points.nominal_axes[:2])
-        self.log = RowLog(tracker)
+        self.trainer = NetworkTrainer(machine, log.tracker, self.points.nominal_axes[:2])
 
     @property
     def rows(self) -> list:
         return self.log.rows
+
+    def row(self, path: str, label: str, **kw) -> dict:
+        """A result row of this machine (:func:`bench_row`; its kind the registry's)."""
+        return bench_row(self.m.name, self.kind, path, label, **kw)
 
     def _compensate(self, truth, field_, method, idx=None, volume=False) -> dict:
         return compensate_true(self.m, self.s, self.points, truth, field_, method, idx=idx, volume=volume)
@@ -241,11 +273,10 @@ class GrinderBench:
         """The exact inverse of the identified HTM field; returns (field, row)."""
         from errormap.chain_field import ChainField
         field_ = ChainField(self.m, elements)
-        say(f"grinder: parametric, {label}")
+        say(f"{self.kind}: parametric, {label}")
         ex = self._compensate(truth, field_, "exact")
-        row = bench_row(self.m.name, "grinder", "parametric", label, closed_loop=False, solver="exact",
-                   fit_seconds=id_s, identify_seconds=id_s, compensate_seconds_per_point=ex["seconds_per_point"],
-                   true_rms_um=ex["true_rms_um"], true_max_um=ex["true_max_um"], solvers={"exact": ex}, **common)
+        row = self.row("parametric", label, closed_loop=False, solver="exact",
+                   fit_seconds=id_s, identify_seconds=id_s, **scored(ex), solvers={"exact": ex}, **common)
         self.log.add(with_volume(row, self._volume(truth, field_)))
         return field_, row
 
@@ -255,21 +286,20 @@ class GrinderBench:
         try:
             fit, _, reused = self.trainer.train(elements, cond_name, self.s)
         except Exception as exc:  # training unavailable or failed: say so, never fake numbers
-            self.log.add(bench_row(self.m.name, "grinder", "learned", label, available=False,
-                              not_available=f"training failed: {type(exc).__name__}: {exc}", **common))
+            self.log.add(self.row("learned", label, available=False,
+                                  not_available=f"training failed: {type(exc).__name__}: {exc}", **common))
             return None
         mlp = fit.field
-        say(f"grinder: learned, {label}")
+        say(f"{self.kind}: learned, {label}")
         ex = self._compensate(truth, mlp, "exact")
         ga = self._compensate(truth, mlp, "batched-ga", idx=self.points.ga_idx)
         vol = self._volume(truth, mlp)
-        row = bench_row(self.m.name, "grinder", "learned", label, closed_loop=False, solver="exact",
+        row = self.row("learned", label, closed_loop=False, solver="exact",
                    fit_seconds=id_s + fit.seconds, identify_seconds=id_s, train_seconds=fit.seconds,
                    training_run_id=fit.run_id, reused_training_of=reused,
                    train_val_rms_um=fit.metrics.get("val_rms_um"), train_val_max_um=fit.metrics.get("val_max_um"),
-                   train_iterations=fit.metrics.get("iterations"),
-                   compensate_seconds_per_point=ex["seconds_per_point"], true_rms_um=ex["true_rms_um"],
-                   true_max_um=ex["true_max_um"], solvers={"exact": ex, "batched-ga": ga}, **common)
+                   train_iterations=fit.metrics.get("iterations"), **scored(ex),
+                   solvers={"exact": ex, "batched-ga": ga}, **common)
         self.log.add(with_volume(row, vol))
         return mlp, row
 
@@ -288,13 +318,13 @@ class GrinderBench:
             if base_row["path"] == "parametric" and c.group == "out-of-catalogue":
                 self.user_loop_rows(c, truth, label, checks, common)
                 continue
-            say(f"grinder: {base_row['path']}, {label}")
+            say(f"{self.kind}: {base_row['path']}, {label}")
             try:
                 self.closed_loop_row(truth, label, checks, base_row, base, common)
             except Exception as exc:  # never fake numbers: the row says why it is missing
-                self.log.add(bench_row(self.m.name, "grinder", base_row["path"], label, available=False, closed_loop=True,
-                                  loop_method=EFFECTS_LOOP,
-                                  not_available=f"closed loop failed: {type(exc).__name__}: {exc}", **common))
+                why = f"closed loop failed: {type(exc).__name__}: {exc}"
+                self.log.add(self.row(base_row["path"], label, available=False, closed_loop=True,
+                                      loop_method=EFFECTS_LOOP, not_available=why, **common))
 
     def user_loop_rows(self, c, truth, label, checks, common) -> None:
         """The user's path on the checks: ``volcomp identify`` (:func:`identify_with_covariance`) → ``volcomp
@@ -306,7 +336,7 @@ class GrinderBench:
         import tempfile
         from .measurement import diagnose_chain
         s = self.s
-        say(f"grinder: identify + diagnose (the user's path), {label}")
+        say(f"{self.kind}: identify + diagnose (the user's path), {label}")
         done = []
         try:
             cov, id_s = identify_with_covariance(self.m, s, truth, c)
@@ -326,15 +356,14 @@ class GrinderBench:
             rms_after = {"parametric": summary.get("held_out_rms_base_um", summary["held_out_rms_um"]),
                          "hybrid": summary["held_out_rms_um"]}
             for path, (terms, stage, field_) in models.items():
-                say(f"grinder: {path}, {label}")
+                say(f"{self.kind}: {path}, {label}")
                 sol = {"exact": self._compensate(truth, field_, "exact")}
                 if path == "hybrid" and kept_learned:
                     sol["batched-ga"] = self._compensate(truth, field_, "batched-ga", idx=self.points.ga_idx)
-                row = bench_row(self.m.name, "grinder", path, label, closed_loop=True, loop_method=USER_LOOP,
+                row = self.row(path, label, closed_loop=True, loop_method=USER_LOOP,
                            solver="exact", fit_seconds=id_s + loop_s, identify_seconds=id_s, diagnosis_seconds=loop_s,
-                           compensate_seconds_per_point=sol["exact"]["seconds_per_point"],
-                           true_rms_um=sol["exact"]["true_rms_um"], true_max_um=sol["exact"]["true_max_um"],
-                           solvers=sol, effects_found=[f"{e['kind']}:{e['axis']}:{e['element']}" for e in terms],
+                           **scored(sol["exact"]), solvers=sol,
+                           effects_found=[f"{e['kind']}:{e['axis']}:{e['element']}" for e in terms],
                            stage=stage, n_checks=len(checks),
                            checks_rms_before_um=summary["stages"]["identified"]["held_out"]["rms_um"],
                            checks_rms_after_um=rms_after[path],
@@ -344,11 +373,11 @@ class GrinderBench:
                 self.log.add(with_volume(row, self._volume(truth, field_)))
                 done.append(path)
         except Exception as exc:  # never fake numbers: the rows say why they are missing
+            why = f"closed loop failed: {type(exc).__name__}: {exc}"
             for path in ("parametric", "hybrid"):
                 if path not in done:
-                    self.log.add(bench_row(self.m.name, "grinder", path, label, available=False, closed_loop=True,
-                                      loop_method=USER_LOOP,
-                                      not_available=f"closed loop failed: {type(exc).__name__}: {exc}", **common))
+                    self.log.add(self.row(path, label, available=False, closed_loop=True,
+                                          loop_method=USER_LOOP, not_available=why, **common))
 
     def closed_loop_row(self, truth, label, checks, base_row, base, common):
         """The effect search on the base's element set (the closed loop without the element update); a base without
@@ -370,59 +399,27 @@ class GrinderBench:
         vol = self._volume(truth, corrected)
         extra = {k: base_row.get(k) for k in ("identify_seconds", "train_seconds", "training_run_id",
                                                "reused_training_of") if base_row.get(k) is not None}
-        row = bench_row(self.m.name, "grinder", base_row["path"], label, closed_loop=True, loop_method=EFFECTS_LOOP,
+        row = self.row(base_row["path"], label, closed_loop=True, loop_method=EFFECTS_LOOP,
                    solver="exact", fit_seconds=base_row["fit_seconds"] + diag_s, diagnosis_seconds=diag_s,
-                   compensate_seconds_per_point=sol["exact"]["seconds_per_point"],
-                   true_rms_um=sol["exact"]["true_rms_um"], true_max_um=sol["exact"]["true_max_um"],
-                   solvers=sol, effects_found=found, n_checks=len(checks),
+                   **scored(sol["exact"]), solvers=sol, effects_found=found, n_checks=len(checks),
                    checks_rms_before_um=d["stages"]["identified"]["held_out"]["rms_um"],
                    checks_rms_after_um=d["held_out_rms_um"],
                    **{**common, "n_measurements": common["n_measurements"] + len(checks)}, **extra)
         self.log.add(with_volume(row, vol))
         return d, row
 
-    def paper_network_row(self) -> None:
-        """The learned path at the base condition with the paper's network (10-15-25-15-10, sigmoid, A raw)
-        and the same LM budget: what the architecture choice costs."""
-        from training.model import PAPER_HIDDEN
-        s = self.s
-        c = GrinderCondition(f"stations={s.base_stations}, noise={s.base_noise_um:g}um", "network", s.base_stations,
-                             s.base_noise_um)
-        truth = grinder_truth(self.m, s, None)
-        elements, id_s, n_meas = identify_from_sweeps(self.m, s, truth, c)
-        label = f"{c.name}, paper network {'-'.join(map(str, PAPER_HIDDEN))} sigmoid"
-        paper = replace(s, hidden=PAPER_HIDDEN, activation="sigmoid", a_encoding="raw")
-        fit, _, _ = self.trainer.train(elements, label, paper)
-        ex = self._compensate(truth, fit.field, "exact")
-        unc_rms, unc_max = uncompensated_true(self.points, truth)
-        self.log.add(bench_row(self.m.name, "grinder", "learned", label, group="network", stations=c.stations,
-                          noise_um=c.noise_um, effect=None, closed_loop=False, solver="exact",
-                          test_path=f"flute ({len(self.points.targets_mm)} points)", n_measurements=n_meas,
-                          uncompensated_rms_um=unc_rms, uncompensated_max_um=unc_max,
-                          fit_seconds=id_s + fit.seconds, identify_seconds=id_s, train_seconds=fit.seconds,
-                          training_run_id=fit.run_id, train_val_rms_um=fit.metrics.get("val_rms_um"),
-                          train_val_max_um=fit.metrics.get("val_max_um"), train_iterations=fit.metrics.get("iterations"),
-                          compensate_seconds_per_point=ex["seconds_per_point"], true_rms_um=ex["true_rms_um"],
-                          true_max_um=ex["true_max_um"], solvers={"exact": ex}))
 
-
-def run_grinder(machine, s: BenchmarkSettings, tracker: Tracker) -> list[dict]:
-    """Both paths on every grinder condition; rows in condition order."""
-    g = GrinderBench(machine, s, tracker)
+def run_grinder(machine, s: BenchmarkSettings, log: RowLog, out_dir=None) -> list:
+    """Both paths on every grinder condition, rows in condition order into ``log``; nothing is skipped."""
+    g = GrinderBench(machine, s, log)
     for c in grinder_conditions(s):
         try:
             g.run_condition(c)
         except Exception as exc:  # the other conditions still run; the failure is a row
-            say(f"grinder: {c.name} failed: {type(exc).__name__}: {exc}")
+            say(f"{g.kind}: {c.name} failed: {type(exc).__name__}: {exc}")
             done = {r["path"] for r in g.rows if r["condition"].startswith(c.name)}
             for path in ("parametric", "learned"):
                 if path not in done:
-                    g.log.add(bench_row(machine.name, "grinder", path, c.name, available=False, group=c.group,
-                                   not_available=f"condition failed: {type(exc).__name__}: {exc}"))
-    if s.paper_network:
-        try:
-            g.paper_network_row()
-        except Exception as exc:
-            g.log.add(bench_row(machine.name, "grinder", "learned", "paper network", available=False, group="network",
-                           not_available=f"failed: {type(exc).__name__}: {exc}"))
-    return g.rows
+                    log.add(g.row(path, c.name, available=False, group=c.group,
+                                  not_available=f"condition failed: {type(exc).__name__}: {exc}"))
+    return []

@@ -12,7 +12,7 @@ import numpy as np
 from errormap.stats import residual_stats
 
 from ..families import family_of
-from .benchmark_common import BenchmarkSettings, Tracker, bench_row, log_row, rng_streams, say
+from .benchmark_common import BenchmarkSettings, RowLog, Tracker, bench_row, rng_streams, say
 
 def _rotvec(R) -> np.ndarray:
     from scipy.spatial.transform import Rotation
@@ -179,15 +179,16 @@ def _pkm_learned_row(machine, s: BenchmarkSettings, tracker: Tracker, sim, paths
                     not_available=f"learned PKM path failed: {type(exc).__name__}: {exc}", **common, **unc)
 
 
-def run_pkm(machine, s: BenchmarkSettings, tracker: Tracker, conditions=None) -> list[dict]:
-    """Both PKM paths on each (n_poses, noise) condition; true residual along the test paths."""
+def run_pkm(machine, s: BenchmarkSettings, log: RowLog, out_dir=None) -> list:
+    """Both PKM paths on each (n_poses, noise) condition (one, the baseline, on a machine without the paper's
+    test paths); true residual along the test paths. Nothing is skipped."""
     from errormap.pkm.simulate import simulate_poses
 
     from ...pkm_interpolation import true_path_residual
     kind, oriented = machine.kind, _oriented(machine)
     paths = _pkm_paths(machine, s)
-    conditions = _pkm_conditions(s) if conditions is None else conditions
-    rows = []
+    conditions = _pkm_conditions(s) if family_of(machine).facts.paper_paths else \
+        {(s.pkm_base_poses, s.pkm_base_noise_um): "baseline"}
     for (n_poses, noise), group in conditions.items():
         cname = f"poses={n_poses}, noise={noise:g}um"
         sim = simulate_poses(machine, n_poses, noise, seed=rng_streams(s.seed)["pkm_poses"],
@@ -201,12 +202,7 @@ def run_pkm(machine, s: BenchmarkSettings, tracker: Tracker, conditions=None) ->
         unc = {"uncompensated_rms_um": residual_stats(np.concatenate([b["position_um"] for b in before.values()]))["rms_um"],
                "uncompensated_max_um": float(max(b["max_um"] for b in before.values()))}
         say(f"{kind}: parametric, {cname}")
-        rows.append(_pkm_parametric_row(machine, s, sim, paths, cname, common, unc))
-        log_row(tracker, rows[-1])
+        log.add(_pkm_parametric_row(machine, s, sim, paths, cname, common, unc))
         say(f"{kind}: learned, {cname}")
-        rows.append(_pkm_learned_row(machine, s, tracker, sim, paths, cname, common, unc))
-        log_row(tracker, rows[-1])
-        for r in rows[-2:]:
-            if r["available"]:
-                say(f"  {r['path']:10s} {cname}: true RMS {r['true_rms_um']:.3f} um, max {r['true_max_um']:.3f} um")
-    return rows
+        log.add(_pkm_learned_row(machine, s, log.tracker, sim, paths, cname, common, unc))
+    return []

@@ -22,6 +22,8 @@ import numpy as np
 
 from errormap.stats import residual_stats
 
+from .benchmark_common import bench_row, rng_streams, say, scored, with_volume
+
 INSET = 0.02
 """The diagonals start and end this fraction of each linear stroke inside its ends (the compensated axes
 must stay inside the strokes)."""
@@ -179,41 +181,36 @@ class _TruthAt:
 
 
 def compensate_chain_true(machine, truth, field_, path: ChainPath) -> dict:
-    """Exact compensation of ``path`` with ``field_``; TRUE residual (RMS, max) on ``truth`` at the path's
-    conditions, the solver's time per point, worst model residual and failures."""
+    """Exact compensation of ``path`` with ``field_`` (None: the program run as written); TRUE residual (RMS,
+    max) on ``truth`` at the path's conditions, and with a field the solver's time per point, worst model
+    residual and failures."""
     from ...solvers import solve
     from ...solvers.chain_exact import nominal_and_jacobian
     from .compensate_report import true_residual_um
     targets, _ = nominal_and_jacobian(machine, path.axes)
-    r = solve("exact", field_, targets, machine, target_axes=path.axes, progress=False)
-    st = residual_stats(true_residual_um(_TruthAt(truth, path.cond), machine, r.axes, targets))
-    return {"true_rms_um": st["rms_um"], "true_max_um": st["max_um"], "seconds_per_point": r.seconds / len(targets),
-            "points": len(targets), "model_max_um": float(np.max(r.residual_norm_um)),
-            "failures": int(np.count_nonzero(~r.success))}
-
-
-def uncompensated_chain_true(machine, truth, path: ChainPath) -> dict:
-    """TRUE residual of the program run as written (the truth's own error along the path)."""
-    from ...solvers.chain_exact import nominal_and_jacobian
-    from .compensate_report import true_residual_um
-    targets, _ = nominal_and_jacobian(machine, path.axes)
-    st = residual_stats(true_residual_um(_TruthAt(truth, path.cond), machine, path.axes, targets))
-    return {"true_rms_um": st["rms_um"], "true_max_um": st["max_um"]}
+    r = None if field_ is None else solve("exact", field_, targets, machine, target_axes=path.axes,
+                                          progress=False)
+    axes = path.axes if r is None else r.axes
+    st = residual_stats(true_residual_um(_TruthAt(truth, path.cond), machine, axes, targets))
+    out = {"true_rms_um": st["rms_um"], "true_max_um": st["max_um"]}
+    if r is not None:
+        out.update(seconds_per_point=r.seconds / len(targets), points=len(targets),
+                   model_max_um=float(np.max(r.residual_norm_um)), failures=int(np.count_nonzero(~r.success)))
+    return out
 
 
 def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", text)
 
 
-def run_chain(machine, s, log, out_dir, row, streams, note) -> list:
-    """The rows of ``machine`` (a machine-tool chain) under the settings ``s``; ``log``: the benchmark's
-    :class:`RowLog`, ``row``: its row constructor, ``streams``: its seed streams, ``note``: its logger.
-    Returns the skipped conditions (``[{"machine", "why"}]``)."""
+def run_chain(machine, s, log, out_dir) -> list:
+    """The rows of ``machine`` (a machine-tool chain) under the settings ``s`` into ``log`` (the benchmark's
+    :class:`RowLog`). Returns the skipped conditions (``[{"machine", "why"}]``)."""
     from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
     from errormap.chain_truth import MTTruth
     from .measurement import identify_chain_files, simulate_chain, sweeps_chain
-    skipped = []
+    streams, skipped = rng_streams(s.seed), []
     try:
         path = judging_path(machine, s.chain_path_points)
     except ValueError as exc:  # neither three linear axes (body diagonals) nor a turning centre
@@ -226,7 +223,7 @@ def run_chain(machine, s, log, out_dir, row, streams, note) -> list:
     for gname, eff in [(None, None), *effects]:
         cname = "effect=none" if eff is None else f"effect={gname} ({eff})"
         d = base / _slug(cname)
-        note(f"{machine.name}: {cname}")
+        say(f"{machine.name}: {cname}")
         common = {"group": "chain", "effect": eff, "noise_um": s.base_noise_um, "test_path": path.name,
                   "family": "default"}
         try:
@@ -234,10 +231,10 @@ def run_chain(machine, s, log, out_dir, row, streams, note) -> list:
                                   noise_um=s.check_noise_um, checks=s.n_checks)
             # scoring only: the hidden truth, read back from the files the simulation wrote
             truth = MTTruth(machine, ChainElementSet.load(d / "sim" / info["elements"], machine), info["effects"])
-            unc = uncompensated_chain_true(machine, truth, path)
+            unc = compensate_chain_true(machine, truth, None, path)
             common.update(uncompensated_rms_um=unc["true_rms_um"], uncompensated_max_um=unc["true_max_um"])
             if volume is not None:
-                uv = uncompensated_chain_true(machine, truth, volume)
+                uv = compensate_chain_true(machine, truth, None, volume)
                 common.update(volume_uncompensated_rms_um=uv["true_rms_um"])
             sw_path, n_sweep, _ = sweeps_chain(machine, d / "sweeps.csv", seed=s.truth_seed,
                                                effects=() if eff is None else (eff,), noise_um=s.base_noise_um,
@@ -256,25 +253,22 @@ def run_chain(machine, s, log, out_dir, row, streams, note) -> list:
                 label = "after closed loop" + (f", checks={n}" if s.chain_checks else "")
                 fields.append((label, *_loop_model(machine, s, sim / "checks.csv", el_path, d, n, n_sweep, id_s)))
         except Exception as exc:  # the other conditions still run; the failure is a row, never faked numbers
-            log.add(row(machine.name, machine.kind, "parametric", cname, available=False,
+            log.add(bench_row(machine.name, machine.kind, "parametric", cname, available=False,
                         not_available=f"condition failed: {type(exc).__name__}: {exc}", **common))
             continue
         for label, fld, fit_s, extra in fields:
             ex = compensate_chain_true(machine, truth, _at(fld, path.cond), path)
-            r = row(machine.name, machine.kind, "parametric", f"{cname} ({label})", solver="exact",
-                    fit_seconds=fit_s, identify_seconds=id_s,
-                    compensate_seconds_per_point=ex["seconds_per_point"], true_rms_um=ex["true_rms_um"],
-                    true_max_um=ex["true_max_um"], solvers={"exact": ex}, **{**common, **extra})
-            if volume is not None:
-                v = compensate_chain_true(machine, truth, _at(fld, volume.cond), volume)
-                r.update(volume_rms_um=v["true_rms_um"], volume_max_um=v["true_max_um"])
-            log.add(r)
+            r = bench_row(machine.name, machine.kind, "parametric", f"{cname} ({label})", solver="exact",
+                          fit_seconds=fit_s, identify_seconds=id_s, **scored(ex), solvers={"exact": ex},
+                          **{**common, **extra})
+            vol = volume and compensate_chain_true(machine, truth, _at(fld, volume.cond), volume)
+            log.add(with_volume(r, vol))
         log.add(learned_chain_row(machine, s, truth, el_path, (path, volume), f"{cname} (before closed loop)",
-                                  {**common, "closed_loop": False}, id_s, row, note))
+                                  {**common, "closed_loop": False}, id_s))
     return skipped
 
 
-def learned_chain_row(machine, s, truth, el_path, paths, label: str, common: dict, id_s: float, row, note) -> dict:
+def learned_chain_row(machine, s, truth, el_path, paths, label: str, common: dict, id_s: float) -> dict:
     """The learned row of one condition: the identified set's feature points over the chain's axes (the
     default grid, ``volcomp featurepoints --machine``) → the chain network (``volcomp train``: LM, ``train_iter``
     iterations, ``train_s`` on top, the settings' network) → ``exact`` compensation of ``paths`` (the judging
@@ -293,20 +287,18 @@ def learned_chain_row(machine, s, truth, el_path, paths, label: str, common: dic
                                  a_encoding=s.a_encoding)
         fit = fit_chain_field(fp, machine, settings, quiet=True)
     except Exception as exc:  # training unavailable, or no better than its baseline: said, never faked
-        return row(machine.name, machine.kind, "learned", label, available=False,
-                   not_available=f"training failed: {type(exc).__name__}: {exc}", **common)
-    note(f"{machine.name}: learned, {label}")
+        return bench_row(machine.name, machine.kind, "learned", label, available=False,
+                         not_available=f"training failed: {type(exc).__name__}: {exc}", **common)
+    say(f"{machine.name}: learned, {label}")
     ex = compensate_chain_true(machine, truth, fit.field, path)
-    r = row(machine.name, machine.kind, "learned", label, solver="exact", fit_seconds=id_s + fit.seconds,
-            identify_seconds=id_s, train_seconds=fit.seconds, train_iterations=int(fit.history.iterations),
-            train_val_rms_um=fit.metrics.get("val_rms_um"), train_val_max_um=fit.metrics.get("val_max_um"),
-            train_baseline_ols_val_rms_um=fit.metrics.get("baseline_ols_val_rms_um"),
-            n_featurepoints=len(fp.axes), compensate_seconds_per_point=ex["seconds_per_point"],
-            true_rms_um=ex["true_rms_um"], true_max_um=ex["true_max_um"], solvers={"exact": ex}, **common)
-    if volume is not None:
-        v = compensate_chain_true(machine, truth, fit.field, volume)
-        r.update(volume_rms_um=v["true_rms_um"], volume_max_um=v["true_max_um"])
-    return r
+    m = fit.metrics
+    r = bench_row(machine.name, machine.kind, "learned", label, solver="exact",
+                  fit_seconds=id_s + fit.seconds, identify_seconds=id_s, train_seconds=fit.seconds,
+                  train_iterations=int(fit.history.iterations), train_val_rms_um=m.get("val_rms_um"),
+                  train_val_max_um=m.get("val_max_um"),
+                  train_baseline_ols_val_rms_um=m.get("baseline_ols_val_rms_um"),
+                  n_featurepoints=len(fp.axes), **scored(ex), solvers={"exact": ex}, **common)
+    return with_volume(r, volume and compensate_chain_true(machine, truth, fit.field, volume))
 
 
 def _loop_model(machine, s, checks_path, el_path, d, n: int, n_sweep: int, id_s: float) -> tuple:

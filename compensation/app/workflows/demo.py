@@ -81,17 +81,10 @@ class StageClock:
 
 
 def train_field(fp_path: Path, s: DemoSettings, log=None):
-    """Train the network with ``training.fit_field``; returns ``(field, info dict)``, or
-    ``(None, None)`` when the training package offers no ``fit_field``.
-
-    ``info`` has ``run_id`` (or None), ``metrics`` and ``model`` (what the report names).
-    """
+    """Train the network with ``training.fit_field``, tracked in MLflow; returns ``(field, info dict)``:
+    ``info`` has ``run_id``, ``metrics`` and ``model`` (what the report names)."""
     log = sys.stderr if log is None else log
-    import training
-    fit_field = getattr(training, "fit_field", None)
-    if fit_field is None:
-        return None, None
-    from training import TrackSettings, TrainSettings
+    from training import TrackSettings, TrainSettings, fit_field
     try:
         settings = TrainSettings(trainer=s.trainer, max_iter=s.train_iter, seed=s.seed,
                                  max_time_s=s.train_s if s.train_s is not None else math.inf,
@@ -105,20 +98,15 @@ def train_field(fp_path: Path, s: DemoSettings, log=None):
           + (f", stopping when the selection error has not improved in {s.select_patience}"
              if s.select_patience and s.trainer == "lm" else "") + ") ...", file=log)
     res = fit_field(fp, settings, tracking=TrackSettings(tracking_uri=s.tracking_uri or None))
-    run_id = getattr(res, "run_id", None)
-    metrics = dict(getattr(res, "metrics", {}) or {})
-    hist = getattr(res, "history", None)
-    if hist is not None and getattr(hist, "stop_reason", ""):
-        metrics["stop_reason"] = hist.stop_reason
-    return res.field, {"run_id": run_id, "metrics": metrics,
-                       "model": f"runs:/{run_id}" if run_id else "trained network (not tracked)"}
+    metrics = dict(res.metrics)
+    if res.history.stop_reason:
+        metrics["stop_reason"] = res.history.stop_reason
+    return res.field, {"run_id": res.run_id, "metrics": metrics, "model": f"runs:/{res.run_id}"}
 
 
 def log_to_mlflow(run_id, tracking_uri, paths: dict, metrics: dict, log=None) -> None:
     """Log the report files and per-method residual metrics to the training run."""
     log = sys.stderr if log is None else log
-    if not run_id:
-        return
     import mlflow
     if tracking_uri is None:  # the store the training run went to (runs/mlflow.db unless overridden)
         from training.tracking import default_tracking_uri
@@ -223,14 +211,6 @@ def run_demo(s: DemoSettings, machine, out=None, log=None) -> dict:
     t0 = time.perf_counter()
     with clock.stage("train"):
         field, train_info = train_field(sim_dir / "featurepoints.csv", s, log=log)
-    if field is None:
-        print("warning: training.fit_field is not available; the demo uses the 23-element HTM model of the "
-              "truth elements as its error field instead of a trained network", file=log)
-        from errormap.chain_field import ChainField
-        field = ChainField(truth.machine, truth.elements)   # the truth's elements on its chain
-        train_info = {"run_id": None, "metrics": {}, "model": f"HTM model of {sim_dir / 'truth_elements.json'} "
-                                                              "(training unavailable)",
-                      "spec": str(sim_dir / "truth_elements.json")}
     train_s = time.perf_counter() - t0
     print(f"trained in {train_s:.1f} s; model {train_info['model']}", file=log)
 
@@ -253,17 +233,11 @@ def run_demo(s: DemoSettings, machine, out=None, log=None) -> dict:
                "seed": s.seed}
     extra = {"training": {"run_id": train_info["run_id"], "seconds": train_s, "metrics": train_info["metrics"]},
              "budget": budget}
-    spec = train_info.get("spec") or (f"runs:/{train_info['run_id']}" if train_info["run_id"] else None)
-    program = {}
-    if spec is None:
-        print("warning: the trained network was not tracked, so no compensated program is written "
-              "(volcomp compensate reads the model from its MLflow run)", file=log)
-    else:
-        print(f"compensating the flute program {Path(s.out) / PROGRAM_NAME} (exact) ...", file=log)
-        with clock.stage("program"):
-            program = compensate_program(s, machine, nominal, spec, log=log)
-        if program["compensated"] is not None:
-            print(f"compensated program: {program['compensated']}", file=out)
+    print(f"compensating the flute program {Path(s.out) / PROGRAM_NAME} (exact) ...", file=log)
+    with clock.stage("program"):
+        program = compensate_program(s, machine, nominal, train_info["model"], log=log)
+    if program["compensated"] is not None:
+        print(f"compensated program: {program['compensated']}", file=out)
     with clock.stage("report"):
         paths = write_report(cmp, s.out, title="volcomp demo: flute-path compensation", context=context,
                              extra_metrics=extra, kind="demo")

@@ -155,13 +155,9 @@ def truth_in_gauge(machine, truth, gauge: str = "station-mean", stations: dict |
     """A truth element set (``truth_elements.json`` of ``simulate``, a
     :class:`errormap.chain_elements.ChainElementSet` of ``machine``) as the identification expresses its estimate:
     in ``gauge`` with its squareness split, at ``stations`` (per axis column, the identified set's; None: the
-    sweep default), so that a plot overlays like with like.
-
-    A truth set is written in its own frame (the simulator's: every axis-motion element zero at its first
-    station); the identified one in the gauge of the identification, and the two differ by a rigid frame change
-    that moves constants and linear trends between elements while leaving every tool point the same. The exact
-    way to the identified frame is the identification itself: noise-free sweeps of the truth identified with
-    ``gauge`` (tool points to 1e-6 μm, ``tests/test_mt_loop.py``)."""
+    sweep default), so that a plot overlays like with like. The two frames differ by a rigid frame change, so
+    the truth's noise-free sweeps are identified in ``gauge`` (tool points to 1e-6 μm,
+    ``tests/test_mt_loop.py``)."""
     from errormap.identification import ChainIdentification
     from errormap.chain_truth import MTTruth
     from errormap.chain_sweeps import simulate_mt_sweeps, swept_words
@@ -176,18 +172,9 @@ def load_chain_model(path, machine, prior: bool = False):
     ``volcomp-elements/1``) and its covariance beside it (``NAME.cov.npz``) when present:
     ``(elements, (slot names, stations, Σ) or None, covariance path or None)``. ``prior``: Σ as the prior of
     an element update, with the smoother's ``prior_extra`` on its diagonal (:func:`read_chain_covariance`)."""
-    from errormap.chain_elements import ELEMENTS_FORMAT, ChainElementSet
+    from errormap.chain_elements import ChainElementSet
     p = Path(path)
-    if not p.is_file():
-        raise InputError(f"{p}: no such model file (a machine tool takes an element-set file)")
-    try:
-        fmt = json.loads(read_document_text(p, "a model or element set")).get("format")
-    except (json.JSONDecodeError, AttributeError, RecursionError):
-        fmt = None
-    if fmt != ELEMENTS_FORMAT:
-        raise InputError(f"{p}: key 'format': expected {ELEMENTS_FORMAT!r} (an element set of {machine.name!r}), "
-                         f"got {fmt!r}")
-    el = ChainElementSet.load(p, machine)
+    el = ChainElementSet.load(p, machine)   # read once: its format, then the set (errors name file and key)
     cp = companion_path(p, ".cov.npz")
     if not cp.is_file():
         return el, None, None
@@ -237,23 +224,14 @@ def chain_band_sd(machine, elements, cov, axes, cov_path="<covariance>") -> np.n
 
 def chain_learned_stage(machine, checks, elements, terms, summary, seed: int = 0, families=None, refit=None,
                         refit_all: bool = False):
-    """The learned-residual stage after the chain loop (:func:`compensation.hybrid.learned_stage`): fitted on
-    what the loop's kept model (``elements`` + ``terms``, at the checks' own conditions) leaves at the fitting
-    checks, kept only if it lowers the held-out squared residual, paired per point, by more than
-    :data:`compensation.hybrid.KEEP_Z` standard errors over the loop's kept stage. When the kept model has
-    condition terms (thermal, reversal), the learned field of the axes may replace them (``r_static_um``: the
-    same model without them), each term tested on its own (``condition_terms_um``: each condition term's
-    contribution at the checks; the per-term γ̂ rule of :data:`compensation.hybrid.TERM_CONSISTENT_Z`): a real
-    term stays beside a replaced stand-in. The band is the learned part's (⊕ the fitted noise on the held-out
-    checks).
+    """The learned-residual stage after the chain loop (:func:`compensation.hybrid.learned_stage`, whose
+    docstring states the gate, the per-term rule for condition terms and the backfitting): fitted on what the
+    loop's kept model (``elements`` + ``terms``, at the checks' own conditions) leaves at the fitting checks.
     ``refit``: None, or the loop's re-estimation of its kept stage (``closed_loop_chain``'s ``_models["refit"]``:
-    ``(terms, offset_um, idx) -> (elements, terms, residual)``): the learned part is then backfitted with the
-    element update (:data:`compensation.hybrid.BACKFIT_ROUNDS`). ``refit_all`` (with ``refit``): once chosen
-    and gated, the base and the learned part are re-estimated on ALL checks before they are shipped.
-    → ``(learned or None, stage, static terms, elements)``: ``static terms`` the terms the hybrid keeps (all of
-    ``terms``, or all but the condition terms the learned field replaced, their coefficients the backfitted
-    ones when backfitted), ``elements`` the hybrid's elements (``elements``, or the backfitted base of the last
-    round: on all checks with ``refit_all``, else on the fitting checks)."""
+    ``(terms, offset_um, idx) -> (elements, terms, residual)``), with which the learned part is backfitted;
+    ``refit_all``: the chosen base and learned part re-estimated on ALL checks before they are shipped.
+    → ``(learned or None, stage, static terms, elements)``: the terms and elements the hybrid keeps (the
+    backfitted base of the last round where backfitted)."""
     from compensation.hybrid import learned_stage
     from errormap.diagnosis.loop_model import ChainModelField, term_needs
     n, n_fit = len(checks), int(summary["n_fit"])
