@@ -34,7 +34,7 @@ REF_TEMP_C = 20.0
 DEFAULT_STATIONS = 21
 UM_MM = 1e-3
 
-__all__ = ["BodyChain", "body_chain", "park_axes", "sweep_stations", "simulate_mt_sweeps", "random_tracker_pose",
+__all__ = ["BodyChain", "body_chain", "park_axes", "sweep_stations", "simulated_sweeps", "random_tracker_pose",
            "swept_words", "write_sweeps", "SWEEP_FORMAT", "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]
 
 
@@ -115,7 +115,7 @@ def sweep_stations(machine: MachineTool, n_stations: int = DEFAULT_STATIONS) -> 
     return {a.word: np.linspace(*a.stroke, n_stations) for a in machine.axes if machine.slots_of(a.word)}
 
 
-def simulate_mt_sweeps(truth, noise_um: float = 2.0, seed=0, tracker_pose=None, n_stations: int = DEFAULT_STATIONS,
+def simulated_sweeps(truth, noise_um: float = 2.0, seed=0, tracker_pose=None, n_stations: int = DEFAULT_STATIONS,
                        bidirectional: bool = False, dt_s: float = 20.0, warmup_c: float = 0.0, stations: dict | None = None,
                        axes=None) -> dict:
     """Simulated tracker sweeps of a truth machine (:class:`errormap.chain_truth.MTTruth`, or the grinder's

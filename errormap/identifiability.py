@@ -30,7 +30,7 @@ import numpy as np
 from .machine_tool import MachineTool
 from .identification import ChainIdentification
 from .chain_truth import make_mt_truth, volume_grid
-from .chain_sweeps import simulate_mt_sweeps, swept_words
+from .chain_sweeps import simulated_sweeps, swept_words
 from .seeds import spawn_rngs
 from .sweeps import sweeps_from_columns
 
@@ -101,7 +101,7 @@ def identifiability(machine: MachineTool, seed: int = 0, noise_um: float = 2.0, 
     sn = seed if seed_noise is None else seed_noise
 
     def fit(noise):
-        sw = sweeps_from_columns(simulate_mt_sweeps(truth, noise_um=noise, seed=sn), axes=words)
+        sw = sweeps_from_columns(simulated_sweeps(truth, noise_um=noise, seed=sn), axes=words)
         return ChainIdentification().fit(sw, machine).result_
 
     r0, r = fit(0.0), fit(noise_um)

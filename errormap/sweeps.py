@@ -127,7 +127,7 @@ def columns_from_table(table, axes, rotary, axes_note: str = "") -> dict:
 
 
 def sweeps_from_columns(cols: dict, source: str = "<columns>", setup: str = "", axes=None) -> Sweeps:
-    """Group sweep columns (as from :func:`errormap.chain_sweeps.simulate_mt_sweeps` or a file) by axis and
+    """Group sweep columns (as from :func:`errormap.chain_sweeps.simulated_sweeps` or a file) by axis and
     station; ``axes``: the axis words to group (the machine's, :func:`swept_words`; None: every word in
     the columns, in the order they first appear).
 
