@@ -203,36 +203,8 @@ def _init_slots(consts, ev, dev):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def field_kernel(axes, prog, prog_nom, spl, consts, out):  # pragma: no cover - compiled
-    """Spatial error (μm) at every point: ``out`` (n, 3)."""
-    spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, spl_inv_h = spl
-    P = consts.shape[0]
-    ev = np.empty(P)
-    dev = np.empty(P)
-    vbuf = np.empty(6)
-    dbuf = np.empty(6)
-    h = np.empty(4)
-    hh = np.empty(4)
-    R = np.empty((3, 3))
-    t = np.empty(3)
-    R0 = np.empty((3, 3))
-    t0 = np.empty(3)
-    k1, a1, v1, j1, s1, sl1, c1, b1, BR1, Bt1 = prog
-    k0, a0, v0, j0, s0, sl0, c0, b0, BR0, Bt0 = prog_nom
-    W = np.empty((0, 3))
-    _init_slots(consts, ev, dev)
-    for n in range(axes.shape[0]):
-        q = axes[n]
-        _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, spl_inv_h, consts, ev, dev, vbuf, dbuf, h, hh, False)
-        _chain_point(q, ev, k1, a1, v1, j1, s1, sl1, c1, b1, BR1, Bt1, R, t, W, W, False)
-        _chain_point(q, ev, k0, a0, v0, j0, s0, sl0, c0, b0, BR0, Bt0, R0, t0, W, W, False)
-        for i in range(3):
-            out[n, i] = (t[i] - t0[i]) * 1e3
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def field_jac_kernel(axes, prog, prog_nom, spl, consts, own, out, jac):  # pragma: no cover - compiled
-    """Spatial error (μm) and dE/d(axes): ``out`` (n, 3), ``jac`` (n, 3, k)."""
+def field_kernel(axes, prog, prog_nom, spl, consts, own, out, jac, deriv):  # pragma: no cover - compiled
+    """Spatial error (μm) ``out`` (n, 3) and, when ``deriv``, dE/d(axes) ``jac`` (n, 3, k)."""
     spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, spl_inv_h = spl
     P = consts.shape[0]
     k = axes.shape[1]
@@ -248,24 +220,24 @@ def field_jac_kernel(axes, prog, prog_nom, spl, consts, own, out, jac):  # pragm
     t0 = np.empty(3)
     k1, a1, v1, j1, s1, sl1, c1, b1, BR1, Bt1 = prog
     k0, a0, v0, j0, s0, sl0, c0, b0, BR0, Bt0 = prog_nom
-    m = max(k1.shape[0], k0.shape[0])
+    m = max(k1.shape[0], k0.shape[0]) if deriv else 0
     W = np.empty((m, 3))
     O = np.empty((m, 3))
-    J = np.empty((3, k))
+    J = np.zeros((3, k))
     _init_slots(consts, ev, dev)
     for n in range(axes.shape[0]):
         q = axes[n]
-        _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, spl_inv_h, consts, ev, dev, vbuf, dbuf, h, hh, True)
-        for i in range(3):
-            for j in range(k):
-                J[i, j] = 0.0
-        _chain_point(q, ev, k1, a1, v1, j1, s1, sl1, c1, b1, BR1, Bt1, R, t, W, O, True)
-        _jacobian_columns(dev, k1, j1, s1, sl1, c1, own, t, W, O, J, 1.0)
-        _chain_point(q, ev, k0, a0, v0, j0, s0, sl0, c0, b0, BR0, Bt0, R0, t0, W, O, True)
-        _jacobian_columns(dev, k0, j0, s0, sl0, c0, own, t0, W, O, J, -1.0)
+        _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, spl_inv_h, consts, ev, dev, vbuf, dbuf, h, hh, deriv)
+        _chain_point(q, ev, k1, a1, v1, j1, s1, sl1, c1, b1, BR1, Bt1, R, t, W, O, deriv)
+        if deriv:
+            J[:, :] = 0.0
+            _jacobian_columns(dev, k1, j1, s1, sl1, c1, own, t, W, O, J, 1.0)
+        _chain_point(q, ev, k0, a0, v0, j0, s0, sl0, c0, b0, BR0, Bt0, R0, t0, W, O, deriv)
+        if deriv:
+            _jacobian_columns(dev, k0, j0, s0, sl0, c0, own, t0, W, O, J, -1.0)
         for i in range(3):
             out[n, i] = (t[i] - t0[i]) * 1e3
-            for j in range(k):
+            for j in range(k if deriv else 0):
                 jac[n, i, j] = J[i, j] * 1e3
 
 
@@ -406,14 +378,15 @@ class CompiledChain:
     def predict(self, axes) -> np.ndarray:
         axes = np.ascontiguousarray(axes, dtype=float)
         out = np.empty((axes.shape[0], 3))
-        field_kernel(axes, self.prog, self.prog_nom, self.spl, self.consts, out)
+        field_kernel(axes, self.prog, self.prog_nom, self.spl, self.consts, self.own, out, np.empty((0, 3, self.k)),
+                     False)
         return out
 
     def predict_and_jacobian(self, axes):
         axes = np.ascontiguousarray(axes, dtype=float)
         out = np.empty((axes.shape[0], 3))
         jac = np.empty((axes.shape[0], 3, self.k))
-        field_jac_kernel(axes, self.prog, self.prog_nom, self.spl, self.consts, self.own, out, jac)
+        field_kernel(axes, self.prog, self.prog_nom, self.spl, self.consts, self.own, out, jac, True)
         return out, jac
 
 
