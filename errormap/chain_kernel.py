@@ -1,22 +1,12 @@
 """The compiled (numba) field kernel of any machine-tool chain, generic over the compiled op arrays.
 
-One pass per point: the component errors from one vector-valued cubic B-spline per axis (the
-same knots and coefficients as :meth:`errormap.chain_elements.ChainElementSet.axis_spline`, the same
-operations as scipy's B-spline evaluation (interval search, Cox–de Boor), at offsets in packed arrays:
-:func:`_spline_at`), then the chain's ops applied one by one to a running rotation ``R`` (3×3)
-and origin ``t`` (3,), for the actual chain (with the errors) and the nominal one. Packed once
-per field (:meth:`CompiledChain._program`): the ETs that depend on a point (a joint, a component
-error) stay single ops, every run of constant ETs between them (fixed transforms, location and
-squareness errors at their values) is folded into one constant block. The axis Jacobian is
-geometric and exact (no step, no truncation): each ET that depends on an axis adds its slope
-times its column (the tool point's motion per unit of the ET's value), accumulated after the pass
-(:func:`_jacobian_columns`); the error-transfer Jacobian the same way for every slot
-(:func:`error_jacobian`). Checked against the numpy reference :mod:`errormap.chain_field` and
-:meth:`errormap.machine_tool.MachineTool.error_jacobian` in ``tests/test_mt_kernel.py``.
-
-Shapes: ``axes`` (n, k); ``out`` (n, 3) μm; ``jac`` (n, 3, k) μm per mm / per deg; error
-Jacobian (n, 3, P) μm per μm / per μrad.
-"""
+One pass per point: the component errors from one cubic B-spline per axis (scipy's operations on packed
+arrays, :func:`_spline_at`), then the chain's ops on a running rotation and origin, for the actual and the
+nominal chain. Packed once per field (:meth:`CompiledChain._program`): ETs that depend on a point stay single
+ops, every run of constant ETs is folded into one block. The axis and the error-transfer Jacobians are
+geometric and exact (:func:`_jacobian_columns`, :func:`error_jacobian`); checked against the numpy reference
+:mod:`errormap.chain_field` in ``tests/test_mt_kernel.py``. Shapes: ``axes`` (n, k); ``out`` (n, 3) μm;
+``jac`` (n, 3, k) μm per mm / per deg; error Jacobian (n, 3, P) μm per μm / per μrad."""
 from __future__ import annotations
 
 import numpy as np

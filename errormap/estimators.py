@@ -1,21 +1,9 @@
 """The public estimators, one contract (scikit-learn's): the constructor stores settings only, ``fit``
 validates them and the data, solves, and returns ``self``; what it learned ends in ``_``; ``fit`` reads
-no file (read measurements first with :func:`errormap.read_sweeps` and its siblings). Each estimator
-calls the existing numerical code; none has a numerical path of its own.
-
-* :class:`Identification` — error elements from tracker sweeps of a machine-tool chain
-  (:class:`errormap.identification.ChainIdentification`; the grinder file is identified as its chain).
-* :class:`ClosedLoop` — the closed loop on check measurements of a machine-tool chain
-  (:func:`errormap.diagnosis.chain_loop.closed_loop_chain`: element update, effect search, kept stage).
-* :class:`ArmCalibration` — geometric calibration of a serial arm from tracker poses
-  (:func:`errormap.arm_calibration.fit_model`, :func:`~errormap.arm_calibration.cv_models`).
-* :class:`PKMCalibration` — kinematic calibration of a hexapod or tripod from measured poses
-  (:class:`errormap.pkm.calibration.PKMCalibrator`).
-* :class:`errormap.diagnosis.drift_models.DriftSelector` — the drift estimator (it shares
-  :class:`Estimator`); its fitted :class:`~errormap.diagnosis.drift_models.DriftModel` is ``model_``.
-
-Using a learned attribute or ``predict`` before ``fit`` raises :class:`NotFittedError`.
-"""
+no file; ``predict`` or a learned attribute before ``fit`` raises :class:`NotFittedError`. Each calls the
+existing numerical code (:class:`Identification`, :class:`ClosedLoop`, :class:`ArmCalibration`,
+:class:`PKMCalibration`; the drift estimator :class:`errormap.diagnosis.drift_models.DriftSelector` shares
+:class:`Estimator`). Overview: ``docs/reference/python-api.md``."""
 from __future__ import annotations
 
 import dataclasses

@@ -1,51 +1,12 @@
 """Identification of every machine tool's error slots from laser-tracker sweeps: the one method.
 
-A chain file, and a ``kind = "grinder"`` file through its chain (:func:`errormap.grinder_file.grinder_chain`;
-:func:`errormap.uncertainty.smooth_identify` returns the grinder's element-set and covariance files): one
-Gauss–Newton least squares on ALL ball positions of all sweeps of one tracker set-up, with the exact chain
-(:mod:`errormap.chain_sweeps` body chains), re-linearised at every step to the exact rigid motion until the
-update is below ``tol``. The sweeps are checked first, naming axis and station: targets, coincident or
-collinear balls, ball distances and measured travel / rotation against the nominal mounts and the commands
-(mixed units), parking, the turn of a full-turn axis, mirrored columns.
-
-Unknowns: the tracker pose ``machine_in_tracker`` (6), every component error of every swept
-axis at each of its stations (6 per station), the constants (location errors of rotary axes,
-squareness). During the sweep of axis W the other axes stand at their first stations (the
-lower stroke ends; :func:`errormap.chain_sweeps.park_axes`), so their values there enter.
-
-Gauge (what the sweeps cannot tell apart), ``gauge`` one of :data:`GAUGES`, linear conditions on the
-station values (:func:`gauge_rows`; the fit is constrained to them, :mod:`errormap.chain_normal`):
-
-* ``first-station`` (:class:`ChainIdentification`'s default): the machine frame is the body of the **root axis** (the first
-  linear axis of the work chain, else of the tool chain; :func:`root_axis`) at its first station: its six
-  component errors are zero there; a rotary axis' **location errors** are its line at the first station:
-  the four component errors across the axis (two offsets, two tilts) are zero there, the axial offset and
-  the roll stay in the component errors;
-* ``station-mean`` (the default of ``volcomp identify`` and of :class:`errormap.Identification`): the root axis' six component errors sum to zero over
-  its stations (the frame at its mean pose) and a rotary axis' line is its mean over the turn (the part of
-  the across errors that turns with the axis sums to zero over the distinct stations): no one station's
-  tracker noise is left in constants and linear trends, where a second-difference smoother cannot reach;
-* ``reference-line``: the root axis' translations zero at its first station, its straightness without
-  linear trend, and the next linear axis' straightness across both axes without linear trend (the paper's
-  frame on the fitted root line);
-* in every gauge a **squareness** is confounded with a linear trend of its axis' straightness: the
-  straightness towards the squareness' ``toward`` axis is tied equal at the axis' first and
-  last stations (the squareness carries the trend); a **full-turn** rotary axis' last station is its first
-  pose: one value for both.
-
-Whatever is still unobservable after this (a machine file whose targets or chain leave a
-direction free) is found by pivoted QR of the column-scaled Jacobian and named in the
-warnings; those parameters are held at zero. The tool point in the workpiece frame does not
-depend on the gauge (a rigid change of the machine frame is seen by both chains; a squareness
-moved into a straightness trend is the same motion).
-
-Results: a :class:`~errormap.chain_elements.ChainElementSet` (stations = the sweep commands,
-interpolating splines through them; :func:`smooth_chain` smooths them), the covariance of the element parameters
-(σ̂²·(JᵀJ)⁻¹ mapped through the gauge, σ̂ from the ball residuals), the ball residual per axis,
-the conditioning. Solved by the block structure of the normal equations (:mod:`errormap.chain_normal`; linear in
-the stations but for the (N, N) covariance), by the dense pivoted QR above where the blocks cannot decide the rank. Shapes: ball residuals (m, 3) μm per axis; covariance (N, N) over
-``param_slot``/``param_station`` (station −1: a constant), μm² / μrad².
-"""
+A chain file, and a ``kind = "grinder"`` file through its chain (:func:`errormap.grinder_file.grinder_chain`):
+one Gauss–Newton least squares on all ball positions of all sweeps of one tracker set-up, with the exact
+chain (:mod:`errormap.chain_sweeps`); its unknowns, gauges (:data:`GAUGES`, :func:`gauge_rows`), checks and
+covariance as ``docs/explanation/identification.md`` describes them. Solved by the block structure of the
+normal equations (:mod:`errormap.chain_normal`), by a dense pivoted QR where the blocks cannot decide the
+rank. Shapes: ball residuals (m, 3) μm per axis; covariance (N, N) over ``param_slot``/``param_station``
+(station −1: a constant), μm² / μrad²."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace

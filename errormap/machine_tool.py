@@ -1,21 +1,12 @@
 """Machine tools as chain files (``kind = "machine-tool"``): two ET lists, compiled once.
 
-A machine tool is two serial chains from the machine base, the **work** chain (base → workpiece)
-and the **tool** chain (base → tool point), each a list of ETs and joints with the error slots the
-file declares (:mod:`errormap.machine_tool_file` reads them and derives the slot names).
-
-Compiled: the spatial error of the tool point in the workpiece frame is
-``inv(work chain)·tool chain`` — one :class:`errormap.chain.Chain` of the work chain reversed and
-negated (:func:`errormap.chain.inverted`) followed by the tool chain, with shared slots whose
-coefficients carry the units (1e-3 mm per μm, 1e-6 rad per μrad, negated on the work side).
-
-Slot order: every component error (axes in canonical order, ``dx dy dz ex ey ez`` each), then the
-location errors, then the squareness slots (the grinder's 23 elements come out in its
-``ELEMENT_NAMES`` order). Shapes: ``axes`` (n, k) in the machine's axis order (canonical word order X Y Z U V W A B C;
-columns ``x_mm … a_deg``), slot values ``values`` (n, P) in μm / μrad in :attr:`MachineTool.slot_names`
-order, spatial error (n, 3) μm, error-parameter Jacobian (n, 3, P) μm per μm or per μrad, axis
-Jacobian (n, 3, k) μm per mm or per deg. Schema: ``docs/how-to/machine-file.md`` and ``docs/reference/file-formats.md``.
-"""
+The **work** chain (base → workpiece) and the **tool** chain (base → tool point), read by
+:mod:`errormap.machine_tool_file`, compile to one :class:`errormap.chain.Chain`: the work chain inverted
+(:func:`errormap.chain.inverted`) then the tool chain, shared slots whose coefficients carry the units.
+Slot order: component errors (axes in canonical order, ``dx dy dz ex ey ez`` each), location errors,
+squareness. Shapes: ``axes`` (n, k) in the machine's axis order (columns ``x_mm … a_deg``), slot values (n, P)
+μm / μrad in :attr:`MachineTool.slot_names` order, spatial error (n, 3) μm, error-parameter Jacobian
+(n, 3, P), axis Jacobian (n, 3, k). Schema: ``docs/how-to/machine-file.md``."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field

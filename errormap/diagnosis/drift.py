@@ -1,37 +1,13 @@
-"""Thermal error modelling on drift logs: which temperature sensors explain each displacement.
+"""Drift logs (read, validated, repaired) and the sensor-subset + common-lag search on them.
 
-Log schema (CSV): ``time_s`` (increasing), any number of ``temp_<sensor>_c`` columns, any number
-of displacement columns ``<channel>_um``, optional ``speed_rpm``.
-
-Per displacement channel, on the earlier ``fit_fraction`` of the log (by time), the model is
-
-    d(t) = β0 + Σ_{s ∈ S} βs·Ts(t − lag)      (+ β·speed_rpm(t − lag) when logged and varying)
-
-with a common pure delay ``lag`` (``T(t − lag)`` by linear interpolation, held at the first value
-before the log starts). It is chosen as follows (why each step is as it is:
-``docs/decisions/009-closed-loop-history.md``, the drift log's sensor search):
-
-0. **smoothing** — each temperature is averaged over a centred window of ``smooth_s`` (60 s): sensor
-   noise is an error in the regressors. The prediction at t uses temperatures up to t − lag + smooth_s/2;
-1. **correlation grouping** — sensors whose temperatures correlate with |r| ≥ ``group_r`` on the
-   fitting part form one group (single linkage); groups are reported and reduce the search (one
-   representative per group, then swaps against every sensor) only when the exhaustive search would be
-   too large; they never forbid two members of a group from being selected together;
-2. **joint lag + subset search** — every subset of at most ``max_sensors`` regressors at every lag
-   of the grid (0 … ``max_lag_s`` at the sampling step; at most ``max_lag_steps`` lags, then refined
-   at the sampling step around the best) is fitted by least squares, all at once from the lagged
-   Gram matrices; the score is the BIC with the lag counted as a parameter;
-3. **size** — the smallest subset size whose best BIC is within ``min_delta_bic`` of the best over
-   all sizes (the null model included); each selected regressor must pass its partial F-test given the
-   others at ``alpha``, Bonferroni-corrected over the candidates (else the size steps down);
-4. **ambiguity** — the runner-up subset of the chosen size is reported with its ΔBIC; alternatives
-   within ``ambiguity_delta_bic`` make the channel ``ambiguous`` (listed, not silently picked), with each
-   selected sensor's closest other sensor and their correlation. The lag gets a profile-likelihood 95 %
-   interval (n·ln RSS within χ²₁(0.95) = 3.84 of its minimum).
-
-Before/after on the later part: "before" is the displacement itself (no compensation),
-"after" the displacement minus the model's prediction.
-"""
+Log schema (CSV): ``time_s`` (increasing), ``temp_<sensor>_c`` columns, displacement columns ``<channel>_um``,
+optional ``speed_rpm``. Per channel :class:`DriftModeller` fits ``d(t) = β0 + Σ_{s ∈ S} βs·Ts(t − lag)``
+(+ ``speed_rpm``) with one pure delay: temperatures smoothed over ``smooth_s``, every subset of at most
+``max_sensors`` regressors at every lag of the grid scored by BIC (the lag counted; correlated sensors grouped
+by ``group_r`` only to shrink a too-large search), the smallest size within ``min_delta_bic`` whose regressors
+pass a Bonferroni-corrected partial F-test at ``alpha``, alternatives within ``ambiguity_delta_bic`` flagged
+``ambiguous``, the lag with a profile-likelihood 95 % interval. Why each step is as it is:
+``docs/decisions/009-closed-loop-history.md``, the drift log's sensor search."""
 from __future__ import annotations
 
 import itertools
