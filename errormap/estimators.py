@@ -51,6 +51,11 @@ class Estimator:
         args = ", ".join(f"{k}={_short(v)}" for k, v in self.get_params().items())
         return f"{type(self).__name__}({args})"
 
+    def _store(self, settings: dict) -> None:
+        """Keep the constructor's arguments as given (``settings``: the constructor's ``locals()``)."""
+        for k in self._param_names():
+            setattr(self, k, settings[k])
+
     def _check_fitted(self, attr: str) -> None:
         if not hasattr(self, attr):
             raise NotFittedError(f"This {type(self).__name__} is not fitted yet: call fit(...) before using "
@@ -103,14 +108,7 @@ class Identification(Estimator):
     def __init__(self, machine, max_iter: int | None = None, tol: float | None = None,
                  min_separation_mm: float = 1.0, distance_tol_mm: float = 2.0, noise_um: float | None = None,
                  gauge: str = "station-mean", smooth: bool = True):
-        self.machine = machine
-        self.gauge = gauge
-        self.smooth = smooth
-        self.max_iter = max_iter
-        self.tol = tol
-        self.min_separation_mm = min_separation_mm
-        self.distance_tol_mm = distance_tol_mm
-        self.noise_um = noise_um
+        self._store(locals())
 
     def fit(self, sweeps) -> "Identification":
         from .chain_field import ChainField
@@ -159,13 +157,7 @@ class ClosedLoop(Estimator):
 
     def __init__(self, machine, fit_fraction: float = 0.6, noise_um: float | None = None, effects: bool = True,
                  max_effects: int = 4, smoothing="gcv", refit_all: bool = True):
-        self.machine = machine
-        self.fit_fraction = fit_fraction
-        self.noise_um = noise_um
-        self.effects = effects
-        self.max_effects = max_effects
-        self.smoothing = smoothing
-        self.refit_all = refit_all
+        self._store(locals())
 
     def fit(self, checks, elements, covariance=None) -> "ClosedLoop":
         from .diagnosis.chain_loop import MTChecks, closed_loop_chain, ship_on_all_checks
@@ -213,11 +205,7 @@ class ArmCalibration(Estimator):
     """
 
     def __init__(self, chain, max_iter: int = 100, models=("dh",), k_folds: int = 5, seed=0):
-        self.chain = chain
-        self.max_iter = max_iter
-        self.models = models
-        self.k_folds = k_folds
-        self.seed = seed
+        self._store(locals())
 
     def fit(self, poses) -> "ArmCalibration":
         from .arm_calibration import MODELS, choose_model, cv_models, fit_model
@@ -268,13 +256,7 @@ class PKMCalibration(Estimator):
 
     def __init__(self, machine, estimate_scales: bool = True, register: bool = True, noise_um: float | None = None,
                  lever_mm: float | None = None, lambda_rule: str = "gcv", max_iter: int = 50):
-        self.machine = machine
-        self.estimate_scales = estimate_scales
-        self.register = register
-        self.noise_um = noise_um
-        self.lever_mm = lever_mm
-        self.lambda_rule = lambda_rule
-        self.max_iter = max_iter
+        self._store(locals())
 
     def fit(self, poses) -> "PKMCalibration":
         from .pkm.calibration import PKMCalibrator

@@ -72,24 +72,7 @@ class DriftSelector(Estimator):
                  shrink_weights=SHRINK_WEIGHTS, shrink_scales=SHRINK_SCALES, max_fold_loss: float = MAX_FOLD_LOSS,
                  min_gain: float = MIN_GAIN, feature_distance: bool = FEATURE_DISTANCE,
                  ranking_fold_loss: bool = RANKING_FOLD_LOSS, band_rule: str = BAND_RULE, deploy: bool = False):
-        self.fit_fraction = fit_fraction
-        self.n_folds = n_folds
-        self.cv_start = cv_start
-        self.families = families
-        self.subset_kw = subset_kw
-        self.horizon = horizon
-        self.n_horizon_folds = n_horizon_folds
-        self.gate_se = gate_se
-        self.n_novelty_folds = n_novelty_folds
-        self.n_novelty_blocks = n_novelty_blocks
-        self.shrink_weights = shrink_weights
-        self.shrink_scales = shrink_scales
-        self.max_fold_loss = max_fold_loss
-        self.min_gain = min_gain
-        self.feature_distance = feature_distance
-        self.ranking_fold_loss = ranking_fold_loss
-        self.band_rule = band_rule
-        self.deploy = deploy
+        self._store(locals())
 
     def eligible(self, stats: dict, gate: tuple, w: float, ranking_ols: float, novelty: bool = True) -> bool:
         """Whether a candidate blended at weight ``w`` (its :func:`blend_statistics` ``stats`` and ``gate``) passes
