@@ -10,13 +10,12 @@ rank. Shapes: ball residuals (m, 3) μm per axis; covariance (N, N) over ``param
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 import numpy as np
 import scipy.linalg
 from scipy.spatial.transform import Rotation
 
-from .io import NPY_ERRORS, InputError, atomic_write
+from .io import NPY_ERRORS, InputError
 from .machine_tool import AXIS_WORDS, MachineTool
 from .chain_elements import ChainElementSet
 from .chain_normal import BlockLayout, BlockNormal, Undecided
@@ -199,16 +198,9 @@ class ChainIdentificationResult:
                 "unobservable": self.unobservable, "warnings": self.warnings,
                 "constants": self.elements_.constants, "covariance": dict(self.covariance_info)}
 
-    def save_covariance(self, path) -> Path:
-        """``.npz``: ``format``, ``slot``, ``station``, ``cov`` (atomic)."""
-        with atomic_write(path, "wb") as fh:
-            np.savez(fh, format=np.array(COV_FORMAT), slot=np.array(self.param_slot), station=self.param_station,
-                     cov=self.cov)
-        return Path(path)
-
 
 def load_covariance(path) -> tuple[list, np.ndarray, np.ndarray]:
-    """``(slot names, stations, cov)`` of a file :meth:`ChainIdentificationResult.save_covariance` wrote."""
+    """``(slot names, stations, cov)`` of a file :func:`errormap.chain_covariance.save_chain_covariance` wrote."""
     try:
         d = np.load(path, allow_pickle=False)
         if str(d["format"]) != COV_FORMAT:

@@ -367,7 +367,7 @@ def _subset_rss(G, b, yy, subs) -> np.ndarray:
 class DriftModeller:
     """Sensor selection and lag for each displacement channel (see module doc).
 
-    Settings: ``fit_fraction``, ``max_lag_s`` (default: 20 % of the fitting span), ``lag_step_s``
+    Settings: ``max_lag_s`` (default: 20 % of the fitting span), ``lag_step_s``
     (default: the median sampling interval), ``max_lag_steps`` (coarser grid beyond, then refined),
     ``group_r``, ``alpha``, ``min_delta_bic``, ``max_sensors``, ``ambiguity_delta_bic``,
     ``max_subsets`` (beyond, the search runs over correlation-group representatives plus swaps),
@@ -375,12 +375,11 @@ class DriftModeller:
     Learned: ``channels_`` {channel: ChannelModel}, ``groups_`` {sensor: id}.
     """
 
-    def __init__(self, fit_fraction: float = 0.6, max_lag_s: float | None = None, lag_step_s: float | None = None,
+    def __init__(self, max_lag_s: float | None = None, lag_step_s: float | None = None,
                  group_r: float = 0.98, alpha: float = 0.01, min_delta_bic: float = 10.0, max_sensors: int = 4,
                  ambiguity_delta_bic: float = 10.0, max_subsets: int = 5000, max_lag_steps: int = 400,
                  smooth_s: float = 60.0):
         self.smooth_s = smooth_s
-        self.fit_fraction = fit_fraction
         self.max_lag_s = max_lag_s
         self.lag_step_s = lag_step_s
         self.group_r = group_r
@@ -390,11 +389,6 @@ class DriftModeller:
         self.ambiguity_delta_bic = ambiguity_delta_bic
         self.max_subsets = max_subsets
         self.max_lag_steps = max_lag_steps
-
-    def split(self, log: DriftLog):
-        n = len(log.time_s)
-        n_fit = int(round(self.fit_fraction * n))
-        return np.arange(n_fit), np.arange(n_fit, n)
 
     # -- the search -------------------------------------------------------------------------
     def _gram(self, log, names, fit, y, lags):
@@ -567,11 +561,6 @@ class DriftModeller:
             o = max(r, key=lambda v: abs(r[v]))
             model.closest[s] = {"sensor": o, "r": r[o]}
 
-    def fit(self, log: DriftLog) -> "DriftModeller":
-        if not 0 < self.fit_fraction < 1:
-            raise ValueError(f"Expected 0 < fit_fraction < 1, got {self.fit_fraction}")
-        return self.fit_rows(log, self.split(log)[0])
-
     def fit_rows(self, log: DriftLog, fit) -> "DriftModeller":
         """Fit on the rows ``fit`` (indices, earliest first; a cross-validation fold's training part)."""
         if len(fit) < 20:
@@ -593,27 +582,3 @@ class DriftModeller:
         return {ch: {"regressors": list(m.sensors), "lag_s": m.lag_s, "lag_interval_s": list(m.lag_interval_s),
                      "ambiguous": m.ambiguous, "alternatives": m.alternatives, "runner_up": m.runner_up}
                 for ch, m in self.channels_.items()}
-
-    def report(self, log: DriftLog) -> dict:
-        """``channels`` mapping in the diagnosis.json form (held-out before/after, selection certainty)."""
-        _, hold = self.split(log)
-        out = {}
-        for ch, m in self.channels_.items():
-            d = log.disp_um[ch]
-            after = d - m.predict(log)
-            b, a = d[hold], after[hold]
-
-            def unit(s):
-                return f"{s}_um_per_rpm" if s == "speed_rpm" else f"{s}_um_per_c"
-            out[ch] = {"sensors": [s for s in m.sensors if s != "speed_rpm"],
-                       "regressors": list(m.sensors), "lag_s": m.lag_s, "lag_interval_s": list(m.lag_interval_s),
-                       "coefficients": {"intercept_um": float(m.coef[0]),
-                                        **{unit(s): float(c) for s, c in zip(m.sensors, m.coef[1:])}},
-                       "standard_errors": {"intercept_um": float(m.se[0]),
-                                           **{unit(s): float(c) for s, c in zip(m.sensors, m.se[1:])}},
-                       "bic": m.bic, "ambiguous": m.ambiguous, "alternatives": m.alternatives,
-                       "runner_up": m.runner_up, "closest_sensors": m.closest, "search": m.search,
-                       "rms_before_um": float(np.sqrt(np.mean(b**2))), "rms_after_um": float(np.sqrt(np.mean(a**2))),
-                       "max_before_um": float(np.abs(b).max()), "max_after_um": float(np.abs(a).max())}
-        return out
-
