@@ -78,6 +78,16 @@ def _chain_point(q, ev, kind, eaxis, value, joint, jscale, slot, coef, block, BR
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _column(kind_o, W, O, o, t):  # pragma: no cover - compiled
+    """The tool point ``t``'s motion per unit value of op ``o``: its axis ``W[o]`` (translation) or
+    ``W[o] × (t − O[o])`` (rotation about ``W[o]`` through ``O[o]``)."""
+    if kind_o == 1:
+        r0, r1, r2 = t[0] - O[o, 0], t[1] - O[o, 1], t[2] - O[o, 2]
+        return W[o, 1] * r2 - W[o, 2] * r1, W[o, 2] * r0 - W[o, 0] * r2, W[o, 0] * r1 - W[o, 1] * r0
+    return W[o, 0], W[o, 1], W[o, 2]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _jacobian_columns(dev, kind, joint, jscale, slot, coef, own, t, W, O, jac_row, sgn):  # pragma: no cover - compiled
     """Adds ``sgn`` × d(tool point)/d(axes) to ``jac_row`` (3, k) after :func:`_chain_point` with
     ``record``. The Jacobian is geometric: an ET's value moves the tool point along its axis ``w``
@@ -94,13 +104,7 @@ def _jacobian_columns(dev, kind, joint, jscale, slot, coef, own, t, W, O, jac_ro
             ds = own[slot[o]]
         if dj < 0 and ds < 0:
             continue
-        if kind[o] == 1:
-            r0, r1, r2 = t[0] - O[o, 0], t[1] - O[o, 1], t[2] - O[o, 2]
-            c0 = W[o, 1] * r2 - W[o, 2] * r1
-            c1 = W[o, 2] * r0 - W[o, 0] * r2
-            c2 = W[o, 0] * r1 - W[o, 1] * r0
-        else:
-            c0, c1, c2 = W[o, 0], W[o, 1], W[o, 2]
+        c0, c1, c2 = _column(kind[o], W, O, o, t)
         if dj >= 0:
             g = sgn * jscale[o]
             jac_row[0, dj] += g * c0
@@ -249,13 +253,7 @@ def error_jac_kernel(axes, prog, jac):  # pragma: no cover - compiled
         for o in range(m):
             if kind[o] == 2 or slot[o] < 0:
                 continue
-            if kind[o] == 1:
-                r0, r1, r2 = t[0] - O[o, 0], t[1] - O[o, 1], t[2] - O[o, 2]
-                c0 = W[o, 1] * r2 - W[o, 2] * r1
-                c1 = W[o, 2] * r0 - W[o, 0] * r2
-                c2 = W[o, 0] * r1 - W[o, 1] * r0
-            else:
-                c0, c1, c2 = W[o, 0], W[o, 1], W[o, 2]
+            c0, c1, c2 = _column(kind[o], W, O, o, t)
             g = coef[o] * 1e3
             p = slot[o]
             jac[n, 0, p] += g * c0

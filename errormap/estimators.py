@@ -11,6 +11,8 @@ import inspect
 
 import numpy as np
 
+from .settings import keep_settings, settings_of
+
 
 class NotFittedError(ValueError, AttributeError):
     """An estimator used before :meth:`fit` (a ValueError and an AttributeError, as scikit-learn's)."""
@@ -29,8 +31,7 @@ class Estimator:
 
     @classmethod
     def _param_names(cls) -> list:
-        sig = inspect.signature(cls.__init__)
-        return [p.name for p in sig.parameters.values() if p.name != "self" and p.kind != p.VAR_KEYWORD]
+        return settings_of(cls)
 
     def get_params(self, deep: bool = False) -> dict:
         """``{setting: value}`` as given to the constructor (``deep`` accepted for scikit-learn tools)."""
@@ -50,11 +51,6 @@ class Estimator:
     def __repr__(self) -> str:
         args = ", ".join(f"{k}={_short(v)}" for k, v in self.get_params().items())
         return f"{type(self).__name__}({args})"
-
-    def _store(self, settings: dict) -> None:
-        """Keep the constructor's arguments as given (``settings``: the constructor's ``locals()``)."""
-        for k in self._param_names():
-            setattr(self, k, settings[k])
 
     def _check_fitted(self, attr: str) -> None:
         if not hasattr(self, attr):
@@ -108,7 +104,7 @@ class Identification(Estimator):
     def __init__(self, machine, max_iter: int | None = None, tol: float | None = None,
                  min_separation_mm: float = 1.0, distance_tol_mm: float = 2.0, noise_um: float | None = None,
                  gauge: str = "station-mean", smooth: bool = True):
-        self._store(locals())
+        keep_settings(self, locals())
 
     def fit(self, sweeps) -> "Identification":
         from .chain_field import ChainField
@@ -157,7 +153,7 @@ class ClosedLoop(Estimator):
 
     def __init__(self, machine, fit_fraction: float = 0.6, noise_um: float | None = None, effects: bool = True,
                  max_effects: int = 4, smoothing="gcv", refit_all: bool = True):
-        self._store(locals())
+        keep_settings(self, locals())
 
     def fit(self, checks, elements, covariance=None) -> "ClosedLoop":
         from .diagnosis.chain_loop import MTChecks, closed_loop_chain, ship_on_all_checks
@@ -205,7 +201,7 @@ class ArmCalibration(Estimator):
     """
 
     def __init__(self, chain, max_iter: int = 100, models=("dh",), k_folds: int = 5, seed=0):
-        self._store(locals())
+        keep_settings(self, locals())
 
     def fit(self, poses) -> "ArmCalibration":
         from .arm_calibration import MODELS, choose_model, cv_models, fit_model
@@ -256,7 +252,7 @@ class PKMCalibration(Estimator):
 
     def __init__(self, machine, estimate_scales: bool = True, register: bool = True, noise_um: float | None = None,
                  lever_mm: float | None = None, lambda_rule: str = "gcv", max_iter: int = 50):
-        self._store(locals())
+        keep_settings(self, locals())
 
     def fit(self, poses) -> "PKMCalibration":
         from .pkm.calibration import PKMCalibrator

@@ -15,6 +15,7 @@ import numpy as np
 import scipy.linalg
 from scipy.spatial.transform import Rotation
 
+from .settings import keep_settings
 from .io import NPY_ERRORS, InputError
 from .machine_tool import AXIS_WORDS, MachineTool
 from .chain_elements import ChainElementSet
@@ -55,12 +56,20 @@ def rigid_fit(src, dst):
     return R, cd - apply(R, cs)
 
 
+BALL_PAIRS = ((0, 1), (0, 2), (1, 2))
+
+
+def ball_distances(balls_mm) -> np.ndarray:
+    """Distances (..., 3) mm between the three balls of ``balls_mm`` (..., 3, 3), pairs :data:`BALL_PAIRS`."""
+    b = np.asarray(balls_mm, dtype=float)
+    return np.stack([np.linalg.norm(b[..., i, :] - b[..., j, :], axis=-1) for i, j in BALL_PAIRS], axis=-1)
+
+
 def layout_problem(points_mm, min_separation_mm: float = 1.0):
     """``None`` if three ball centres (3, 3) form a usable triangle, else why not (a string)."""
     p = np.asarray(points_mm, dtype=float)
-    pairs = ((0, 1), (0, 2), (1, 2))
-    dist = [np.linalg.norm(p[i] - p[j]) for i, j in pairs]
-    for (i, j), d in zip(pairs, dist):
+    dist = ball_distances(p)
+    for (i, j), d in zip(BALL_PAIRS, dist):
         if d < min_separation_mm:
             return f"targets {i + 1} and {j + 1} coincide ({d:.3g} mm apart)"
     height = np.linalg.norm(np.cross(p[1] - p[0], p[2] - p[0])) / max(dist)
@@ -74,7 +83,7 @@ def _layout_suspects(balls_mm, min_separation_mm: float) -> np.ndarray:
     """Indices of the stations (balls (m, 3, 3)) that :func:`layout_problem` may refuse, in order:
     the same tests at every station at once, with a 1 % margin so that rounding cannot hide one."""
     b = np.asarray(balls_mm, dtype=float)
-    dist = np.stack([np.linalg.norm(b[:, i] - b[:, j], axis=1) for i, j in ((0, 1), (0, 2), (1, 2))], axis=1)
+    dist = ball_distances(b)
     height = np.linalg.norm(np.cross(b[:, 1] - b[:, 0], b[:, 2] - b[:, 0]), axis=1) / dist.max(axis=1)
     return np.flatnonzero((dist.min(axis=1) < 1.01 * min_separation_mm) | ~(height >= 0.99 * min_separation_mm))
 
@@ -107,11 +116,7 @@ def _check_length_unit(sw, ax: str, mounts) -> None:
     a unit factor off the nominal mounts' (metres, centimetres, inches, μm written as mm): the median
     measured/nominal distance ratio outside :data:`errormap.units.LENGTH_RATIO_BAND`, with a unit named."""
     from .units import LENGTH_RATIO_BAND, length_unit_guess
-    b = np.asarray(sw.balls_mm, dtype=float)
-    pairs = ((0, 1), (0, 2), (1, 2))
-    nominal = np.array([np.linalg.norm(np.asarray(mounts[i]) - np.asarray(mounts[j])) for i, j in pairs])
-    measured = np.stack([np.linalg.norm(b[:, i] - b[:, j], axis=1) for i, j in pairs], axis=1)
-    ratio = float(np.median(measured / nominal))
+    ratio = float(np.median(ball_distances(sw.balls_mm) / ball_distances(mounts)))
     guess = length_unit_guess(ratio)
     if guess and not LENGTH_RATIO_BAND[0] <= ratio <= LENGTH_RATIO_BAND[1]:
         raise InputError(f"{sw.source}: axis {ax}, columns 'x_mm', 'y_mm', 'z_mm': units do not fit: the balls lie "
@@ -123,10 +128,7 @@ def check_ball_distances(sw, axis_word: str, mounts_mm, tol_mm: float) -> None:
     """Refuse a sweep whose measured ball-to-ball distances differ from the nominal mounts' by more
     than ``tol_mm`` at any station (mixed units, or a wrong [targets] entry), naming axis and station.
     ``sw.balls_mm`` (m, 3, 3), ``mounts_mm`` (3, 3)."""
-    mounts = np.asarray(mounts_mm, dtype=float)
-    pairs = ((0, 1), (0, 2), (1, 2))
-    nominal = np.array([np.linalg.norm(mounts[i] - mounts[j]) for i, j in pairs])
-    measured = np.stack([np.linalg.norm(sw.balls_mm[:, i] - sw.balls_mm[:, j], axis=1) for i, j in pairs], axis=1)
+    nominal, measured = ball_distances(mounts_mm), ball_distances(sw.balls_mm)
     bad = np.abs(measured - nominal).max(axis=1) > tol_mm
     if bad.any():
         i = int(np.argmax(bad))
@@ -336,12 +338,7 @@ class ChainIdentification:
 
     def __init__(self, max_iter: int = 30, tol: float = 1e-7, min_separation_mm: float = 1.0,
                  distance_tol_mm: float = 2.0, noise_um: float | None = None, gauge: str = "first-station"):
-        self.gauge = gauge
-        self.max_iter = max_iter
-        self.tol = tol
-        self.min_separation_mm = min_separation_mm
-        self.distance_tol_mm = distance_tol_mm
-        self.noise_um = noise_um
+        keep_settings(self, locals())
 
     # -- validation ------------------------------------------------------------------------
     def _check(self, sweeps: Sweeps, machine: MachineTool) -> list:

@@ -278,24 +278,16 @@ class MachineTool:
         return q, err <= tol_mm
 
     def closed_form_inverse(self):
-        """The nominal inverse in closed form where the chain's structure allows it, else None.
+        """The nominal inverse in closed form where the chain's structure allows it, else None
+        (``docs/reference/machine-tool-chains.md``).
 
-        Recognised from the compiled ``inv(work)·tool`` chain (never from a name): three axes, one
-        of them rotary and driving one ET, only fixed ETs before it (``F0``) and no rotary joint
-        after it. Then the nominal tool point is ``p = F0·R_w(θ)·(c + L·u)`` with ``θ = θ0 + s·a``
-        the rotary ET's value, ``w`` its axis, ``u`` the two linear axes and ``c``, ``L`` (3, 2)
-        constant (the ETs after the rotary one move the origin affinely in ``u``); the two linear
-        directions must span a plane that the rotation tilts (its normal ``n`` not along ``w``).
-        ``n·R_w(−θ)·F0⁻¹p = n·c`` is ``A cos θ + B sin θ = C``: two roots
-        ``θ = atan2(B, A) ± acos(C / hypot(A, B))`` (the argument clipped to ±1: a point the
-        linear axes cannot reach is put at the nearest angle; on the rotary axis itself, where
-        ``A = B = 0``, θ = 0), each with ``u = L⁺·(R_w(−θ)·F0⁻¹p − c)``; of the two, the one whose
-        linear axes lie nearest the middle of their strokes (in half-strokes) is taken (on the
-        grinder: the wheel on the near side of the A axis). Returns a function
-        ``points (n, 3) mm -> axes (n, 3)`` with the rotary axis in degrees, not yet wrapped
-        (:meth:`inverse_closed`). This numpy form is the readable reference;
-        :func:`errormap.chain_kernel.inverse` runs the same constants (:meth:`closed_form_constants`)
-        compiled (:func:`errormap.chain_kernel.closed_form_solver`), equal to it to round-off (tested)."""
+        Recognised from the compiled chain: three axes, one rotary driving one ET with only fixed ETs
+        before it (``F0``) and no rotary joint after it, so that ``p = F0·R_w(θ)·(c + L·u)``;
+        ``n·R_w(−θ)·F0⁻¹p = n·c`` gives ``θ = atan2(B, A) ± acos(C / hypot(A, B))`` (clipped; θ = 0 on the
+        rotary axis itself), each with ``u = L⁺·(R_w(−θ)·F0⁻¹p − c)``; the root whose linear axes lie
+        nearest their strokes' middles is taken. Returns ``points (n, 3) mm -> axes (n, 3)``, the rotary
+        axis in degrees not yet wrapped (:meth:`inverse_closed`): the readable reference of the compiled
+        :func:`errormap.chain_kernel.closed_form_solver`, equal to it to round-off (tested)."""
         k = self.closed_form_constants()
         if k is None:
             return None

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from ..settings import keep_settings
 from ..io import InputError, read_table
 
 TEMP_RE = re.compile(r"^temp_(.+)_c$")
@@ -379,16 +380,7 @@ class DriftModeller:
                  group_r: float = 0.98, alpha: float = 0.01, min_delta_bic: float = 10.0, max_sensors: int = 4,
                  ambiguity_delta_bic: float = 10.0, max_subsets: int = 5000, max_lag_steps: int = 400,
                  smooth_s: float = 60.0):
-        self.smooth_s = smooth_s
-        self.max_lag_s = max_lag_s
-        self.lag_step_s = lag_step_s
-        self.group_r = group_r
-        self.alpha = alpha
-        self.min_delta_bic = min_delta_bic
-        self.max_sensors = max_sensors
-        self.ambiguity_delta_bic = ambiguity_delta_bic
-        self.max_subsets = max_subsets
-        self.max_lag_steps = max_lag_steps
+        keep_settings(self, locals())
 
     # -- the search -------------------------------------------------------------------------
     def _gram(self, log, names, fit, y, lags):

@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..estimators import Estimator
+from ..settings import keep_settings
 from .drift import DriftLog
 from .drift_candidates import default_families
 from .drift_features import (RANGE_QUANTILE, _inputs, feature_matrix, feature_novelty, input_matrix, mahalanobis,
@@ -72,7 +73,7 @@ class DriftSelector(Estimator):
                  shrink_weights=SHRINK_WEIGHTS, shrink_scales=SHRINK_SCALES, max_fold_loss: float = MAX_FOLD_LOSS,
                  min_gain: float = MIN_GAIN, feature_distance: bool = FEATURE_DISTANCE,
                  ranking_fold_loss: bool = RANKING_FOLD_LOSS, band_rule: str = BAND_RULE, deploy: bool = False):
-        self._store(locals())
+        keep_settings(self, locals())
 
     def eligible(self, stats: dict, gate: tuple, w: float, ranking_ols: float, novelty: bool = True) -> bool:
         """Whether a candidate blended at weight ``w`` (its :func:`blend_statistics` ``stats`` and ``gate``) passes

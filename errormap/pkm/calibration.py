@@ -18,6 +18,7 @@ from scipy.linalg import svd
 from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
 
+from ..settings import keep_settings
 from ..io import InputError
 from ..threads import limit_threads
 from .hexapod import KinematicsError, forward_kinematics, inverse_kinematics, skew, workspace_poses
@@ -177,22 +178,7 @@ class PKMCalibrator:
             raise ValueError(f"lambda_rule must be one of {self.RULES}, got {lambda_rule!r}")
         if max_iter < 1 or not xtol_mm > 0 or not ftol > 0:
             raise ValueError("max_iter, xtol_mm and ftol must be positive")
-        self.machine = machine
-        self.estimate_scales = estimate_scales
-        self.register = register
-        self.noise_um = noise_um
-        self.lambda_rule = lambda_rule
-        self.tau = tau
-        self.lever_mm = lever_mm
-        self.joint_scale_mm = joint_scale_mm
-        self.joint_bound_mm = joint_bound_mm
-        self.offset_bound_mm = offset_bound_mm
-        self.scale_bound = scale_bound
-        self.max_iter = max_iter
-        self.xtol_mm = xtol_mm
-        self.ftol = ftol
-        self.rcond = rcond
-        self.progress = progress
+        keep_settings(self, locals())
 
     # -- helpers ---------------------------------------------------------------------------
     def _layout(self):
