@@ -618,8 +618,3 @@ def _with(r0: np.ndarray, est: np.ndarray, delta: np.ndarray) -> np.ndarray:
     r = r0.copy()
     r[est] += delta
     return r
-
-
-def calibrate(machine: PKM, data: PoseData, **settings) -> CalibrationResult:
-    """Convenience: ``PKMCalibrator(machine, **settings).fit(data)``."""
-    return PKMCalibrator(machine, **settings).fit(data)
