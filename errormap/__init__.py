@@ -1,23 +1,9 @@
 """errormap: physics and data for volcomp.
 
-Transforms, machine models (the grinder's 23-error HTM model, machine-tool chains, serial arms, the PKM
-models), error elements, the truth simulator, feature points, identification and diagnosis, and the I/O
-schemas. Imports neither ``training`` nor ``compensation``.
-
-The public names below (``errormap.__all__``; docs/reference/python-api.md) load lazily on first use, so
-``import errormap`` imports nothing heavy and has no side effects:
-
-* machines — :func:`load_machine` (a built-in name such as ``"mill-xyz"`` or ``"ur5"``, or a file),
-  :func:`builtin_machines`; the grinder file is identified, looped and compensated as its chain;
-* measurements — :func:`read_sweeps`, :func:`read_checks`, :func:`read_poses`, :func:`read_drift_log`,
-  and simulated ones: :func:`simulate_truth`, :func:`simulate_sweeps`, :func:`simulate_checks`;
-* estimators (scikit-learn contract) — :class:`Identification`, :class:`ClosedLoop`,
-  :class:`ArmCalibration`, :class:`PKMCalibration`, :class:`DriftSelector` (its fitted :class:`DriftModel`);
-  :class:`NotFittedError`;
-* error fields — :class:`ChainField` (an element set of a chain), :class:`ChainModelField` (elements plus
-  effect terms), :class:`ChainElementSet`;
-* errors — :class:`InputError` (a file that cannot be read exactly), :class:`MachineFileError`.
-"""
+Transforms, machine models (machine-tool chains, serial arms, the PKM models), error elements, the truth
+simulator, identification and diagnosis, and the I/O schemas; imports neither ``training`` nor
+``compensation``. The public names (``errormap.__all__``, listed in :data:`_LAZY`;
+``docs/reference/python-api.md``) load lazily on first use, so ``import errormap`` imports nothing heavy."""
 
 __version__ = "0.1.0"
 

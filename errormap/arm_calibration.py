@@ -1,18 +1,11 @@
 """Geometric calibration of a serial chain from measured tool points.
 
-:class:`errormap.estimators.ArmCalibration` identifies the chain's error slots (link parameters, base frame, tool point)
-by Levenberg–Marquardt on the chain's analytic error Jacobian. Identifiability is decided before the
-loop from the column-scaled Jacobian at the nominal chain: a QR factorisation with column pivoting
-keeps the largest independent set of slots; every other slot is *fixed* at its nominal value (0) and
-named, with the unidentifiable combinations from the SVD's null space — nothing is regularised away.
-The result carries parameter standard errors (σ² (JᵀWJ)⁻¹ over the identified slots) and prediction
-bands (J Σ Jᵀ) at any pose.
-
-The plain baselines an engineer tries first sit beside it: :func:`fit_plain_lsq` (unregularised least squares on
-every DH slot + base + tool, no identifiability handling, no β; Gauss–Newton with the minimum-norm step) and
-:func:`fit_base_tool` (nominal chain, fitted base frame and tool point only).
-Lengths mm, angles rad (as the slot names say); ``q`` (n, nq) in the joints' units.
-"""
+Levenberg–Marquardt on the chain's analytic error Jacobian; a pivoted QR of the column-scaled Jacobian at the
+nominal chain keeps the largest independent set of slots, the others fixed at 0 and named with the
+unidentifiable combinations (nothing regularised away); standard errors σ²(JᵀWJ)⁻¹ and prediction bands
+J Σ Jᵀ. The plain baselines beside it: :func:`fit_plain_lsq` (every slot, minimum-norm Gauss–Newton) and
+:func:`fit_base_tool` (base frame and tool point only). Method: ``docs/reference/arm-calibration.md``.
+Lengths mm, angles rad; ``q`` (n, nq) in the joints' units."""
 from __future__ import annotations
 
 import re

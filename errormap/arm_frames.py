@@ -1,17 +1,12 @@
 """The frames of a calibrated arm kept apart: the instrument (tracker, world) → robot base transform, the link
 parameters, and the tool point in the last link's frame.
 
-A tracker's own frame is arbitrary: placed anew each session, metres from the arm and turned by any angle. Only the
-base block (six slots ``base.*``, :data:`BASE_SLOTS`) may carry that placement; the link slots stay deviations of the
-machine file's table. Where a link slot and a frame slot move the tool point the same way — the first joint's offsets
-``link1.dtheta_rad`` and ``link1.dd_mm`` against the base's rotation about and translation along that axis, a last
-link's offsets along and about its axis against the tool point — the frame slot is identified and the link slot held
-at its nominal value (:data:`FRAME_SLOT_PREFIXES`, :func:`errormap.arm_calibration.identifiable_slots`). The robot's
-BASE FRAME is then the frame after the base block: joint programs and their target points are in it, and
-:func:`to_base_frame` / :func:`from_base_frame` turn points between it and the instrument's frame of a calibration.
-
-Lengths mm, angles rad; points (n, 3); transforms (4, 4).
-"""
+Only the base block (``base.*``, :data:`BASE_SLOTS`) carries the tracker's arbitrary placement; where a link
+slot and a frame slot move the tool point the same way the frame slot is identified and the link slot held at
+nominal (:data:`FRAME_SLOT_PREFIXES`, :func:`errormap.arm_calibration.identifiable_slots`;
+``docs/reference/arm-calibration.md``). The robot's base frame is the frame after the base block: joint
+programs and their targets are in it; :func:`to_base_frame` / :func:`from_base_frame` turn points between it
+and a calibration's instrument frame. Lengths mm, angles rad; points (n, 3); transforms (4, 4)."""
 from __future__ import annotations
 
 import numpy as np

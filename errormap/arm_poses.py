@@ -1,20 +1,11 @@
 """Measured-pose files of a serial chain (an arm): joint values and the measured tool point.
 
-Schema (``docs/explanation/serial-arms.md``): one row per pose, the chain's joint columns ``q1_deg … qN_deg`` (``_mm``
-for prismatic joints; names from the machine file) and the measured tool point ``x_mm, y_mm, z_mm``
-in the chain's base frame (or the tracker's: calibration estimates the base frame); optional
-``sigma_mm`` (per-row measurement standard deviation per component), ``temp_c``, ``time_s``, and ``session``:
-a label (any text without commas) naming the measurement session of the row, where one file holds several (each
-session has its own instrument → base frame). A 6-DoF tracker's tool-frame ORIENTATION (the chain's last frame, in the same frame as ``x_mm…``) is
-optional: a unit quaternion ``qw, qx, qy, qz`` or a rotation vector ``rx_rad, ry_rad, rz_rad`` (not
-both), with an optional ``sigma_rad`` (per-row standard deviation per rotation component).
-
-Recognised by content, not by name: a file with the schema's columns, or the laser-tracker grid
-layout (``joint_1 … joint_N``, targets ``x_t, y_t, z_t`` and ``x_dif, y_dif, z_dif`` = measured −
-target), read as measured = target + dif (:func:`convert_tracker_grid` writes it in the schema).
-Refused, with one line naming file, row and column: metres where mm are declared, radians where
-degrees are, joint values outside the machine's limits, non-positive ``sigma_mm``.
-"""
+Schema: ``docs/reference/file-formats.md`` and ``docs/explanation/serial-arms.md`` (joint columns
+``q1_deg … qN_deg``, the tool point ``x_mm, y_mm, z_mm``; optional ``sigma_mm``, ``temp_c``, ``time_s``,
+``session``, a 6-DoF orientation as ``qw, qx, qy, qz`` or ``rx_rad, ry_rad, rz_rad`` with ``sigma_rad``).
+Recognised by content: the schema's columns, or the laser-tracker grid layout read as measured = target + dif
+(:func:`convert_tracker_grid`). Refused, with one line naming file, row and column: metres where mm are
+declared, radians where degrees are, joint values outside the machine's limits, non-positive ``sigma_mm``."""
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -1,13 +1,11 @@
-"""Re-registering a calibrated arm in a new measurement session: only the tracker (world) → base frame (and, when
-asked, the tool point) is fitted on a few poses; every link parameter, joint slot and learned stage is kept.
+"""Re-registering a calibrated arm in a new measurement session: only the tracker (world) → base frame (and,
+when asked, the tool point) is fitted on a few poses; every link parameter, joint slot and learned stage is
+kept.
 
-A tracker set up anew sees the arm in a new frame; the arm itself has not changed. :func:`register_frame` fits the
-six ``base.*`` slots (and the three ``tool.*`` slots with ``tool=True``) of a calibrated chain to the new poses,
-started from a closed-form rigid fit (Kabsch) of the calibrated model's points to the measured ones, refined by
-Levenberg–Marquardt on the exact base transform. It reports the frame's standard errors and the joint vectors inside
-the limits that would pin it best (greedy A-optimal choice: each added pose lowers the summed variance of the fitted
-slots most). Lengths mm, angles rad; ``q`` (n, nq) in the joints' units.
-"""
+:func:`register_frame` fits the six ``base.*`` slots (and the three ``tool.*`` with ``tool=True``): a
+closed-form rigid fit (Kabsch), refined by Levenberg–Marquardt on the exact base transform; it reports the
+frame's standard errors and the joint vectors that would pin it best (greedy A-optimal choice). Lengths mm,
+angles rad; ``q`` (n, nq) in the joints' units."""
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -1,18 +1,11 @@
 """Calibration poses from several measurement sessions in one file (the poses' ``session`` column).
 
-Each session has its own instrument (tracker) → robot base frame; the arm is the same. :func:`align_sessions` brings
-every session's measured points into the frame of one reference session (the one with the most poses): a plain
-least-squares calibration is fitted on the reference session, every other session's base frame is registered on all
-of its poses with it (:func:`errormap.arm_register.fit_frame`), and its points (and 6-DoF orientations) are moved by
-T_ref · T_sessionⁱ⁻¹; a second pass refits the plain calibration on all aligned poses and registers every session
-again. The calibration then runs on the aligned poses, in the reference session's frame.
-
-Temperature across sessions (:func:`expanded_params`, :func:`fit_expansion`): a uniform expansion of the arm by
-α·ΔT scales every translation of the chain after its base (links and tool), i.e. moves the base-frame point p_b to
-(1 + α·ΔT)·p_b — exactly, whatever the joints. α (1/K) is fitted by least squares to the residuals of poses whose
-sessions were logged at different mean temperatures (``temp_c``); whether it is used is decided across sessions
-(``compensation.app.workflows.arm_sessions``). Lengths mm, angles rad, temperatures °C.
-"""
+:func:`align_sessions` brings every session's points into the frame of the reference session (the most
+poses) by registering each session's base frame on a plain calibration, twice
+(``docs/reference/arm-calibration.md``). :func:`expanded_params` / :func:`fit_expansion`: a uniform expansion
+α·ΔT of the arm moves a base-frame point p_b to (1 + α·ΔT)·p_b exactly; α (1/K) is fitted to the residuals of
+sessions logged at different mean temperatures (whether it is used is decided in
+``compensation.app.workflows.arm_sessions``). Lengths mm, angles rad, temperatures °C."""
 from __future__ import annotations
 
 import numpy as np

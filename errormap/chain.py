@@ -1,26 +1,14 @@
 """A serial kinematic chain as data: ordered elementary transforms, compiled once.
 
-A chain is a list of elementary transforms (ETs): a translation along or a rotation about the x,
-y or z axis of the current frame. An ET is either fixed (a constant, mm or rad) or a joint (a
-revolute or prismatic axis: constant offset + direction * joint value). Any ET may carry an
-*error slot*: an additive offset to its value, identified by calibration. Standard and modified
-Denavit–Hartenberg tables compile to ETs (:func:`dh_ets`, :func:`mdh_ets`) with the link-parameter
-slots Δθ, Δd, Δa, Δα per link and a Hayati β slot (a rotation about y) on links whose consecutive
-axes are parallel; a base frame (6 slots: tx ty tz rz ry rx) and a tool point (3 slots) complete
-the chain. Element names are derived from the chain (``link2.da_mm``, ``base.rz_rad``, ``tool.z_mm``).
-
-Machine tools (:mod:`errormap.machine_tool`) use two extensions, both off for arms: an error slot may
-enter several ETs, each with a coefficient ``coef`` (``value += coef * error``; a slot in an inverted
-part of a chain enters negated, a squareness slot tilts an axis by ``+s`` before and ``-s`` after its
-motion; the coefficient also carries the slot's unit, e.g. 1e-3 mm per μm), compiled with
-``shared_slots=True``; and error values may be given per pose, ``errors`` of shape (n, P) (a machine
-tool's component errors are functions of an axis position), beside the constant ``(P,)`` of an arm.
-
-Units: joint values are given in the joints' units (deg for revolute, mm for prismatic); error
-parameters are in mm (translations) and rad (rotations), as their names say. Shapes: ``q`` (n, nq),
-frames (n, 4, 4), tool-point error Jacobian (n, 3, n_params), joint Jacobian (n, 3 or 6, nq).
-The tool point is the origin of the last frame.
-"""
+An elementary transform (ET) translates along or rotates about x, y or z of the current frame; it is fixed
+or a joint (offset + direction · joint value) and may carry an additive *error slot*. Standard and modified
+DH tables compile to ETs (:func:`dh_ets`, :func:`mdh_ets`: Δθ, Δd, Δa, Δα per link, a Hayati β on parallel
+consecutive axes, a base frame of 6 slots and a tool point of 3), element names derived from the chain
+(``link2.da_mm``, ``base.rz_rad``, ``tool.z_mm``). Machine tools (:mod:`errormap.machine_tool`) add two
+extensions: a slot entering several ETs with coefficients that carry its unit (``shared_slots=True``), and
+error values per pose, ``errors`` (n, P). Units: joints in their units (deg, mm), error parameters mm / rad.
+Shapes: ``q`` (n, nq), frames (n, 4, 4), tool-point error Jacobian (n, 3, n_params), joint Jacobian
+(n, 3 or 6, nq); the tool point is the last frame's origin. See ``docs/reference/machine-tool-chains.md``."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field

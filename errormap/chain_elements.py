@@ -1,19 +1,11 @@
-"""Element sets of any machine-tool chain (the grinder's chain among them): per-axis stations,
-component-error functions, constants.
+"""Element sets of any machine-tool chain: per-axis stations, component-error functions, constants.
 
-The slots come from the machine file (:class:`errormap.machine_tool.MachineTool`; the grinder's 23
-elements, :mod:`errormap.elements`, are its chain's slots). Component errors (μm / μrad) are
-functions of their own axis, stored as values at that axis' stations and interpolated by one
-vector-valued cubic B-spline per axis (``scipy.interpolate.make_interp_spline``, the same
-interpolation as the grinder's; periodic for a rotary axis whose stroke is a full turn, which
-needs stations spanning exactly 360°); location and squareness errors are constants.
-
-File: the grinder's element-set JSON, ``format = "volcomp-elements/1"``, keys ``stations`` (per
-axis column), ``functions`` (per component slot), ``constants`` (per constant slot), ``units``;
-the grinder's files load unchanged against the grinder chain file. Shapes: ``values(axes (n, k))
--> (n, P)`` in the machine's slot order; ``slopes(axes) -> (n, P)`` d(slot)/d(own axis) per mm or
-per deg (zero for constants).
-"""
+Component errors (μm / μrad) are functions of their own axis, stored at that axis' stations and interpolated
+by one vector-valued cubic B-spline per axis (``scipy.interpolate.make_interp_spline``; periodic for a
+full-turn rotary axis, whose stations span exactly 360°); location and squareness errors are constants.
+File: ``format = "volcomp-elements/1"`` (``docs/reference/file-formats.md``). Shapes:
+``values(axes (n, k)) -> (n, P)`` in the machine's slot order; ``slopes(axes) -> (n, P)`` d(slot)/d(own
+axis), zero for constants."""
 from __future__ import annotations
 
 import json

@@ -1,19 +1,12 @@
 """The error field of any machine-tool chain (:class:`errormap.field.ErrorField` over its axes).
 
-``ChainField(machine, elements)`` (a :class:`~errormap.chain_elements.ChainElementSet` of the machine, the
-grinder's 23 elements on its chain): ``predict(axes (n, k)) -> (n, 3)`` μm, the exact spatial error
-of the tool point in the workpiece frame (actual minus nominal, ``inv(work)·tool`` with every
-element transform exact); ``jacobian(axes) -> (n, 3, k)`` μm per mm / per deg;
-``predict_and_jacobian``; ``error_jacobian(axes) -> (n, 3, P)`` μm per μm / per μrad (the
-error-transfer matrix for identification, at the nominal chain). ``k`` = the machine's axes in
-canonical order (``machine.axis_columns``), ``P`` = its slots (``machine.slot_names``).
-
-Axis Jacobian: ``dE/dq = [J_q(q, e) − J_q(q, 0) + J_e(q, e)·de/dq] / 1e-3`` with ``J_q`` the
-chain's joint Jacobian, ``J_e`` its error-parameter Jacobian and ``de/dq`` the spline slopes of
-the component errors along their own axis. :func:`predict_numpy` / :func:`predict_and_jacobian_numpy`
-are the readable references; the compiled kernel (:mod:`errormap.chain_kernel`) is
-tested against them; :class:`ChainField` computes through the kernel.
-"""
+``ChainField(machine, elements)``: ``predict(axes (n, k)) -> (n, 3)`` μm, the exact spatial error of the tool
+point in the workpiece frame; ``jacobian(axes) -> (n, 3, k)`` μm per mm / per deg; ``predict_and_jacobian``;
+``error_jacobian(axes) -> (n, 3, P)`` μm per μm / per μrad (at the nominal chain). ``k`` =
+``machine.axis_columns``, ``P`` = ``machine.slot_names``. Axis Jacobian:
+``dE/dq = [J_q(q, e) − J_q(q, 0) + J_e(q, e)·de/dq] / 1e-3``. :func:`predict_numpy` /
+:func:`predict_and_jacobian_numpy` are the readable references the compiled kernel
+(:mod:`errormap.chain_kernel`, what :class:`ChainField` computes through) is tested against."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,22 +1,12 @@
 """The compiled (numba) field kernel of any machine-tool chain, generic over the compiled op arrays.
 
-One pass per point: the component errors from one vector-valued cubic B-spline per axis (the
-same knots and coefficients as :meth:`errormap.chain_elements.ChainElementSet.axis_spline`, the same
-operations as scipy's B-spline evaluation (interval search, Cox–de Boor), at offsets in packed arrays:
-:func:`_spline_at`), then the chain's ops applied one by one to a running rotation ``R`` (3×3)
-and origin ``t`` (3,), for the actual chain (with the errors) and the nominal one. Packed once
-per field (:meth:`CompiledChain._program`): the ETs that depend on a point (a joint, a component
-error) stay single ops, every run of constant ETs between them (fixed transforms, location and
-squareness errors at their values) is folded into one constant block. The axis Jacobian is
-geometric and exact (no step, no truncation): each ET that depends on an axis adds its slope
-times its column (the tool point's motion per unit of the ET's value), accumulated after the pass
-(:func:`_jacobian_columns`); the error-transfer Jacobian the same way for every slot
-(:func:`error_jacobian`). Checked against the numpy reference :mod:`errormap.chain_field` and
-:meth:`errormap.machine_tool.MachineTool.error_jacobian` in ``tests/test_mt_kernel.py``.
-
-Shapes: ``axes`` (n, k); ``out`` (n, 3) μm; ``jac`` (n, 3, k) μm per mm / per deg; error
-Jacobian (n, 3, P) μm per μm / per μrad.
-"""
+One pass per point: the component errors from one cubic B-spline per axis (scipy's operations on packed
+arrays, :func:`_spline_at`), then the chain's ops on a running rotation and origin, for the actual and the
+nominal chain. Packed once per field (:meth:`CompiledChain._program`): ETs that depend on a point stay single
+ops, every run of constant ETs is folded into one block. The axis and the error-transfer Jacobians are
+geometric and exact (:func:`_jacobian_columns`, :func:`error_jacobian`); checked against the numpy reference
+:mod:`errormap.chain_field` in ``tests/test_mt_kernel.py``. Shapes: ``axes`` (n, k); ``out`` (n, 3) μm;
+``jac`` (n, 3, k) μm per mm / per deg; error Jacobian (n, 3, P) μm per μm / per μrad."""
 from __future__ import annotations
 
 import numpy as np
@@ -88,6 +78,16 @@ def _chain_point(q, ev, kind, eaxis, value, joint, jscale, slot, coef, block, BR
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _column(kind_o, W, O, o, t):  # pragma: no cover - compiled
+    """The tool point ``t``'s motion per unit value of op ``o``: its axis ``W[o]`` (translation) or
+    ``W[o] × (t − O[o])`` (rotation about ``W[o]`` through ``O[o]``)."""
+    if kind_o == 1:
+        r0, r1, r2 = t[0] - O[o, 0], t[1] - O[o, 1], t[2] - O[o, 2]
+        return W[o, 1] * r2 - W[o, 2] * r1, W[o, 2] * r0 - W[o, 0] * r2, W[o, 0] * r1 - W[o, 1] * r0
+    return W[o, 0], W[o, 1], W[o, 2]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _jacobian_columns(dev, kind, joint, jscale, slot, coef, own, t, W, O, jac_row, sgn):  # pragma: no cover - compiled
     """Adds ``sgn`` × d(tool point)/d(axes) to ``jac_row`` (3, k) after :func:`_chain_point` with
     ``record``. The Jacobian is geometric: an ET's value moves the tool point along its axis ``w``
@@ -104,13 +104,7 @@ def _jacobian_columns(dev, kind, joint, jscale, slot, coef, own, t, W, O, jac_ro
             ds = own[slot[o]]
         if dj < 0 and ds < 0:
             continue
-        if kind[o] == 1:
-            r0, r1, r2 = t[0] - O[o, 0], t[1] - O[o, 1], t[2] - O[o, 2]
-            c0 = W[o, 1] * r2 - W[o, 2] * r1
-            c1 = W[o, 2] * r0 - W[o, 0] * r2
-            c2 = W[o, 0] * r1 - W[o, 1] * r0
-        else:
-            c0, c1, c2 = W[o, 0], W[o, 1], W[o, 2]
+        c0, c1, c2 = _column(kind[o], W, O, o, t)
         if dj >= 0:
             g = sgn * jscale[o]
             jac_row[0, dj] += g * c0
@@ -203,36 +197,8 @@ def _init_slots(consts, ev, dev):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def field_kernel(axes, prog, prog_nom, spl, consts, out):  # pragma: no cover - compiled
-    """Spatial error (μm) at every point: ``out`` (n, 3)."""
-    spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, spl_inv_h = spl
-    P = consts.shape[0]
-    ev = np.empty(P)
-    dev = np.empty(P)
-    vbuf = np.empty(6)
-    dbuf = np.empty(6)
-    h = np.empty(4)
-    hh = np.empty(4)
-    R = np.empty((3, 3))
-    t = np.empty(3)
-    R0 = np.empty((3, 3))
-    t0 = np.empty(3)
-    k1, a1, v1, j1, s1, sl1, c1, b1, BR1, Bt1 = prog
-    k0, a0, v0, j0, s0, sl0, c0, b0, BR0, Bt0 = prog_nom
-    W = np.empty((0, 3))
-    _init_slots(consts, ev, dev)
-    for n in range(axes.shape[0]):
-        q = axes[n]
-        _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, spl_inv_h, consts, ev, dev, vbuf, dbuf, h, hh, False)
-        _chain_point(q, ev, k1, a1, v1, j1, s1, sl1, c1, b1, BR1, Bt1, R, t, W, W, False)
-        _chain_point(q, ev, k0, a0, v0, j0, s0, sl0, c0, b0, BR0, Bt0, R0, t0, W, W, False)
-        for i in range(3):
-            out[n, i] = (t[i] - t0[i]) * 1e3
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def field_jac_kernel(axes, prog, prog_nom, spl, consts, own, out, jac):  # pragma: no cover - compiled
-    """Spatial error (μm) and dE/d(axes): ``out`` (n, 3), ``jac`` (n, 3, k)."""
+def field_kernel(axes, prog, prog_nom, spl, consts, own, out, jac, deriv):  # pragma: no cover - compiled
+    """Spatial error (μm) ``out`` (n, 3) and, when ``deriv``, dE/d(axes) ``jac`` (n, 3, k)."""
     spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, spl_inv_h = spl
     P = consts.shape[0]
     k = axes.shape[1]
@@ -248,24 +214,24 @@ def field_jac_kernel(axes, prog, prog_nom, spl, consts, own, out, jac):  # pragm
     t0 = np.empty(3)
     k1, a1, v1, j1, s1, sl1, c1, b1, BR1, Bt1 = prog
     k0, a0, v0, j0, s0, sl0, c0, b0, BR0, Bt0 = prog_nom
-    m = max(k1.shape[0], k0.shape[0])
+    m = max(k1.shape[0], k0.shape[0]) if deriv else 0
     W = np.empty((m, 3))
     O = np.empty((m, 3))
-    J = np.empty((3, k))
+    J = np.zeros((3, k))
     _init_slots(consts, ev, dev)
     for n in range(axes.shape[0]):
         q = axes[n]
-        _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, spl_inv_h, consts, ev, dev, vbuf, dbuf, h, hh, True)
-        for i in range(3):
-            for j in range(k):
-                J[i, j] = 0.0
-        _chain_point(q, ev, k1, a1, v1, j1, s1, sl1, c1, b1, BR1, Bt1, R, t, W, O, True)
-        _jacobian_columns(dev, k1, j1, s1, sl1, c1, own, t, W, O, J, 1.0)
-        _chain_point(q, ev, k0, a0, v0, j0, s0, sl0, c0, b0, BR0, Bt0, R0, t0, W, O, True)
-        _jacobian_columns(dev, k0, j0, s0, sl0, c0, own, t0, W, O, J, -1.0)
+        _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, spl_inv_h, consts, ev, dev, vbuf, dbuf, h, hh, deriv)
+        _chain_point(q, ev, k1, a1, v1, j1, s1, sl1, c1, b1, BR1, Bt1, R, t, W, O, deriv)
+        if deriv:
+            J[:, :] = 0.0
+            _jacobian_columns(dev, k1, j1, s1, sl1, c1, own, t, W, O, J, 1.0)
+        _chain_point(q, ev, k0, a0, v0, j0, s0, sl0, c0, b0, BR0, Bt0, R0, t0, W, O, deriv)
+        if deriv:
+            _jacobian_columns(dev, k0, j0, s0, sl0, c0, own, t0, W, O, J, -1.0)
         for i in range(3):
             out[n, i] = (t[i] - t0[i]) * 1e3
-            for j in range(k):
+            for j in range(k if deriv else 0):
                 jac[n, i, j] = J[i, j] * 1e3
 
 
@@ -287,13 +253,7 @@ def error_jac_kernel(axes, prog, jac):  # pragma: no cover - compiled
         for o in range(m):
             if kind[o] == 2 or slot[o] < 0:
                 continue
-            if kind[o] == 1:
-                r0, r1, r2 = t[0] - O[o, 0], t[1] - O[o, 1], t[2] - O[o, 2]
-                c0 = W[o, 1] * r2 - W[o, 2] * r1
-                c1 = W[o, 2] * r0 - W[o, 0] * r2
-                c2 = W[o, 0] * r1 - W[o, 1] * r0
-            else:
-                c0, c1, c2 = W[o, 0], W[o, 1], W[o, 2]
+            c0, c1, c2 = _column(kind[o], W, O, o, t)
             g = coef[o] * 1e3
             p = slot[o]
             jac[n, 0, p] += g * c0
@@ -406,14 +366,15 @@ class CompiledChain:
     def predict(self, axes) -> np.ndarray:
         axes = np.ascontiguousarray(axes, dtype=float)
         out = np.empty((axes.shape[0], 3))
-        field_kernel(axes, self.prog, self.prog_nom, self.spl, self.consts, out)
+        field_kernel(axes, self.prog, self.prog_nom, self.spl, self.consts, self.own, out, np.empty((0, 3, self.k)),
+                     False)
         return out
 
     def predict_and_jacobian(self, axes):
         axes = np.ascontiguousarray(axes, dtype=float)
         out = np.empty((axes.shape[0], 3))
         jac = np.empty((axes.shape[0], 3, self.k))
-        field_jac_kernel(axes, self.prog, self.prog_nom, self.spl, self.consts, self.own, out, jac)
+        field_kernel(axes, self.prog, self.prog_nom, self.spl, self.consts, self.own, out, jac, True)
         return out, jac
 
 

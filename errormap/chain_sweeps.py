@@ -1,22 +1,12 @@
-"""Laser-tracker axis sweeps of ANY machine-tool chain (the grinder's chain file among them): the body
-chains and the simulator (the file and its reader: :mod:`errormap.sweeps`). A **body** is what an axis moves:
-the frame right after the axis' motion and component errors in its side's chain (work or tool;
-``MachineTool.body_index``), in the machine base frame. Three target balls per body
-(``[targets]`` of the machine file, in that body frame, mm) are measured by a tracker at an
-unknown rigid pose ``machine_in_tracker``.
+"""Laser-tracker axis sweeps of any machine-tool chain: the body chains and the simulator (the file and its
+reader: :mod:`errormap.sweeps`).
 
-A sweep of axis ``W`` moves ``W`` through its stations (default 21 equally spaced over its
-stroke, a full-turn rotary axis 0 … 360° with the last station the first pose again) while
-every other axis is **parked at the lower end of its stroke** — its first station, where the
-identification's gauge puts it (``docs/explanation/identification.md``). Every axis with component
-errors is swept (one tracker set-up: the bodies are related through it).
-
-Sweep file: ``docs/reference/file-formats.md`` "Axis sweeps", ``axis`` = the machine's axis words
-(``X Z A`` on the grinder, ``X Y Z A C``… on others), ``command`` in the axis' unit (mm or deg).
-
-Shapes: axes (n, k) in ``machine.axis_columns`` order, slot values (n, P) in
-``machine.slot_names`` order, body frames (n, 4, 4), balls (n, 3, 3) [pose, target, xyz].
-"""
+A **body** is what an axis moves: the frame right after the axis' motion and component errors in its
+side's chain, in the machine base frame; its three target balls (``[targets]``, mm in that frame) are
+measured by a tracker at an unknown rigid pose. A sweep of axis ``W`` moves it through its stations (default
+21 over its stroke, a full turn 0 … 360°) while every other axis is parked at the lower end of its stroke
+(``docs/explanation/identification.md``). Shapes: axes (n, k) in ``machine.axis_columns`` order, slot values
+(n, P) in ``machine.slot_names`` order, body frames (n, 4, 4), balls (n, 3, 3) [pose, target, xyz]."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -34,7 +24,7 @@ REF_TEMP_C = 20.0
 DEFAULT_STATIONS = 21
 UM_MM = 1e-3
 
-__all__ = ["BodyChain", "body_chain", "park_axes", "sweep_stations", "simulate_mt_sweeps", "random_tracker_pose",
+__all__ = ["BodyChain", "body_chain", "park_axes", "sweep_stations", "simulated_sweeps", "random_tracker_pose",
            "swept_words", "write_sweeps", "SWEEP_FORMAT", "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]
 
 
@@ -115,7 +105,7 @@ def sweep_stations(machine: MachineTool, n_stations: int = DEFAULT_STATIONS) -> 
     return {a.word: np.linspace(*a.stroke, n_stations) for a in machine.axes if machine.slots_of(a.word)}
 
 
-def simulate_mt_sweeps(truth, noise_um: float = 2.0, seed=0, tracker_pose=None, n_stations: int = DEFAULT_STATIONS,
+def simulated_sweeps(truth, noise_um: float = 2.0, seed=0, tracker_pose=None, n_stations: int = DEFAULT_STATIONS,
                        bidirectional: bool = False, dt_s: float = 20.0, warmup_c: float = 0.0, stations: dict | None = None,
                        axes=None) -> dict:
     """Simulated tracker sweeps of a truth machine (:class:`errormap.chain_truth.MTTruth`, or the grinder's

@@ -1,24 +1,12 @@
-"""The one table of effect kinds: what the simulator can draw, the diagnosis can fit, the report
-can draw and the export can write.
+"""The one table of effect kinds: what the simulator can draw, the diagnosis can fit, the report can draw and
+the export can write.
 
-An effect is a small physical term the error elements do not carry (thermal growth, backlash, a
-ball-screw pitch error, …). The canonical name is the diagnosis's (``periodic``, ``harmonic``); the
-simulator's name is its alias (``pitch``, ``worm``: the name ``volcomp simulate --effect`` and
-``truth.json`` use). Each entry says, generically (no machine's axis names):
-
-* ``acts_on`` — ``"linear"``, ``"rotary"`` or ``"any"`` axis, or ``"pair"`` (two linear axes);
-* ``parameters`` — its fitted parameters with units (``{u}``: μm, or μrad for an angular element);
-* ``needs`` — the condition columns it depends on (``{axis}`` is the axis word);
-* ``simulator`` / ``simulator_element`` — the simulator's name and the element it adds it to, ``None``
-  where the simulator cannot draw it;
-* ``diagnosed`` — whether :mod:`errormap.diagnosis.effects` fits it; ``truth_only`` kinds are drawn by
-  the simulator and represented by no diagnosis kind (the learned residual stage's job);
-* ``export`` — how ``volcomp export`` writes it (``"linuxcnc-backlash"``:
-  :func:`compensation.export.backlash_from_diagnosis`), ``None``: not carried by a controller table.
-
-Every consumer looks a name up here; an unknown name is a ``ValueError`` naming the known ones.
-``tests/test_effect_kinds.py`` checks that each consumer covers exactly the kinds it should.
-"""
+An effect is a small physical term the error elements do not carry (thermal growth, backlash, a ball-screw
+pitch error, …); its canonical name is the diagnosis's, the simulator's (``pitch``, ``worm``) an alias. Each
+entry gives ``acts_on`` (``"linear"``, ``"rotary"``, ``"any"``, ``"pair"``), ``parameters`` (with units,
+``{u}``: μm or μrad), ``needs`` (condition columns, ``{axis}`` the axis word), ``simulator`` /
+``simulator_element`` (``None``: not drawn), ``diagnosed``, ``truth_only`` and ``export`` (``None``: no
+controller table carries it). An unknown name is a ``ValueError`` naming the known ones."""
 from __future__ import annotations
 
 from dataclasses import dataclass

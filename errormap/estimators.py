@@ -1,27 +1,17 @@
 """The public estimators, one contract (scikit-learn's): the constructor stores settings only, ``fit``
 validates them and the data, solves, and returns ``self``; what it learned ends in ``_``; ``fit`` reads
-no file (read measurements first with :func:`errormap.read_sweeps` and its siblings). Each estimator
-calls the existing numerical code; none has a numerical path of its own.
-
-* :class:`Identification` — error elements from tracker sweeps of a machine-tool chain
-  (:class:`errormap.identification.ChainIdentification`; the grinder file is identified as its chain).
-* :class:`ClosedLoop` — the closed loop on check measurements of a machine-tool chain
-  (:func:`errormap.diagnosis.chain_loop.closed_loop_chain`: element update, effect search, kept stage).
-* :class:`ArmCalibration` — geometric calibration of a serial arm from tracker poses
-  (:func:`errormap.arm_calibration.fit_model`, :func:`~errormap.arm_calibration.cv_models`).
-* :class:`PKMCalibration` — kinematic calibration of a hexapod or tripod from measured poses
-  (:class:`errormap.pkm.calibration.PKMCalibrator`).
-* :class:`errormap.diagnosis.drift_models.DriftSelector` — the drift estimator (it shares
-  :class:`Estimator`); its fitted :class:`~errormap.diagnosis.drift_models.DriftModel` is ``model_``.
-
-Using a learned attribute or ``predict`` before ``fit`` raises :class:`NotFittedError`.
-"""
+no file; ``predict`` or a learned attribute before ``fit`` raises :class:`NotFittedError`. Each calls the
+existing numerical code (:class:`Identification`, :class:`ClosedLoop`, :class:`ArmCalibration`,
+:class:`PKMCalibration`; the drift estimator :class:`errormap.diagnosis.drift_models.DriftSelector` shares
+:class:`Estimator`). Overview: ``docs/reference/python-api.md``."""
 from __future__ import annotations
 
 import dataclasses
 import inspect
 
 import numpy as np
+
+from .settings import keep_settings, settings_of
 
 
 class NotFittedError(ValueError, AttributeError):
@@ -41,8 +31,7 @@ class Estimator:
 
     @classmethod
     def _param_names(cls) -> list:
-        sig = inspect.signature(cls.__init__)
-        return [p.name for p in sig.parameters.values() if p.name != "self" and p.kind != p.VAR_KEYWORD]
+        return settings_of(cls)
 
     def get_params(self, deep: bool = False) -> dict:
         """``{setting: value}`` as given to the constructor (``deep`` accepted for scikit-learn tools)."""
@@ -115,14 +104,7 @@ class Identification(Estimator):
     def __init__(self, machine, max_iter: int | None = None, tol: float | None = None,
                  min_separation_mm: float = 1.0, distance_tol_mm: float = 2.0, noise_um: float | None = None,
                  gauge: str = "station-mean", smooth: bool = True):
-        self.machine = machine
-        self.gauge = gauge
-        self.smooth = smooth
-        self.max_iter = max_iter
-        self.tol = tol
-        self.min_separation_mm = min_separation_mm
-        self.distance_tol_mm = distance_tol_mm
-        self.noise_um = noise_um
+        keep_settings(self, locals())
 
     def fit(self, sweeps) -> "Identification":
         from .chain_field import ChainField
@@ -171,13 +153,7 @@ class ClosedLoop(Estimator):
 
     def __init__(self, machine, fit_fraction: float = 0.6, noise_um: float | None = None, effects: bool = True,
                  max_effects: int = 4, smoothing="gcv", refit_all: bool = True):
-        self.machine = machine
-        self.fit_fraction = fit_fraction
-        self.noise_um = noise_um
-        self.effects = effects
-        self.max_effects = max_effects
-        self.smoothing = smoothing
-        self.refit_all = refit_all
+        keep_settings(self, locals())
 
     def fit(self, checks, elements, covariance=None) -> "ClosedLoop":
         from .diagnosis.chain_loop import MTChecks, closed_loop_chain, ship_on_all_checks
@@ -225,11 +201,7 @@ class ArmCalibration(Estimator):
     """
 
     def __init__(self, chain, max_iter: int = 100, models=("dh",), k_folds: int = 5, seed=0):
-        self.chain = chain
-        self.max_iter = max_iter
-        self.models = models
-        self.k_folds = k_folds
-        self.seed = seed
+        keep_settings(self, locals())
 
     def fit(self, poses) -> "ArmCalibration":
         from .arm_calibration import MODELS, choose_model, cv_models, fit_model
@@ -280,13 +252,7 @@ class PKMCalibration(Estimator):
 
     def __init__(self, machine, estimate_scales: bool = True, register: bool = True, noise_um: float | None = None,
                  lever_mm: float | None = None, lambda_rule: str = "gcv", max_iter: int = 50):
-        self.machine = machine
-        self.estimate_scales = estimate_scales
-        self.register = register
-        self.noise_um = noise_um
-        self.lever_mm = lever_mm
-        self.lambda_rule = lambda_rule
-        self.max_iter = max_iter
+        keep_settings(self, locals())
 
     def fit(self, poses) -> "PKMCalibration":
         from .pkm.calibration import PKMCalibrator

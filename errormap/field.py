@@ -1,46 +1,11 @@
 """The error field: the one interface every layer shares.
 
-An *error field* maps machine axes to the machine's spatial error::
-
-    predict(axes) -> errors
-        axes    shape (n, 3): x_mm, z_mm, a_deg (the grinder's axes)
-        errors  shape (n, 3): dx_um, dy_um, dz_um in the workpiece frame (WCS), float64
-
-and states two more things, as plain attributes (never guessed from what else it has):
-
-``calibrated_volume``
-    A :class:`CalibratedVolume` (per-axis ``lo``/``hi`` with the axis names) where the field
-    is valid, or ``None`` when it cannot say. The guards (:mod:`compensation.guards`) refuse
-    commands outside it, and refuse to check a field whose volume is ``None``.
-``capabilities``
-    A frozenset of the optional methods the field offers, from :data:`CAPABILITIES`. A caller
-    looks a capability up in this set; it never probes for methods. :func:`check_field` checks
-    once that every declared capability is backed by its method.
-
-Optional capabilities (numpy arrays in and out; shapes as above):
-
-======================  ==============================================================================
-capability              method
-======================  ==============================================================================
-``jacobian``            ``jacobian(axes (n, 3)) -> (n, 3, 3)``: dE/d(axes), rows the error components,
-                        columns μm per mm, μm per mm, μm per deg
-``predict_and_jacobian`` ``predict_and_jacobian(axes (n, 3)) -> ((n, 3) μm, (n, 3, 3))`` in one pass
-``float32``             ``predict(axes, dtype=np.float32)`` (and ``predict_and_jacobian(axes, dtype=…)``
-                        when declared): computed in float32, returned as float64, within a few nm of
-                        float64 (GA fitness, Newton starts)
-``predict_columns``     ``predict_columns(cols (3, m) float64) -> (3, m) float64``: points as columns,
-                        no validation, A folded into the field's turn (the solvers' inner loop)
-``offset_fitness``      ``offset_fitness(machine, targets_mm (n, 3)) -> OffsetFitness``: the batched
-                        GA's fitness of offsets around those targets as one compiled kernel
-                        (:class:`OffsetFitness`)
-======================  ==============================================================================
-
-Implementations (:class:`errormap.chain_field.ChainField`, :class:`training.model.MLPField`, the corrected
-field of the diagnosis, the controller tables) and which solver uses which capability:
-``docs/explanation/solvers.md`` (the field a solver takes). A pose field (:class:`training.pose_field.PoseMLP`)
-states the same two attributes, its volume named by its pose inputs; grinder solvers and guards refuse a
-volume whose names are not :data:`GRINDER_AXES`.
-"""
+``predict(axes (n, k)) -> (n, 3)`` μm (dx, dy, dz in the workpiece frame, float64), plus two plain attributes:
+``calibrated_volume`` (a :class:`CalibratedVolume` where the field is valid, or ``None``; the guards refuse
+commands outside it) and ``capabilities`` (a frozenset from :data:`CAPABILITIES` of the optional methods the
+field offers: ``jacobian``, ``predict_and_jacobian``, ``float32``, ``predict_columns``, ``offset_fitness``;
+:func:`check_field` checks that each is backed by its method). The capabilities' signatures, the fields that
+implement them and which solver uses which: ``docs/explanation/solvers.md``."""
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -1,21 +1,12 @@
 """A ``kind = "grinder"`` machine file read as its machine-tool chain: the one adapter.
 
-The built-in grinder is a chain file (``errormap/machines/grinder.toml``). A user's older
-``kind = "grinder"`` file (``docs/reference/file-formats.md``: ``[geometry]`` l1…l8, R, theta1_deg;
-``[strokes]`` x_mm, z_mm, a_deg; ``[targets]`` X, Z, A) names the same fixed structure, two chains from
-the machine base whose fixed transforms are the file's geometry names::
-
-    work: Trans(l5,0,l6)·Trans(x,0,0)·E_x(x)·Trans(l7,0,l8)·E_oa·RotX(a)·E_a(a)
-    tool: RotZ(θ1)·Trans(l2,0,l1)·RotZ(-θ1)·[Z along z, tilted towards +x by s_xz]·RotZ(θ1)·E_z(z)
-          ·Trans(l3,0,l4)·Trans(0,0,-R)
-
-:func:`parse_grinder_file` (the machine registry's parser of that kind) validates such a file, fills
+The built-in grinder is a chain file (``errormap/machines/grinder.toml``). A user's older ``kind = "grinder"``
+file (``[geometry]`` l1…l8, R, theta1_deg; ``[strokes]``; ``[targets]``; ``docs/reference/file-formats.md``)
+names the same two chains (``docs/explanation/kinematics.md``). :func:`parse_grinder_file` validates it, fills
 the chain document with its geometry, strokes and targets and compiles it
-(:func:`errormap.machine_tool.parse_machine_tool`); the result keeps the grinder's 23 element names
-(:data:`ELEMENT_SLOTS`, checked whole) and its axis columns x_mm, z_mm, a_deg, so element-set files and
-CSV files of the grinder read unchanged, and carries :func:`adapter_line` as ``read_as``, the one line a
-command says when it reads such a file. Nothing after loading sees anything but the chain.
-"""
+(:func:`errormap.machine_tool.parse_machine_tool`), keeping the 23 element names (:data:`ELEMENT_SLOTS`) and
+the axis columns x_mm, z_mm, a_deg, so the grinder's files read unchanged; ``read_as`` carries
+:func:`adapter_line`, the one line a command says when it reads such a file."""
 from __future__ import annotations
 
 import dataclasses

@@ -1,26 +1,12 @@
 """Why a machine-tool chain's identification is weak or strong: a simulation study of its sweep design.
 
-For a machine file (its chain, its sweep targets) and a seeded truth (:mod:`errormap.chain_truth`):
-
-1. the sweeps are simulated without noise and identified (:class:`errormap.identification.ChainIdentification`):
-   that element set is the truth **in the identification's gauge** (the squareness carried by its own
-   slot, the rotary axis' line at its first station, …); its field equals the truth's to round-off
-   (``noise_free_max_um``) when the design identifies every slot the tool point sees;
-2. the sweeps are simulated with ``noise_um`` and identified: per parameter (a slot at a station, or a
-   constant) the identified minus the noise-free value in units of the identification's standard error
-   (``z``; RMS ≈ 1 when the covariance is right and nothing is biased);
-3. per slot, the RMS over the volume grid of the tool-point error its identification error alone causes
-   (``volume_rms_um``: that slot's noisy values put into the noise-free set); per group (the component
-   errors of one axis; the constants) its free parameters (``rank``: not held at zero by the gauge or the
-   rank test, each tie counted once; ``n``: all its station values), the
-   condition of the group's correlation block, and the group's σ propagated to the tool point (RMS over
-   the grid of draws from its covariance block, ``sigma_rms_um``);
-4. ``grid_max_um`` / ``grid_rms_um``: the identified model's field minus the truth's over the grid (what
-   exact compensation with the identified model leaves, to first order).
-
-A study on simulated data, for the machine file's author: it reads the hidden truth and never feeds it to
-an estimator. Shapes: ``slots`` and ``groups`` lists of dicts (keys above).
-"""
+For a machine file and a seeded truth (:mod:`errormap.chain_truth`): the sweeps identified without noise (the
+truth in the identification's gauge, ``noise_free_max_um``) and with ``noise_um`` (per parameter ``z``, the
+error in standard errors); per slot the volume RMS its identification error alone causes, per group (one
+axis' component errors; the constants) its rank, condition and propagated σ; the identified field minus the
+truth's over a grid (``grid_max_um``, ``grid_rms_um``). The report's keys:
+``docs/reference/machine-tool-chains.md``. A study for the machine file's author: it reads the hidden truth
+and never feeds it to an estimator."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -30,7 +16,7 @@ import numpy as np
 from .machine_tool import MachineTool
 from .identification import ChainIdentification
 from .chain_truth import make_mt_truth, volume_grid
-from .chain_sweeps import simulate_mt_sweeps, swept_words
+from .chain_sweeps import simulated_sweeps, swept_words
 from .seeds import spawn_rngs
 from .sweeps import sweeps_from_columns
 
@@ -101,7 +87,7 @@ def identifiability(machine: MachineTool, seed: int = 0, noise_um: float = 2.0, 
     sn = seed if seed_noise is None else seed_noise
 
     def fit(noise):
-        sw = sweeps_from_columns(simulate_mt_sweeps(truth, noise_um=noise, seed=sn), axes=words)
+        sw = sweeps_from_columns(simulated_sweeps(truth, noise_um=noise, seed=sn), axes=words)
         return ChainIdentification().fit(sw, machine).result_
 
     r0, r = fit(0.0), fit(noise_um)

@@ -1,61 +1,22 @@
 """Identification of every machine tool's error slots from laser-tracker sweeps: the one method.
 
-A chain file, and a ``kind = "grinder"`` file through its chain (:func:`errormap.grinder_file.grinder_chain`;
-:func:`errormap.uncertainty.smooth_identify` returns the grinder's element-set and covariance files): one
-Gauss–Newton least squares on ALL ball positions of all sweeps of one tracker set-up, with the exact chain
-(:mod:`errormap.chain_sweeps` body chains), re-linearised at every step to the exact rigid motion until the
-update is below ``tol``. The sweeps are checked first, naming axis and station: targets, coincident or
-collinear balls, ball distances and measured travel / rotation against the nominal mounts and the commands
-(mixed units), parking, the turn of a full-turn axis, mirrored columns.
-
-Unknowns: the tracker pose ``machine_in_tracker`` (6), every component error of every swept
-axis at each of its stations (6 per station), the constants (location errors of rotary axes,
-squareness). During the sweep of axis W the other axes stand at their first stations (the
-lower stroke ends; :func:`errormap.chain_sweeps.park_axes`), so their values there enter.
-
-Gauge (what the sweeps cannot tell apart), ``gauge`` one of :data:`GAUGES`, linear conditions on the
-station values (:func:`gauge_rows`; the fit is constrained to them, :mod:`errormap.chain_normal`):
-
-* ``first-station`` (:class:`ChainIdentification`'s default): the machine frame is the body of the **root axis** (the first
-  linear axis of the work chain, else of the tool chain; :func:`root_axis`) at its first station: its six
-  component errors are zero there; a rotary axis' **location errors** are its line at the first station:
-  the four component errors across the axis (two offsets, two tilts) are zero there, the axial offset and
-  the roll stay in the component errors;
-* ``station-mean`` (the default of ``volcomp identify`` and of :class:`errormap.Identification`): the root axis' six component errors sum to zero over
-  its stations (the frame at its mean pose) and a rotary axis' line is its mean over the turn (the part of
-  the across errors that turns with the axis sums to zero over the distinct stations): no one station's
-  tracker noise is left in constants and linear trends, where a second-difference smoother cannot reach;
-* ``reference-line``: the root axis' translations zero at its first station, its straightness without
-  linear trend, and the next linear axis' straightness across both axes without linear trend (the paper's
-  frame on the fitted root line);
-* in every gauge a **squareness** is confounded with a linear trend of its axis' straightness: the
-  straightness towards the squareness' ``toward`` axis is tied equal at the axis' first and
-  last stations (the squareness carries the trend); a **full-turn** rotary axis' last station is its first
-  pose: one value for both.
-
-Whatever is still unobservable after this (a machine file whose targets or chain leave a
-direction free) is found by pivoted QR of the column-scaled Jacobian and named in the
-warnings; those parameters are held at zero. The tool point in the workpiece frame does not
-depend on the gauge (a rigid change of the machine frame is seen by both chains; a squareness
-moved into a straightness trend is the same motion).
-
-Results: a :class:`~errormap.chain_elements.ChainElementSet` (stations = the sweep commands,
-interpolating splines through them; :func:`smooth_chain` smooths them), the covariance of the element parameters
-(σ̂²·(JᵀJ)⁻¹ mapped through the gauge, σ̂ from the ball residuals), the ball residual per axis,
-the conditioning. Solved by the block structure of the normal equations (:mod:`errormap.chain_normal`; linear in
-the stations but for the (N, N) covariance), by the dense pivoted QR above where the blocks cannot decide the rank. Shapes: ball residuals (m, 3) μm per axis; covariance (N, N) over
-``param_slot``/``param_station`` (station −1: a constant), μm² / μrad².
-"""
+A chain file, and a ``kind = "grinder"`` file through its chain (:func:`errormap.grinder_file.grinder_chain`):
+one Gauss–Newton least squares on all ball positions of all sweeps of one tracker set-up, with the exact
+chain (:mod:`errormap.chain_sweeps`); its unknowns, gauges (:data:`GAUGES`, :func:`gauge_rows`), checks and
+covariance as ``docs/explanation/identification.md`` describes them. Solved by the block structure of the
+normal equations (:mod:`errormap.chain_normal`), by a dense pivoted QR where the blocks cannot decide the
+rank. Shapes: ball residuals (m, 3) μm per axis; covariance (N, N) over ``param_slot``/``param_station``
+(station −1: a constant), μm² / μrad²."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 import numpy as np
 import scipy.linalg
 from scipy.spatial.transform import Rotation
 
-from .io import NPY_ERRORS, InputError, atomic_write
+from .settings import keep_settings
+from .io import NPY_ERRORS, InputError
 from .machine_tool import AXIS_WORDS, MachineTool
 from .chain_elements import ChainElementSet
 from .chain_normal import BlockLayout, BlockNormal, Undecided
@@ -95,12 +56,20 @@ def rigid_fit(src, dst):
     return R, cd - apply(R, cs)
 
 
+BALL_PAIRS = ((0, 1), (0, 2), (1, 2))
+
+
+def ball_distances(balls_mm) -> np.ndarray:
+    """Distances (..., 3) mm between the three balls of ``balls_mm`` (..., 3, 3), pairs :data:`BALL_PAIRS`."""
+    b = np.asarray(balls_mm, dtype=float)
+    return np.stack([np.linalg.norm(b[..., i, :] - b[..., j, :], axis=-1) for i, j in BALL_PAIRS], axis=-1)
+
+
 def layout_problem(points_mm, min_separation_mm: float = 1.0):
     """``None`` if three ball centres (3, 3) form a usable triangle, else why not (a string)."""
     p = np.asarray(points_mm, dtype=float)
-    pairs = ((0, 1), (0, 2), (1, 2))
-    dist = [np.linalg.norm(p[i] - p[j]) for i, j in pairs]
-    for (i, j), d in zip(pairs, dist):
+    dist = ball_distances(p)
+    for (i, j), d in zip(BALL_PAIRS, dist):
         if d < min_separation_mm:
             return f"targets {i + 1} and {j + 1} coincide ({d:.3g} mm apart)"
     height = np.linalg.norm(np.cross(p[1] - p[0], p[2] - p[0])) / max(dist)
@@ -114,7 +83,7 @@ def _layout_suspects(balls_mm, min_separation_mm: float) -> np.ndarray:
     """Indices of the stations (balls (m, 3, 3)) that :func:`layout_problem` may refuse, in order:
     the same tests at every station at once, with a 1 % margin so that rounding cannot hide one."""
     b = np.asarray(balls_mm, dtype=float)
-    dist = np.stack([np.linalg.norm(b[:, i] - b[:, j], axis=1) for i, j in ((0, 1), (0, 2), (1, 2))], axis=1)
+    dist = ball_distances(b)
     height = np.linalg.norm(np.cross(b[:, 1] - b[:, 0], b[:, 2] - b[:, 0]), axis=1) / dist.max(axis=1)
     return np.flatnonzero((dist.min(axis=1) < 1.01 * min_separation_mm) | ~(height >= 0.99 * min_separation_mm))
 
@@ -147,11 +116,7 @@ def _check_length_unit(sw, ax: str, mounts) -> None:
     a unit factor off the nominal mounts' (metres, centimetres, inches, μm written as mm): the median
     measured/nominal distance ratio outside :data:`errormap.units.LENGTH_RATIO_BAND`, with a unit named."""
     from .units import LENGTH_RATIO_BAND, length_unit_guess
-    b = np.asarray(sw.balls_mm, dtype=float)
-    pairs = ((0, 1), (0, 2), (1, 2))
-    nominal = np.array([np.linalg.norm(np.asarray(mounts[i]) - np.asarray(mounts[j])) for i, j in pairs])
-    measured = np.stack([np.linalg.norm(b[:, i] - b[:, j], axis=1) for i, j in pairs], axis=1)
-    ratio = float(np.median(measured / nominal))
+    ratio = float(np.median(ball_distances(sw.balls_mm) / ball_distances(mounts)))
     guess = length_unit_guess(ratio)
     if guess and not LENGTH_RATIO_BAND[0] <= ratio <= LENGTH_RATIO_BAND[1]:
         raise InputError(f"{sw.source}: axis {ax}, columns 'x_mm', 'y_mm', 'z_mm': units do not fit: the balls lie "
@@ -163,10 +128,7 @@ def check_ball_distances(sw, axis_word: str, mounts_mm, tol_mm: float) -> None:
     """Refuse a sweep whose measured ball-to-ball distances differ from the nominal mounts' by more
     than ``tol_mm`` at any station (mixed units, or a wrong [targets] entry), naming axis and station.
     ``sw.balls_mm`` (m, 3, 3), ``mounts_mm`` (3, 3)."""
-    mounts = np.asarray(mounts_mm, dtype=float)
-    pairs = ((0, 1), (0, 2), (1, 2))
-    nominal = np.array([np.linalg.norm(mounts[i] - mounts[j]) for i, j in pairs])
-    measured = np.stack([np.linalg.norm(sw.balls_mm[:, i] - sw.balls_mm[:, j], axis=1) for i, j in pairs], axis=1)
+    nominal, measured = ball_distances(mounts_mm), ball_distances(sw.balls_mm)
     bad = np.abs(measured - nominal).max(axis=1) > tol_mm
     if bad.any():
         i = int(np.argmax(bad))
@@ -238,16 +200,9 @@ class ChainIdentificationResult:
                 "unobservable": self.unobservable, "warnings": self.warnings,
                 "constants": self.elements_.constants, "covariance": dict(self.covariance_info)}
 
-    def save_covariance(self, path) -> Path:
-        """``.npz``: ``format``, ``slot``, ``station``, ``cov`` (atomic)."""
-        with atomic_write(path, "wb") as fh:
-            np.savez(fh, format=np.array(COV_FORMAT), slot=np.array(self.param_slot), station=self.param_station,
-                     cov=self.cov)
-        return Path(path)
-
 
 def load_covariance(path) -> tuple[list, np.ndarray, np.ndarray]:
-    """``(slot names, stations, cov)`` of a file :meth:`ChainIdentificationResult.save_covariance` wrote."""
+    """``(slot names, stations, cov)`` of a file :func:`errormap.chain_covariance.save_chain_covariance` wrote."""
     try:
         d = np.load(path, allow_pickle=False)
         if str(d["format"]) != COV_FORMAT:
@@ -383,12 +338,7 @@ class ChainIdentification:
 
     def __init__(self, max_iter: int = 30, tol: float = 1e-7, min_separation_mm: float = 1.0,
                  distance_tol_mm: float = 2.0, noise_um: float | None = None, gauge: str = "first-station"):
-        self.gauge = gauge
-        self.max_iter = max_iter
-        self.tol = tol
-        self.min_separation_mm = min_separation_mm
-        self.distance_tol_mm = distance_tol_mm
-        self.noise_um = noise_um
+        keep_settings(self, locals())
 
     # -- validation ------------------------------------------------------------------------
     def _check(self, sweeps: Sweeps, machine: MachineTool) -> list:

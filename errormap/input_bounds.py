@@ -1,14 +1,10 @@
 """How many rows of each kind of user table a command takes, checked before the table is read.
 
-Every reader of a user table names its kind (:func:`errormap.io.read_table` ``kind=``); the table's lines are
-counted in chunks (never held whole) and, past its kind's :attr:`InputBound.max_rows`, it is refused unread in one
-line naming the file, its rows, the bound and what the command would need: CPU time and peak memory extrapolated
-from a measured run of that command (:attr:`InputBound.ref_rows` rows took :attr:`InputBound.ref_cpu_s` and
-:attr:`InputBound.ref_bytes`, scaled as rows to the power :attr:`InputBound.power`). JSON and TOML documents
-(element sets, models, machine files) are bounded by their bytes (:data:`errormap.io.MAX_DOCUMENT_BYTES`), G-code
-programs by their bytes and moves (:mod:`compensation.pathio`), and every table also by the limits of
-:mod:`errormap.io` (bytes, columns, cells, the memory available now). docs/reference/file-formats.md lists the bounds.
-"""
+Every reader names its table's kind (:func:`errormap.io.read_table` ``kind=``); lines are counted in chunks
+and, past the kind's :attr:`InputBound.max_rows`, the table is refused unread in one line naming the file, its
+rows, the bound and the CPU time and peak memory the command would need (scaled from a measured run,
+:attr:`InputBound.ref_rows`, ``ref_cpu_s``, ``ref_bytes``, ``power``). The bounds and the other limits
+(documents' bytes, programs, cells, memory): ``docs/reference/file-formats.md``."""
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -1,12 +1,8 @@
 """Is numba's on-disk cache cold? (a one-line notice before the first compilation after install).
 
-The compiled kernels (``@njit(cache=True)`` in :mod:`errormap.chain_kernel` behind the HTM field,
-the solvers, the G-code planner) are compiled on their first call after an install or an edit and read from numba's
-cache afterwards. The first compilation takes tens of seconds with nothing to show for it, so
-a command that is about to call kernels whose cache holds nothing yet says so first
-(:func:`notice_cold_kernels`). The check only looks for numba's cache index files; it
-compiles nothing and changes nothing.
-"""
+The compiled kernels (``@njit(cache=True)``) compile on their first call after an install or an edit, for tens
+of seconds; a command about to call kernels whose cache holds nothing yet says so first
+(:func:`notice_cold_kernels`). The check only looks for numba's cache index files; it compiles nothing."""
 from __future__ import annotations
 
 import sys

@@ -1,13 +1,10 @@
 """Machine files (TOML): loading and validation.
 
-One file per machine; ``[machine] kind`` selects the schema (``grinder``, ``hexapod``,
-``tripod``, ``serial``, ``machine-tool``; the one registry of kinds is :func:`machine_kinds`, each
-kind's parser and axes; schemas in ``docs/reference/file-formats.md``; serial chains in :mod:`errormap.chain_file`,
-machine-tool chains in :mod:`errormap.machine_tool`). The built-in machines are the files in
-``errormap/machines/`` (:func:`builtin_machines`), nothing else. The built-in default grinder ships as ``errormap/machines/grinder.toml``, a machine-tool chain; a
-``kind = "grinder"`` file is read into the same chain (:mod:`errormap.grinder_file`).
-Every error names the file and the key.
-"""
+``[machine] kind`` selects the schema; :func:`machine_kinds` is the one registry of kinds (each kind's parser
+and axes; schemas in ``docs/reference/file-formats.md``). The built-in machines are the files in
+``errormap/machines/`` (:func:`builtin_machines`); the default grinder is a machine-tool chain there, and a
+``kind = "grinder"`` file is read into the same chain (:mod:`errormap.grinder_file`). Every error names the
+file and the key."""
 from __future__ import annotations
 
 import tomllib

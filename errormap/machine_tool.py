@@ -1,21 +1,12 @@
 """Machine tools as chain files (``kind = "machine-tool"``): two ET lists, compiled once.
 
-A machine tool is two serial chains from the machine base, the **work** chain (base → workpiece)
-and the **tool** chain (base → tool point), each a list of ETs and joints with the error slots the
-file declares (:mod:`errormap.machine_tool_file` reads them and derives the slot names).
-
-Compiled: the spatial error of the tool point in the workpiece frame is
-``inv(work chain)·tool chain`` — one :class:`errormap.chain.Chain` of the work chain reversed and
-negated (:func:`errormap.chain.inverted`) followed by the tool chain, with shared slots whose
-coefficients carry the units (1e-3 mm per μm, 1e-6 rad per μrad, negated on the work side).
-
-Slot order: every component error (axes in canonical order, ``dx dy dz ex ey ez`` each), then the
-location errors, then the squareness slots (the grinder's 23 elements come out in its
-``ELEMENT_NAMES`` order). Shapes: ``axes`` (n, k) in the machine's axis order (canonical word order X Y Z U V W A B C;
-columns ``x_mm … a_deg``), slot values ``values`` (n, P) in μm / μrad in :attr:`MachineTool.slot_names`
-order, spatial error (n, 3) μm, error-parameter Jacobian (n, 3, P) μm per μm or per μrad, axis
-Jacobian (n, 3, k) μm per mm or per deg. Schema: ``docs/how-to/machine-file.md`` and ``docs/reference/file-formats.md``.
-"""
+The **work** chain (base → workpiece) and the **tool** chain (base → tool point), read by
+:mod:`errormap.machine_tool_file`, compile to one :class:`errormap.chain.Chain`: the work chain inverted
+(:func:`errormap.chain.inverted`) then the tool chain, shared slots whose coefficients carry the units.
+Slot order: component errors (axes in canonical order, ``dx dy dz ex ey ez`` each), location errors,
+squareness. Shapes: ``axes`` (n, k) in the machine's axis order (columns ``x_mm … a_deg``), slot values (n, P)
+μm / μrad in :attr:`MachineTool.slot_names` order, spatial error (n, 3) μm, error-parameter Jacobian
+(n, 3, P), axis Jacobian (n, 3, k). Schema: ``docs/how-to/machine-file.md``."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -290,24 +281,16 @@ class MachineTool:
         return q, err <= tol_mm
 
     def closed_form_inverse(self):
-        """The nominal inverse in closed form where the chain's structure allows it, else None.
+        """The nominal inverse in closed form where the chain's structure allows it, else None
+        (``docs/reference/machine-tool-chains.md``).
 
-        Recognised from the compiled ``inv(work)·tool`` chain (never from a name): three axes, one
-        of them rotary and driving one ET, only fixed ETs before it (``F0``) and no rotary joint
-        after it. Then the nominal tool point is ``p = F0·R_w(θ)·(c + L·u)`` with ``θ = θ0 + s·a``
-        the rotary ET's value, ``w`` its axis, ``u`` the two linear axes and ``c``, ``L`` (3, 2)
-        constant (the ETs after the rotary one move the origin affinely in ``u``); the two linear
-        directions must span a plane that the rotation tilts (its normal ``n`` not along ``w``).
-        ``n·R_w(−θ)·F0⁻¹p = n·c`` is ``A cos θ + B sin θ = C``: two roots
-        ``θ = atan2(B, A) ± acos(C / hypot(A, B))`` (the argument clipped to ±1: a point the
-        linear axes cannot reach is put at the nearest angle; on the rotary axis itself, where
-        ``A = B = 0``, θ = 0), each with ``u = L⁺·(R_w(−θ)·F0⁻¹p − c)``; of the two, the one whose
-        linear axes lie nearest the middle of their strokes (in half-strokes) is taken (on the
-        grinder: the wheel on the near side of the A axis). Returns a function
-        ``points (n, 3) mm -> axes (n, 3)`` with the rotary axis in degrees, not yet wrapped
-        (:meth:`inverse_closed`). This numpy form is the readable reference;
-        :func:`errormap.chain_kernel.inverse` runs the same constants (:meth:`closed_form_constants`)
-        compiled (:func:`errormap.chain_kernel.closed_form_solver`), equal to it to round-off (tested)."""
+        Recognised from the compiled chain: three axes, one rotary driving one ET with only fixed ETs
+        before it (``F0``) and no rotary joint after it, so that ``p = F0·R_w(θ)·(c + L·u)``;
+        ``n·R_w(−θ)·F0⁻¹p = n·c`` gives ``θ = atan2(B, A) ± acos(C / hypot(A, B))`` (clipped; θ = 0 on the
+        rotary axis itself), each with ``u = L⁺·(R_w(−θ)·F0⁻¹p − c)``; the root whose linear axes lie
+        nearest their strokes' middles is taken. Returns ``points (n, 3) mm -> axes (n, 3)``, the rotary
+        axis in degrees not yet wrapped (:meth:`inverse_closed`): the readable reference of the compiled
+        :func:`errormap.chain_kernel.closed_form_solver`, equal to it to round-off (tested)."""
         k = self.closed_form_constants()
         if k is None:
             return None

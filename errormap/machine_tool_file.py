@@ -1,22 +1,11 @@
 """The tables of a machine-tool chain file (``kind = "machine-tool"``) read into ETs, axes and slots.
 
-Each of the two chains, ``[[work]]`` (base → workpiece) and ``[[tool]]`` (base → tool point), is an
-ordered list of elementary transforms (fixed ``tx ty tz`` in mm, ``rx ry rz`` in deg, a fixed rotation
-matrix) and joints (a linear or rotary axis with its axis word ``X Y Z U V W A B C``). Per moving axis
-the file declares its error slots, and the slot NAMES ARE DERIVED from the chain:
-
-* six **component errors** (ISO 230-1), functions of that axis, applied right after the axis
-  motion (or where an ``errors_of`` marker puts them) as ``Trans(δ)·RotX·RotY·RotZ``:
-  ``dx_w dy_w dz_w`` (μm) and ``ex_w ey_w ez_w`` (μrad) for axis word ``W`` (ISO ``EXW … ECW``);
-* four **location errors** of a rotary axis (ISO 230-7), constants applied right before its
-  rotation: the two offsets of the axis line across its direction and its two tilts, e.g. for an
-  A axis about x ``dy_oa dz_oa ey_oa ez_oa`` (ISO ``EY0A EZ0A EB0A EC0A``);
-* **squareness** of a linear axis, a constant named in the file (``s_xz``): the axis' direction
-  tilted towards another axis, ``R(+s)·T(q)·R(−s)`` about the third axis around the motion.
-
-:func:`errormap.machine_tool.parse_machine_tool` compiles the result. Schema:
-``docs/how-to/machine-file.md`` and ``docs/reference/file-formats.md``.
-"""
+``[[work]]`` (base → workpiece) and ``[[tool]]`` (base → tool point) are ordered lists of fixed transforms and
+joints (axis words ``X Y Z U V W A B C``); the slot names are derived from the chain: six component errors per
+moving axis (``dx_w … ez_w``, μm / μrad, ``Trans(δ)·RotX·RotY·RotZ`` after the motion or at an ``errors_of``
+marker), four location errors per rotary axis (e.g. ``dy_oa dz_oa ey_oa ez_oa``, before its rotation) and the
+named squareness constants (``R(+s)·T(q)·R(−s)``). :func:`errormap.machine_tool.parse_machine_tool` compiles
+the result. Schema: ``docs/how-to/machine-file.md`` and ``docs/reference/file-formats.md``."""
 from __future__ import annotations
 
 import re

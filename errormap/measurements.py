@@ -57,9 +57,9 @@ def simulate_sweeps(truth, noise_um: float = 2.0, seed: int = 0, n_stations: int
     stroke, None: the command's default, the others parked at their lower stroke ends, an unknown seeded
     tracker pose, N(0, ``noise_um``²) per coordinate) as a :class:`errormap.sweeps.Sweeps` — what
     ``volcomp sweeps --machine`` writes, read back."""
-    from .chain_sweeps import DEFAULT_STATIONS, simulate_mt_sweeps, swept_words
+    from .chain_sweeps import DEFAULT_STATIONS, simulated_sweeps, swept_words
     from .sweeps import sweeps_from_columns
-    cols = simulate_mt_sweeps(truth, noise_um=noise_um, seed=seed,
+    cols = simulated_sweeps(truth, noise_um=noise_um, seed=seed,
                               n_stations=DEFAULT_STATIONS if n_stations is None else n_stations)
     return sweeps_from_columns(cols, source="<simulated sweeps>", axes=swept_words(truth.machine))
 

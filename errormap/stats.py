@@ -1,26 +1,11 @@
 """Residual statistics: one function, one key scheme, for the whole project.
 
-Diagnosis, evaluation of solver results, controller-export checks, PKM calibration, training
-metrics, the benchmark and the reports all summarise a residual with :func:`residual_stats`:
-
-``{"n", "max_um", "rms_um", "mean_um", "p95_um"}`` of the per-point magnitude ``|r|`` —
-the Euclidean norm of each row of an ``(n, k)`` residual (for ``k = 3``: the vector norm in μm),
-or ``|r|`` of a one-dimensional residual (one channel, or norms already taken).
-``rms_um = sqrt(mean(|r|²))``; ``p95_um`` is the 95th percentile (linear interpolation).
-With ``drop_nonfinite=True`` rows with a non-finite entry (points a solver did not solve) are
-left out and ``n`` counts the rows kept (with none kept the four statistics are ``None``); by
-default a non-finite entry makes the statistics NaN, so a diverged fit cannot hide.
-
-With ``columns`` (names of the ``k`` columns, e.g. ``("dx_um", "dy_um", "dz_um")``) each column
-adds ``{name: {"max_abs_um", "rms_um", "mean_um"}}``: the largest ``|component|``, its RMS and its
-signed mean (the bias), over the same rows.
-
-The computation is unit-free: the ``_um`` keys carry whatever unit the residual has (an
-angular residual in μrad gives its statistics in μrad; the caller names them ``…_urad``).
-
-Callers that publish other key names (``metrics.json``'s ``model_max_um``, ``train_rms_um`` …)
-derive them from this dictionary; they never compute a statistic of their own.
-"""
+:func:`residual_stats` gives ``{"n", "max_um", "rms_um", "mean_um", "p95_um"}`` of the per-point magnitude
+``|r|`` (the norm of each row of an ``(n, k)`` residual, or ``|r|`` of a 1-D one; p95 by linear
+interpolation); with ``columns`` (names of the ``k`` columns) each adds ``{name: {"max_abs_um", "rms_um",
+"mean_um"}}``. A non-finite entry makes the statistics NaN (a diverged fit cannot hide) unless
+``drop_nonfinite=True`` leaves its row out. Unit-free: the ``_um`` keys carry the residual's unit. Callers
+publishing other key names derive them from this dictionary, never computing a statistic of their own."""
 from __future__ import annotations
 
 from typing import Sequence

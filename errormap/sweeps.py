@@ -1,21 +1,10 @@
 """Laser-tracker axis sweeps of any machine-tool chain: the sweep file, its reader and its grouping.
 
-What is measured (the grinder paper, section 2.1): three target balls, not collinear, fixed on a
-moving body; the axis stops at its stations (default every 1/20 of its stroke, 21 stations; a
-full-turn rotary axis every 18°) while the other axes stand parked, and the tracker measures the
-three ball centres in its own frame (the simulator and the body chains:
-:mod:`errormap.chain_sweeps`).
-
-Sweep file (CSV, docs/reference/file-formats.md "Axis sweeps"; provenance in its sidecar or leading ``#`` lines)::
-
-    axis,station,command,target,x_mm,y_mm,z_mm[,direction,time_s,temp_c]
-
-``axis`` an axis word of the machine with error slots (the grinder's X, Z, A; a mill's X, Y, Z …);
-``station`` 0-based int (the same number in both directions); ``command`` mm for a linear axis,
-deg for a rotary one; ``target`` 1..3; ball centre in the tracker frame, mm; ``direction`` +1/-1
-(default +1); ``time_s``; ``temp_c``. One tracker set-up per file; files that share a set-up say
-so with the same ``# setup: <id>`` line (see :func:`read_sweeps`). Extra columns are kept and ignored.
-"""
+Three target balls on each moving body, measured at the axis' stations while the other axes stand parked
+(the simulator and the body chains: :mod:`errormap.chain_sweeps`). The file
+(``axis,station,command,target,x_mm,y_mm,z_mm[,direction,time_s,temp_c]``, one tracker set-up per file, a
+shared set-up said by the same ``# setup: <id>`` line; extra columns kept and ignored):
+``docs/reference/file-formats.md``, "Axis sweeps"."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -127,7 +116,7 @@ def columns_from_table(table, axes, rotary, axes_note: str = "") -> dict:
 
 
 def sweeps_from_columns(cols: dict, source: str = "<columns>", setup: str = "", axes=None) -> Sweeps:
-    """Group sweep columns (as from :func:`errormap.chain_sweeps.simulate_mt_sweeps` or a file) by axis and
+    """Group sweep columns (as from :func:`errormap.chain_sweeps.simulated_sweeps` or a file) by axis and
     station; ``axes``: the axis words to group (the machine's, :func:`swept_words`; None: every word in
     the columns, in the order they first appear).
 

@@ -1,14 +1,8 @@
 """The one thread-limit helper: ``with limit_threads(1): ...`` (torch and/or BLAS), restored after.
 
-Small array work (a short path through the network, the SVD of a 2000 × 48 Jacobian) costs far
-more on several threads than on one when the machine is busy: the threads spin against each
-other (measured: 81 ms vs 0.8 ms for a 40-point network call, 1.7 s vs 2 ms for a PKM SVD). Every
-layer limits its threads through this helper.
-
-It never imports torch: torch's intra-op thread count is limited only when torch is already
-loaded (a caller whose work runs in torch has imported it), so importing errormap stays light.
-BLAS (numpy/scipy's OpenBLAS or MKL) is limited through ``threadpoolctl`` when it is installed.
-"""
+Small array work costs far more on several threads than on one on a busy machine (measured: 81 ms vs 0.8 ms
+for a 40-point network call, 1.7 s vs 2 ms for a PKM SVD). It never imports torch (torch is limited only when
+already loaded); BLAS is limited through ``threadpoolctl`` when installed."""
 from __future__ import annotations
 
 import contextlib

@@ -1,28 +1,14 @@
 """An arm's nominal chain from a URDF: the joint axes between two links, as a standard DH table.
 
-A URDF (parsed by ``urdf_parser_py``; line numbers from ``lxml``) describes a robot as a tree of
-links joined by joints, each joint placed by an ``<origin xyz rpy>`` (m, rad; R = Rz(yaw) Ry(pitch)
-Rx(roll)) in its parent link's frame and moving about / along its ``<axis>``. The path from a base
-link to a tip link is turned into the SAME chain and error slots a DH machine file gives
-(:func:`errormap.chain.dh_ets`): the joint axes at the zero configuration are found in the base
-link's frame, and DH frame k is put on axis k by the common normal to axis k+1 (:func:`dh_from_axes`):
-
-* frame 0: z along axis 1 (its URDF direction, so every joint direction is +1), origin at the foot of
-  the base link's origin on that axis, x the base link's x made normal to z; the base link → frame 0
-  transform is the nominal base frame (``base.*`` slots);
-* skew consecutive axes: the common normal (x chosen so that |θ| ≤ 90°); (nearly) parallel axes (within
-  :data:`NEARLY_PARALLEL_RAD`): d = 0 and x toward the next axis, α and a nominal Hayati β turning z onto
-  the next axis (exact, and the same ``link*.beta_rad`` slot a DH file gives a parallel link);
-* the last frame: z along the last axis, its origin at the foot of the tip link's origin (d, a, θ),
-  α = 0; the tip link's remaining rotation is a fixed Rz Ry Rx, then the tool point (``tool.*``).
-
-Forward kinematics equal the URDF's to round-off (tested to 1e-9 mm). Units: URDF lengths are
-metres (converted to mm), angles radians (revolute limits converted to deg). Refused, naming the
-element and its line: a floating or planar joint on the path, a mimic joint on the path, an axis of
-zero or non-unit length, joint origins adding up to over 100 m (a URDF written in mm), a revolute/prismatic joint without limits, a base link that is not an
-ancestor of the tip, an unknown link, and a file that is no ``<robot>`` XML. A ``continuous`` joint
-gets the limits [-360, 360] deg.
-"""
+The path from a base link to a tip link (parsed by ``urdf_parser_py``; line numbers from ``lxml``) becomes
+the same chain and error slots a DH machine file gives (:func:`errormap.chain.dh_ets`): the joint axes at the
+zero configuration in the base link's frame, DH frame k on axis k by the common normal (:func:`dh_from_axes`;
+nearly parallel axes within :data:`NEARLY_PARALLEL_RAD` get a Hayati β); the frame conventions:
+``docs/reference/arm-calibration.md``. URDF metres and radians become mm and deg; a ``continuous`` joint gets
+[-360, 360] deg. Refused, naming the element and its line: a floating, planar or mimic joint on the path, an
+axis of zero or non-unit length, joint origins adding up to over 100 m (a URDF in mm), a revolute/prismatic
+joint without limits, a base link that is not an ancestor of the tip, an unknown link, a file that is no
+``<robot>`` XML."""
 from __future__ import annotations
 
 import hashlib

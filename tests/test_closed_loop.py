@@ -12,7 +12,7 @@ from errormap.machine import load_machine
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import spatial_error
 from errormap.chain_truth import EFFECT_DEFAULTS, TRUTH_STATIONS, make_mt_truth, random_axes
-from errormap.chain_sweeps import simulate_mt_sweeps
+from errormap.chain_sweeps import simulated_sweeps
 from errormap.uncertainty import (ElementCovariance, covariance_path, elements_from_theta, smooth_identify,
                                   theta_design, theta_from_elements)
 
@@ -42,7 +42,7 @@ def _loop(grinder, sm, cols, tmp, **kw):
 @pytest.fixture(scope="module")
 def indep(grinder):
     truth = make_mt_truth(grinder, SEED, family="independent")
-    sm = smooth_identify(simulate_mt_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=SEED + 50), grinder)
+    sm = smooth_identify(simulated_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=SEED + 50), grinder)
     return truth, sm
 
 
@@ -115,7 +115,7 @@ def test_update_brings_held_out_to_the_noise_floor_and_reports_no_effect(grinder
 @pytest.mark.slow
 def test_reversal_is_named_after_the_update(grinder, tmp_path):
     truth = make_mt_truth(grinder, 1, family="independent", effects=["reversal"])
-    sm = smooth_identify(simulate_mt_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=51), grinder)
+    sm = smooth_identify(simulated_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=51), grinder)
     s, _ = _loop(grinder, sm, truth.check_measurements(800, 1.0, seed=13), tmp_path)
     e = s["effects"]
     assert e and (e[0]["kind"], e[0]["axis"]) == ("reversal", "Z")
@@ -251,7 +251,7 @@ def test_an_effect_the_update_would_imitate_is_named_and_kept(grinder, tmp_path)
     """Thermal growth (a dx_x slope at the mean temperature) is partly taken up by an update made alone; the loop
     names it, re-fits it jointly with the update, and keeps the model with it."""
     truth = make_mt_truth(grinder, 0, family="independent", effects=["thermal"])
-    sm = smooth_identify(simulate_mt_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder)
+    sm = smooth_identify(simulated_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder)
     s, _ = _loop(grinder, sm, truth.check_measurements(800, 1.0, seed=14), tmp_path)
     assert s["effects"] and (s["effects"][0]["kind"], s["effects"][0]["axis"]) == ("thermal", "X")
     assert s["kept_stage"] == "updated_plus_effects"
@@ -264,7 +264,7 @@ def test_an_effect_the_element_slots_represent_is_named_as_absorbed(grinder, tmp
     the checks, so the update takes it up; the loop names it as absorbed (not a missed effect) and the updated
     model reaches the held-out target."""
     truth = make_mt_truth(grinder, 0, family="independent", effects=["interaction"])
-    sm = smooth_identify(simulate_mt_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder)
+    sm = smooth_identify(simulated_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder)
     s, _ = _loop(grinder, sm, truth.check_measurements(800, 1.0, seed=14), tmp_path)
     assert ("interaction", "X*Z") in {(e["kind"], e["axis"]) for e in s["effects_absorbed"]}
     assert s["held_out_rms_um"] < HELD_OUT_TARGET_UM

@@ -130,11 +130,11 @@ def test_worker_killed_mid_batch(ray_session, batch, monkeypatch, capsys):
 
 def _fleet_inputs(d: Path, grinder) -> Path:
     from errormap.chain_truth import MTTruth
-    from errormap.chain_sweeps import simulate_mt_sweeps
+    from errormap.chain_sweeps import simulated_sweeps
     from errormap.sweeps import write_sweeps
     for seed in (1, 2):
         truth = make_mt_truth(grinder, seed)
-        write_sweeps(d / f"m{seed}" / "sweeps.csv", simulate_mt_sweeps(MTTruth(grinder, truth.elements, {}),
+        write_sweeps(d / f"m{seed}" / "sweeps.csv", simulated_sweeps(MTTruth(grinder, truth.elements, {}),
                                                                      seed=seed), comments=["setup: s1"])
         write_csv(d / f"m{seed}" / "checks.csv", truth.check_measurements(n=150, seed=seed + 10),
                   header_comments=["format: volcomp-checks/1"])

@@ -35,11 +35,29 @@ def _frame(seed, **kw):
     return log, truth
 
 
+FIT_FRACTION = 0.6         # the earlier 60 % of the log fits, the later part is held out
+
+
+def _report(log, **kw):
+    """Per channel: the search's selection (:meth:`DriftModeller.report_selection`) fitted on the earlier
+    FIT_FRACTION of ``log``, its coefficients per regressor, closest sensors, and the held-out RMS before / after."""
+    n_fit = int(round(FIT_FRACTION * len(log.time_s)))
+    m = DriftModeller(**kw).fit_rows(log, np.arange(n_fit))
+    rep = m.report_selection()
+    for ch, cm in m.channels_.items():
+        d = log.disp_um[ch][n_fit:]
+        after = d - cm.predict(log)[n_fit:]
+        rep[ch].update(coefficients={f"{s}_um_per_c": float(c) for s, c in zip(cm.sensors, cm.coef[1:])},
+                       closest_sensors=cm.closest, rms_before_um=float(np.sqrt(np.mean(d ** 2))),
+                       rms_after_um=float(np.sqrt(np.mean(after ** 2))))
+    return rep
+
+
 def test_two_active_sensors_and_the_lag_are_found_over_seeds():
     right, lag_ok = 0, 0
     for seed in SEEDS:
         log, truth = _frame(seed)
-        rep = DriftModeller().fit(log).report(log)
+        rep = _report(log)
         for ch, k in truth.items():
             r = rep[ch]
             ok = sorted(r["regressors"]) == sorted(k)
@@ -61,7 +79,7 @@ def test_two_active_sensors_and_the_lag_are_found_over_seeds():
 @pytest.mark.parametrize("seed", [0, 1])
 def test_no_active_sensor_selects_nothing(seed):
     log, _ = _frame(seed, active=())
-    rep = DriftModeller().fit(log).report(log)
+    rep = _report(log)
     for r in rep.values():
         assert r["regressors"] == []
         assert r["rms_after_um"] <= RMS_NOISE_FACTOR * NOISE_UM
@@ -72,7 +90,7 @@ def test_side_by_side_sensors_are_flagged_ambiguous():
     flagged = 0
     for seed in range(5):
         log, truth = _frame(seed, copies={"s6": "s2"})
-        rep = DriftModeller().fit(log).report(log)
+        rep = _report(log)
         for ch, r in rep.items():
             assert sorted(r["regressors"]) in (["s2", "s5"], ["s5", "s6"]), (seed, ch, r["regressors"])
             assert r["closest_sensors"][next(s for s in r["regressors"] if s != "s5")]["r"] > 0.99
@@ -87,8 +105,9 @@ def test_reduced_search_and_coarse_lag_grid_agree_with_exhaustive():
     """Group representatives + swaps (max_subsets forced small) and a coarse lag grid refined at
     the sampling step find the same model as the full search."""
     log, truth = _frame(0)
-    full = DriftModeller().fit(log)
-    red = DriftModeller(max_subsets=10, group_r=0.95, max_lag_steps=25).fit(log)
+    fit = np.arange(int(round(FIT_FRACTION * len(log.time_s))))
+    full = DriftModeller().fit_rows(log, fit)
+    red = DriftModeller(max_subsets=10, group_r=0.95, max_lag_steps=25).fit_rows(log, fit)
     for ch in truth:
         assert red.channels_[ch].search["reduced_to_groups"]
         assert red.channels_[ch].search["lags"] < full.channels_[ch].search["lags"]

@@ -186,11 +186,11 @@ def test_report_map_is_named_by_the_machine_axes():
 # -- slow: the user's path on a mill ----------------------------------------------------------------------
 def _user_path(tmp, seed, bump):
     """sweeps + 800 checks of the truth → identify → diagnose --machine; returns (machine, run dir, truth)."""
-    from errormap.chain_sweeps import simulate_mt_sweeps, write_sweeps
+    from errormap.chain_sweeps import simulated_sweeps, write_sweeps
     from errormap.seeds import spawn_seeds
     m = load_machine(MACHINE)
     truth = _bump_truth(m, seed, bump)
-    write_sweeps(tmp / "sweeps.csv", simulate_mt_sweeps(truth, noise_um=2.0, seed=1000 + seed),
+    write_sweeps(tmp / "sweeps.csv", simulated_sweeps(truth, noise_um=2.0, seed=1000 + seed),
                  comments=["setup: setup-1", f"machine: {m.name}", f"machine_sha256: {m.sha256}"])
     write_csv(tmp / "checks.csv", truth.check_measurements(n=800, noise_um=1.0, seed=spawn_seeds(seed, 1)[0]),
               header_comments=["format: volcomp-checks/1", f"machine: {m.name}"])

@@ -13,7 +13,7 @@ import pytest
 from errormap.chain_elements import ChainElementSet
 from errormap.elements import ELEMENT_NAMES, FUNCTION_ELEMENTS
 from errormap.chain_field import ChainField
-from errormap.chain_sweeps import simulate_mt_sweeps
+from errormap.chain_sweeps import simulated_sweeps
 from errormap.identification import ChainIdentification, layout_problem, rigid_fit
 from errormap.io import InputError
 from errormap.machine import load_machine
@@ -54,7 +54,7 @@ def spatial_max_um(machine, a, b, points):
 
 
 def test_noise_free_reproduces_spatial_error_and_elements(machine, truth, points):
-    res = identify(simulate_mt_sweeps(truth, noise_um=0.0, seed=1), machine)
+    res = identify(simulated_sweeps(truth, noise_um=0.0, seed=1), machine)
     assert spatial_max_um(machine, res.elements_, truth.elements, points) < SPATIAL_TOL_UM
     # elements: exact in the truth's own frame (first station), but for the squareness split (s_xz and a linear
     # trend of the Z straightness towards x, tied by the gauge; Z's frame is turned by θ1, so the trend shows in its
@@ -68,7 +68,7 @@ def test_noise_free_reproduces_spatial_error_and_elements(machine, truth, points
 
 
 def test_gauges_agree_on_the_tool_point(machine, truth, points):
-    cols = simulate_mt_sweeps(truth, noise_um=0.0, seed=2)
+    cols = simulated_sweeps(truth, noise_um=0.0, seed=2)
     a = identify(cols, machine, gauge="first-station").elements_
     b = identify(cols, machine, gauge="reference-line").elements_
     assert spatial_max_um(machine, a, b, points) < GAUGE_TOL_UM
@@ -82,7 +82,7 @@ def test_gauges_agree_on_the_tool_point(machine, truth, points):
 
 def test_station_mean_gauge_keeps_the_tool_point_and_averages_the_frame(machine, truth, points):
     # with tracker noise: the station-mean gauge re-expresses the first-station result
-    cols = simulate_mt_sweeps(truth, noise_um=2.0, seed=5)
+    cols = simulated_sweeps(truth, noise_um=2.0, seed=5)
     a = identify(cols, machine, gauge="first-station").elements_
     b = identify(cols, machine, gauge="station-mean").elements_
     assert spatial_max_um(machine, a, b, points) < GAUGE_TOL_UM
@@ -109,7 +109,7 @@ def test_injected_element_is_recovered(machine, points, name):
         constants[name] = 40.0
     el = ChainElementSet(machine, z.stations, functions, constants, machine.name, machine.sha256)
     truth = MTTruth(machine, el, {})
-    res = identify(simulate_mt_sweeps(truth, noise_um=0.0, seed=3), machine)
+    res = identify(simulated_sweeps(truth, noise_um=0.0, seed=3), machine)
     j = ELEMENT_NAMES.index(name)
     got, want = res.elements_.values(points), el.values(points)
     assert np.abs(got[:, j] - want[:, j]).max() < ELEMENT_TOL
@@ -120,14 +120,14 @@ def test_injected_element_is_recovered(machine, points, name):
 def test_worm_harmonic_aliases_to_a_constant(machine, truth):
     """40 teeth at 18° stations: sin(40·a + φ) is the same at every station -> ex_a offset."""
     tw = make_mt_truth(machine, 3, effects=["worm"])
-    got = identify(simulate_mt_sweeps(tw, noise_um=0.0, seed=1), machine).elements_.functions["ex_a"]
+    got = identify(simulated_sweeps(tw, noise_um=0.0, seed=1), machine).elements_.functions["ex_a"]
     p = tw.parameters("worm")
     alias = p["amplitude_urad"] * np.sin(p["phase_rad"])
     assert np.abs(got - truth.elements.functions["ex_a"] - alias).max() < ALIAS_TOL_URAD
 
 
 def test_noisy_identification_is_bounded_and_seeded(machine, truth, points):
-    cols = simulate_mt_sweeps(truth, noise_um=2.0, seed=8)
+    cols = simulated_sweeps(truth, noise_um=2.0, seed=8)
     a = identify(cols, machine)
     b = identify(cols, machine)
     assert np.array_equal(a.elements_.values(points), b.elements_.values(points))
@@ -138,25 +138,25 @@ def test_noisy_identification_is_bounded_and_seeded(machine, truth, points):
 
 def test_bidirectional_runs_are_averaged_and_reported(machine):
     tr = make_mt_truth(machine, 4, effects=["reversal"])
-    res = identify(simulate_mt_sweeps(tr, noise_um=0.0, seed=1, bidirectional=True), machine)
+    res = identify(simulated_sweeps(tr, noise_um=0.0, seed=1, bidirectional=True), machine)
     backlash = tr.parameters("reversal")["backlash_um"]
     assert res.reversal_um["Z"].max() == pytest.approx(backlash, rel=1e-6)  # a pure dz_z shift
     assert res.reversal_um["X"].max() < ELEMENT_TOL
     # the average of ±b/2 is the reversal-free Z positioning
-    plain = identify(simulate_mt_sweeps(make_mt_truth(machine, 4), noise_um=0.0, seed=1), machine)
+    plain = identify(simulated_sweeps(make_mt_truth(machine, 4), noise_um=0.0, seed=1), machine)
     assert np.abs(res.elements_.functions["dz_z"] - plain.elements_.functions["dz_z"]).max() < ELEMENT_TOL
 
 
 def test_degenerate_target_layout_is_refused(machine, truth):
     """Collinear mounts in the machine file: refused before any fitting, naming key and axis."""
     bad = grinder_variant(targets={"X": [[0.0, 0.0, 40.0], [50.0, 0.0, 40.0], [100.0, 0.0, 40.0]]})
-    cols = simulate_mt_sweeps(MTTruth(bad, truth.elements, {}), noise_um=0.0, seed=1)
+    cols = simulated_sweeps(MTTruth(bad, truth.elements, {}), noise_um=0.0, seed=1)
     with pytest.raises(InputError, match=r"targets\.X.*collinear"):
         identify(cols, bad)
 
 
 def test_coincident_measured_balls_name_axis_and_station(machine, truth):
-    cols = simulate_mt_sweeps(truth, noise_um=0.0, seed=1)
+    cols = simulated_sweeps(truth, noise_um=0.0, seed=1)
     sel = (cols["axis"] == "Z") & (cols["station"] == 6)
     t1, t2 = sel & (cols["target"] == 1), sel & (cols["target"] == 2)
     for k in ("x_mm", "y_mm", "z_mm"):
@@ -166,25 +166,25 @@ def test_coincident_measured_balls_name_axis_and_station(machine, truth):
 
 
 def test_mixed_units_name_axis_and_station(machine, truth):
-    cols = simulate_mt_sweeps(truth, noise_um=0.0, seed=1)
+    cols = simulated_sweeps(truth, noise_um=0.0, seed=1)
     sel = cols["axis"] == "X"
     cols["command"][sel] = cols["command"][sel] / 25.4  # X commanded in inches, balls in mm
     with pytest.raises(InputError, match=r"axis X, station 1: measured travel 10(\.\d+)? mm .*mixed units"):
         identify(cols, machine)
-    cols = simulate_mt_sweeps(truth, noise_um=0.0, seed=1)
+    cols = simulated_sweeps(truth, noise_um=0.0, seed=1)
     sel = (cols["axis"] == "Z") & (cols["station"] == 4)
     for k in ("x_mm", "y_mm", "z_mm"):
         cols[k][sel] = cols[k][sel] * 1000.0  # one station in micrometres
     with pytest.raises(InputError, match=r"axis Z, station 4: ball distances .*mixed units"):
         identify(cols, machine)
-    cols = simulate_mt_sweeps(truth, noise_um=0.0, seed=1)
+    cols = simulated_sweeps(truth, noise_um=0.0, seed=1)
     cols["command"] = np.where(cols["axis"] == "A", np.deg2rad(cols["command"]), cols["command"])
     with pytest.raises(InputError, match="axis A: stations of a full-turn axis must span one turn"):
         identify(cols, machine)
 
 
 def test_missing_axis_is_refused(machine, truth):
-    cols = simulate_mt_sweeps(truth, noise_um=0.0, seed=1, axes=("X", "Z"))
+    cols = simulated_sweeps(truth, noise_um=0.0, seed=1, axes=("X", "Z"))
     with pytest.raises(InputError, match=r"\['A'\] missing"):
         identify(cols, machine)
 
@@ -193,7 +193,7 @@ def test_estimator_contract(machine, truth):
     from errormap.sweeps import sweeps_from_columns
     est = ChainIdentification(gauge="station-mean")
     assert not hasattr(est, "elements_")
-    sw = sweeps_from_columns(simulate_mt_sweeps(truth, noise_um=0.0, seed=1))
+    sw = sweeps_from_columns(simulated_sweeps(truth, noise_um=0.0, seed=1))
     assert est.fit(sw, machine) is est
     assert est.result_.elements_ is est.elements_ and est.result_.gauge == "station-mean"
     assert isinstance(est.elements_, ChainElementSet) and est.elements_.machine is machine
@@ -250,11 +250,11 @@ def test_rotary_direction_comes_from_the_chain(machine, points):
     about -x, sweeps simulated through that chain are identified to the noise-free tolerance in
     every gauge (with RotX(a) written into the method they would not be)."""
     plain_truth = make_mt_truth(machine, 3)
-    plain = simulate_mt_sweeps(plain_truth, noise_um=0.0, seed=1)
+    plain = simulated_sweeps(plain_truth, noise_um=0.0, seed=1)
     rev = grinder_variant(edit=_a_reversed, sha_suffix="-a-reversed")
     assert next(a for a in rev.axes if a.word == "A").direction == -1.0
     truth = make_mt_truth(rev, 3)
-    sweeps = simulate_mt_sweeps(truth, noise_um=0.0, seed=1)
+    sweeps = simulated_sweeps(truth, noise_um=0.0, seed=1)
     a = np.asarray(sweeps["axis"]) == "A"
     moved = np.hypot.reduce([np.asarray(sweeps[c])[a] - np.asarray(plain[c])[a] for c in ("x_mm", "y_mm", "z_mm")])
     assert moved.max() > A_REVERSED_MOVE_MM
@@ -276,11 +276,11 @@ def test_chain_gauges_agree_and_the_default_measures_better():
     than the interpolating first-station set."""
     from errormap.identification import smooth_chain
     from errormap.chain_truth import make_mt_truth
-    from errormap.chain_sweeps import simulate_mt_sweeps, swept_words
+    from errormap.chain_sweeps import simulated_sweeps, swept_words
     from errormap.sweeps import sweeps_from_columns
     m = load_machine("mill-xyz")
     truth = make_mt_truth(m, 0)
-    sweeps = lambda noise, seed: sweeps_from_columns(simulate_mt_sweeps(truth, noise_um=noise, seed=seed),  # noqa: E731
+    sweeps = lambda noise, seed: sweeps_from_columns(simulated_sweeps(truth, noise_um=noise, seed=seed),  # noqa: E731
                                                     source="<sim>", axes=swept_words(m))
     free, noisy = sweeps(0.0, 0), sweeps(2.0, 100)
     q = np.random.default_rng(7).uniform(m.stroke_lo, m.stroke_lo + np.array([a.stroke[1] - a.stroke[0]

@@ -16,7 +16,7 @@ from errormap.chain_elements import ChainElementSet
 from errormap.io import InputError, read_table, write_csv
 from errormap.machine import load_machine
 from errormap.chain_truth import make_mt_truth
-from errormap.chain_sweeps import simulate_mt_sweeps
+from errormap.chain_sweeps import simulated_sweeps
 from errormap.sweeps import write_sweeps
 from errormap.uncertainty import covariance_path
 
@@ -232,7 +232,7 @@ def test_a_path_in_mm_near_zero_passes_with_units_as_written(machine, tmp_path, 
 
 # -- point 8: messages that misled -------------------------------------------------------------------------
 def test_sweeps_in_metres_name_the_unit_not_coinciding_targets(machine, tmp_path, capsys):
-    cols = simulate_mt_sweeps(make_mt_truth(machine, SEED), noise_um=0.0, seed=0)
+    cols = simulated_sweeps(make_mt_truth(machine, SEED), noise_um=0.0, seed=0)
     for k in ("x_mm", "y_mm", "z_mm"):
         cols[k] = np.asarray(cols[k]) / 1000
     sw = write_sweeps(tmp_path / "sw_m.csv", cols)
@@ -243,7 +243,7 @@ def test_sweeps_in_metres_name_the_unit_not_coinciding_targets(machine, tmp_path
 
 
 def test_sweep_axis_typo_is_quoted_as_written(machine, tmp_path, capsys):
-    cols = simulate_mt_sweeps(make_mt_truth(machine, SEED), noise_um=0.0, seed=0)
+    cols = simulated_sweeps(make_mt_truth(machine, SEED), noise_um=0.0, seed=0)
     cols["axis"] = np.where(np.asarray(cols["axis"]) == "Z", "Y", np.asarray(cols["axis"]))
     sw = write_sweeps(tmp_path / "sw.csv", cols)
     assert main(["identify", str(sw), "--out", str(tmp_path / "e.json")]) == 2
@@ -275,7 +275,7 @@ def test_identify_truth_overlay_is_in_the_identified_gauge(machine):
     from errormap.uncertainty import smooth_identify
     from compensation.app.workflows.measurement import truth_in_gauge
     truth = make_mt_truth(machine, SEED).elements
-    sweeps = sweeps_from_columns(simulate_mt_sweeps(make_mt_truth(machine, SEED), noise_um=0.0, seed=3), "<sweeps>")
+    sweeps = sweeps_from_columns(simulated_sweeps(make_mt_truth(machine, SEED), noise_um=0.0, seed=3), "<sweeps>")
     # the interpolating identification (--raw): on noise-free sweeps it is the truth in its gauge exactly
     ident = smooth_identify(sweeps, machine, noise_um=0.5, smooth=False, gauge="station-mean").elements_
     pts = np.zeros((300, 3))

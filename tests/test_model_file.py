@@ -215,10 +215,10 @@ def test_a_model_json_that_is_not_json_is_refused_naming_the_file(tmp_path):
 
 
 def test_identify_writes_a_model_file_naming_its_elements_and_covariance(tmp_path, capsys):
-    from errormap.chain_sweeps import simulate_mt_sweeps
+    from errormap.chain_sweeps import simulated_sweeps
     from errormap.sweeps import write_sweeps
     m = load_machine("mill-xyz")
-    write_sweeps(tmp_path / "sw.csv", simulate_mt_sweeps(make_mt_truth(m, 0), noise_um=1.0, seed=1))
+    write_sweeps(tmp_path / "sw.csv", simulated_sweeps(make_mt_truth(m, 0), noise_um=1.0, seed=1))
     assert main(["identify", str(tmp_path / "sw.csv"), "--machine", "mill-xyz", "--out", str(tmp_path / "E.json")]) == 0
     assert f"wrote model: {tmp_path / 'E.model.json'}" in capsys.readouterr().out
     named, bare = read_model(tmp_path / "E.model.json", m), read_model(tmp_path / "E.json", m)

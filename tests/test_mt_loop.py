@@ -12,7 +12,7 @@ from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
 from errormap.identification import ChainIdentification, root_axis
 from errormap.chain_truth import FAMILIES, TARGET_MAX_RANGE_UM, MTTruth, make_mt_truth, volume_grid
-from errormap.chain_sweeps import simulate_mt_sweeps, swept_words
+from errormap.chain_sweeps import simulated_sweeps, swept_words
 from errormap.chain_truth import make_mt_truth
 from errormap.sweeps import read_sweeps, sweeps_from_columns, write_sweeps
 from errormap.uncertainty import smooth_identify
@@ -100,8 +100,8 @@ def test_chain_sweeps_equal_grinder_sweeps():
     tg = make_mt_truth(g, 1)
     el = tg.elements
     tc = MTTruth(gc, ChainElementSet(gc, el.stations, el.functions, el.constants), {})
-    a = simulate_mt_sweeps(tg, noise_um=0.0, seed=3)
-    b = simulate_mt_sweeps(tc, noise_um=0.0, seed=3)
+    a = simulated_sweeps(tg, noise_um=0.0, seed=3)
+    b = simulated_sweeps(tc, noise_um=0.0, seed=3)
     assert (a["axis"] == b["axis"]).all() and (a["station"] == b["station"]).all()
     for c in ("x_mm", "y_mm", "z_mm"):
         assert np.abs(a[c] - b[c]).max() < EXACT_MM
@@ -112,7 +112,7 @@ def test_chain_sweeps_equal_grinder_sweeps():
 def test_identification_noise_free_is_exact(name):
     m = load_machine(name)
     t = make_mt_truth(m, 2, family="default")
-    sw = sweeps_from_columns(simulate_mt_sweeps(t, noise_um=0.0, seed=7), axes=swept_words(m))
+    sw = sweeps_from_columns(simulated_sweeps(t, noise_um=0.0, seed=7), axes=swept_words(m))
     res = ChainIdentification().fit(sw, m).result_
     assert not res.unobservable
     g = m.stroke_lo + (m.stroke_hi - m.stroke_lo) * np.random.default_rng(0).random((2000, len(m.axes)))
@@ -130,7 +130,7 @@ def test_root_axis(mill, five):
 def test_generic_identification_agrees_with_grinder(noise):
     g, gc = load_machine(None), load_machine("grinder-chain")
     tg = make_mt_truth(g, 1)
-    cols = simulate_mt_sweeps(tg, noise_um=noise, seed=3)
+    cols = simulated_sweeps(tg, noise_um=noise, seed=3)
     eg = smooth_identify(cols, g, smooth=False, gauge="first-station").raw.elements_
     ec = ChainIdentification().fit(sweeps_from_columns(cols, axes=swept_words(gc)), gc).elements_
     grid = volume_grid(g, (9, 5, 13))
@@ -143,7 +143,7 @@ def test_generic_identification_agrees_with_grinder(noise):
 @pytest.mark.slow
 def test_mill_identification_within_its_noise_band(mill):
     t = make_mt_truth(mill, 6, family="independent")
-    sw = sweeps_from_columns(simulate_mt_sweeps(t, noise_um=2.0, seed=11), axes=swept_words(mill))
+    sw = sweeps_from_columns(simulated_sweeps(t, noise_um=2.0, seed=11), axes=swept_words(mill))
     res = ChainIdentification().fit(sw, mill).result_
     assert res.sigma_um == pytest.approx(2.0, rel=0.2)   # the ball residual gives the tracker noise back
     g = volume_grid(mill, 600)
@@ -183,7 +183,7 @@ def test_cli_refusals(tmp_path, capsys, mill):
     _one_line_exit2(capsys, ["simulate", "--effect", "periodic:X", "--out", str(tmp_path / "g")], "grinder")
     # a sweep file with an axis the mill does not have
     t = make_mt_truth(mill, 0)
-    cols = simulate_mt_sweeps(t, noise_um=1.0, seed=0)
+    cols = simulated_sweeps(t, noise_um=1.0, seed=0)
     cols["axis"] = np.where(cols["axis"] == "Z", "A", cols["axis"])
     write_sweeps(tmp_path / "bad.csv", cols)
     line = _one_line_exit2(capsys, ["identify", str(tmp_path / "bad.csv"), "--machine", "mill-xyz", "--out",
@@ -259,7 +259,7 @@ def test_chain_sweep_reader_shares_the_grinder_readers_row_checks(tmp_path, mill
     beyond the maximum and a command unit that does not fit the axis are refused naming row and column."""
     from errormap.io import InputError, write_csv
     from errormap.chain_sweeps import write_sweeps
-    cols = simulate_mt_sweeps(make_mt_truth(mill, 0), noise_um=1.0, seed=0)
+    cols = simulated_sweeps(make_mt_truth(mill, 0), noise_um=1.0, seed=0)
     write_sweeps(tmp_path / "ok.csv", cols)
     assert sorted(read_sweeps(tmp_path / "ok.csv", mill).axes) == ["X", "Y", "Z"]
     bad = {k: np.array(v).copy() for k, v in cols.items()}
@@ -288,7 +288,7 @@ def test_identify_noise_um_scales_the_covariance_as_on_the_grinder(tmp_path, mil
     elements are the same as without it."""
     import json
     t = make_mt_truth(mill, 0)
-    write_sweeps(tmp_path / "sw.csv", simulate_mt_sweeps(t, noise_um=1.0, seed=0))
+    write_sweeps(tmp_path / "sw.csv", simulated_sweeps(t, noise_um=1.0, seed=0))
     sw = read_sweeps(tmp_path / "sw.csv", mill)   # what the command reads
     est = ChainIdentification().fit(sw, mill).result_
     given = ChainIdentification(noise_um=2.5).fit(sw, mill).result_
@@ -315,7 +315,7 @@ def test_identify_plot_and_truth_on_a_chain(tmp_path, mill):
     truth overlaid in the identified gauge (the identification of its noise-free sweeps: the same tool points)."""
     from compensation.app.workflows.measurement import truth_in_gauge
     t = make_mt_truth(mill, 0)
-    write_sweeps(tmp_path / "sw.csv", simulate_mt_sweeps(t, noise_um=1.0, seed=0))
+    write_sweeps(tmp_path / "sw.csv", simulated_sweeps(t, noise_um=1.0, seed=0))
     truth_file = t.elements.save(tmp_path / "truth.json")
     assert _main(["identify", str(tmp_path / "sw.csv"), "--machine", "mill-xyz", "--out", str(tmp_path / "E.json"),
                   "--plot", str(tmp_path / "el"), "--truth", str(truth_file)]) == 0

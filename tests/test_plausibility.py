@@ -280,10 +280,10 @@ def test_sweeps_with_two_ball_columns_exchanged_are_refused_before_identificatio
     """A tracker pose cannot mirror: sweeps whose x_mm/y_mm are exchanged fit the machine only as a mirror image
     (they used to reach the Gauss–Newton fit and end in a traceback on the mill). The correct sweeps pass."""
     from errormap.identification import ChainIdentification
-    from errormap.chain_sweeps import simulate_mt_sweeps, swept_words
+    from errormap.chain_sweeps import simulated_sweeps, swept_words
     from errormap.sweeps import sweeps_from_columns
     m = load_machine(name)
-    cols = simulate_mt_sweeps(make_mt_truth(m, SEED, family="independent"), noise_um=2.0, seed=SEED)
+    cols = simulated_sweeps(make_mt_truth(m, SEED, family="independent"), noise_um=2.0, seed=SEED)
     ok = sweeps_from_columns(cols, axes=swept_words(m))
     ChainIdentification()._check_handedness(ok, m, swept_words(m), "ok.csv")   # no refusal
     bad = sweeps_from_columns(dict(cols, x_mm=cols["y_mm"], y_mm=cols["x_mm"]), axes=swept_words(m))

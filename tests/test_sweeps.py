@@ -6,7 +6,7 @@ import pytest
 from errormap.io import InputError
 from errormap.machine import load_machine
 from errormap.chain_truth import make_mt_truth, random_axes
-from errormap.chain_sweeps import simulate_mt_sweeps
+from errormap.chain_sweeps import simulated_sweeps
 from errormap.sweeps import read_sweeps, sweeps_from_columns, write_sweeps
 from errormap.transforms import apply, compose, invert
 
@@ -37,7 +37,7 @@ def test_body_frames_reproduce_the_htm_tool_point(machine, truth):
 
 
 def test_noise_free_sweeps_keep_the_ball_triangle(machine, truth):
-    cols = simulate_mt_sweeps(truth, noise_um=0.0, seed=4)
+    cols = simulated_sweeps(truth, noise_um=0.0, seed=4)
     sw = sweeps_from_columns(cols)
     for ax in "XZA":
         b = sw[ax].balls_mm
@@ -50,7 +50,7 @@ def test_noise_free_sweeps_keep_the_ball_triangle(machine, truth):
 
 
 def test_sweep_file_round_trip_and_bidirectional(tmp_path, truth):
-    cols = simulate_mt_sweeps(truth, noise_um=2.0, seed=5, bidirectional=True)
+    cols = simulated_sweeps(truth, noise_um=2.0, seed=5, bidirectional=True)
     assert set(np.unique(cols["direction"])) == {-1, 1}
     assert len(cols["axis"]) == 3 * 2 * 21 * 3
     path = write_sweeps(tmp_path / "s.csv", cols, comments=["setup: a"])
@@ -63,11 +63,11 @@ def test_sweep_file_round_trip_and_bidirectional(tmp_path, truth):
 
 
 def test_seeded_and_tracker_pose_given(truth):
-    a = simulate_mt_sweeps(truth, noise_um=2.0, seed=7)
-    b = simulate_mt_sweeps(truth, noise_um=2.0, seed=7)
+    a = simulated_sweeps(truth, noise_um=2.0, seed=7)
+    b = simulated_sweeps(truth, noise_um=2.0, seed=7)
     assert np.array_equal(a["x_mm"], b["x_mm"])
     pose = (np.eye(3), np.zeros(3))
-    c = simulate_mt_sweeps(truth, noise_um=0.0, seed=7, tracker_pose=pose)
+    c = simulated_sweeps(truth, noise_um=0.0, seed=7, tracker_pose=pose)
     R, t = truth.machine.body_frames("X", np.array([truth.machine.stroke_lo]),
                                      truth.element_values(np.array([truth.machine.stroke_lo])))
     first = (c["axis"] == "X") & (c["station"] == 0) & (c["target"] == 1)
@@ -100,7 +100,7 @@ def test_reader_refuses_other_length_units(tmp_path, machine):
 
 
 def test_reader_refuses_mixed_command_units(tmp_path, machine, truth):
-    cols = simulate_mt_sweeps(truth, noise_um=0.0, seed=1)
+    cols = simulated_sweeps(truth, noise_um=0.0, seed=1)
     cols["command_unit"] = np.where(cols["axis"] == "A", "deg", "mm")
     cols["command_unit"][(cols["axis"] == "A") & (cols["station"] == 5)] = "rad"
     p = write_sweeps(tmp_path / "s.csv", cols)
@@ -109,7 +109,7 @@ def test_reader_refuses_mixed_command_units(tmp_path, machine, truth):
 
 
 def test_missing_station_and_target_name_axis_and_station(truth):
-    cols = simulate_mt_sweeps(truth, noise_um=0.0, seed=1)
+    cols = simulated_sweeps(truth, noise_um=0.0, seed=1)
     keep = ~((cols["axis"] == "Z") & (cols["station"] == 7))
     with pytest.raises(InputError, match=r"axis Z: station\(s\) \[7\] missing"):
         sweeps_from_columns({k: v[keep] for k, v in cols.items()})
@@ -122,7 +122,7 @@ def test_missing_station_and_target_name_axis_and_station(truth):
 
 
 def test_several_files_must_share_a_setup(tmp_path, truth):
-    cols = simulate_mt_sweeps(truth, noise_um=0.0, seed=1)
+    cols = simulated_sweeps(truth, noise_um=0.0, seed=1)
     parts = {ax: {k: v[cols["axis"] == ax] for k, v in cols.items()} for ax in "XZA"}
     a = write_sweeps(tmp_path / "x.csv", parts["X"], comments=["setup: s1"])
     b = write_sweeps(tmp_path / "z.csv", parts["Z"], comments=["setup: s2"])
@@ -145,10 +145,10 @@ def test_compose_invert_identity():
 def test_a_chain_set_up_over_several_files_reads_as_one(tmp_path):
     """One reader for every machine tool: a mill's set-up split over files that name the same set-up reads as
     the one file would (its axis words from the machine)."""
-    from errormap.chain_sweeps import simulate_mt_sweeps
+    from errormap.chain_sweeps import simulated_sweeps
     from errormap.chain_truth import make_mt_truth
     mill = load_machine("mill-xyz")
-    cols = simulate_mt_sweeps(make_mt_truth(mill, 2), noise_um=1.0, seed=3)
+    cols = simulated_sweeps(make_mt_truth(mill, 2), noise_um=1.0, seed=3)
     whole = read_sweeps(write_sweeps(tmp_path / "all.csv", cols, comments=["setup: s1"]), mill)
     parts = [write_sweeps(tmp_path / f"{w}.csv", {k: v[cols["axis"] == w] for k, v in cols.items()},
                           comments=["setup: s1"]) for w in ("X", "Y", "Z")]

@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 from compensation import export as ex
-from errormap.chain_sweeps import simulate_mt_sweeps
+from errormap.chain_sweeps import simulated_sweeps
 from errormap.io import write_json
 from errormap.machine import load_machine
 from errormap.chain_truth import make_mt_truth
@@ -63,7 +63,7 @@ def run_seed(seed: int, tolerances, n_volume: int) -> tuple[dict, list[str]]:
     from errormap.diagnosis.loop_model import ChainModelField
     m = load_machine()
     truth = make_mt_truth(m, 100 + seed, effects=("reversal", "interaction"))
-    el = smooth_identify(simulate_mt_sweeps(truth, noise_um=2.0, seed=seed), m, smooth=False,
+    el = smooth_identify(simulated_sweeps(truth, noise_um=2.0, seed=seed), m, smooth=False,
                          gauge="first-station").raw.elements_
     model = ex.ModelError(m, el)
     sets, tool, cache, rows = ex.check_sets(m, n_volume, seed), ex.truth_tool_points(truth, m), {}, {}

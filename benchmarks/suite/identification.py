@@ -14,7 +14,7 @@ from errormap.chain_field import ChainField
 from errormap.machine import load_machine
 from errormap.chain_truth import make_mt_truth, random_axes
 from errormap.stats import residual_stats
-from errormap.chain_sweeps import simulate_mt_sweeps
+from errormap.chain_sweeps import simulated_sweeps
 from errormap.uncertainty import smooth_identify
 
 TITLE = "Identification: tracker sweeps → 23 elements of the grinder"
@@ -33,14 +33,14 @@ def run(quick: bool, seed: int) -> dict:
     pts = random_axes(m, 2_000 if quick else 10_000, np.random.default_rng(2024 + seed))
     e_true = ChainField(m, truth.elements).predict(pts)
     field_max = float(np.linalg.norm(e_true, axis=1).max())
-    free = max(float(np.abs(ChainField(m, _identify(simulate_mt_sweeps(truth, noise_um=0.0, seed=0), m, g).elements_)
+    free = max(float(np.abs(ChainField(m, _identify(simulated_sweeps(truth, noise_um=0.0, seed=0), m, g).elements_)
                             .predict(pts) - e_true).max()) for g in ("first-station", "reference-line"))
     t0 = time.perf_counter()
-    _identify(simulate_mt_sweeps(truth, noise_um=NOISE_UM, seed=0), m)
+    _identify(simulated_sweeps(truth, noise_um=NOISE_UM, seed=0), m)
     t_id = time.perf_counter() - t0
     rms, mx = [], []
     for k in range(1, (5 if quick else 100) + 1):
-        r = _identify(simulate_mt_sweeps(truth, noise_um=NOISE_UM, seed=k), m)
+        r = _identify(simulated_sweeps(truth, noise_um=NOISE_UM, seed=k), m)
         st = residual_stats(ChainField(m, r.elements_).predict(pts) - e_true)
         rms.append(st["rms_um"])
         mx.append(st["max_um"])

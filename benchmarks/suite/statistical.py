@@ -109,12 +109,12 @@ def chain_setting():
     from errormap.diagnosis.chain_loop import MTChecks
     from errormap.machine import load_machine
     from errormap.chain_truth import make_mt_truth
-    from errormap.chain_sweeps import simulate_mt_sweeps
+    from errormap.chain_sweeps import simulated_sweeps
     from errormap.uncertainty import covariance_path, smooth_identify
     grinder = load_machine()
     mt = grinder
     truth = make_mt_truth(grinder, 4)
-    sm = smooth_identify(simulate_mt_sweeps(truth, noise_um=2.0, seed=54), grinder, n_boot=40)
+    sm = smooth_identify(simulated_sweeps(truth, noise_um=2.0, seed=54), grinder, n_boot=40)
     with tempfile.TemporaryDirectory() as tmp:
         el_path = sm.elements_.save(Path(tmp) / "el.json")
         sm.covariance_.save(covariance_path(el_path))
@@ -169,7 +169,7 @@ def prediction_coverage(seeds_per_family: int) -> dict:
     from errormap.chain_field import ChainField
     from errormap.machine import load_machine
     from errormap.chain_truth import random_axes
-    from errormap.chain_sweeps import simulate_mt_sweeps
+    from errormap.chain_sweeps import simulated_sweeps
     from errormap.chain_truth import make_mt_truth
     from errormap.uncertainty import smooth_identify
     grinder = load_machine()
@@ -177,7 +177,7 @@ def prediction_coverage(seeds_per_family: int) -> dict:
     for fam in ("default", "independent"):
         for s in range(seeds_per_family):
             truth = make_mt_truth(grinder, s, family=fam)
-            sm = smooth_identify(simulate_mt_sweeps(truth, noise_um=2.0, seed=s + 500), grinder, n_boot=100, seed=s)
+            sm = smooth_identify(simulated_sweeps(truth, noise_um=2.0, seed=s + 500), grinder, n_boot=100, seed=s)
             pts = random_axes(grinder, 400, np.random.default_rng(s + 7))
             err = ChainField(grinder, sm.elements_).predict(pts) - ChainField(grinder, truth.elements).predict(pts)
             sd = np.sqrt(np.diagonal(sm.covariance_.prediction_cov(grinder, pts), axis1=1, axis2=2))

@@ -1,17 +1,13 @@
-"""The closed loop on ANY machine-tool chain: checks → held-out measured residual, update, effects.
+"""The closed loop on any machine-tool chain: checks → held-out measured residual, update, effects.
 
-Check measurements (``docs/reference/file-formats.md``): the machine's axis columns (``x_mm … a_deg``) and
-``dx_um, dy_um, dz_um``; optional ``time_s``, ``temp_c``, ``dir_<w>`` (+1/−1 per axis word), ``seq``. The
-first ``fit_fraction`` of the checks by ``seq`` fit, the rest is held out. Stages, each judged by the
-MEASURED residual (measurement − prediction, μm) on the held-out checks: **identified** (the sweep
-identification); **updated** (:func:`update_elements`, the identification's covariance as the prior);
-**updated + effects** (a forward search over :data:`errormap.chain_truth.EFFECT_KINDS`, a term accepted
-when it lowers the held-out residual by more than :data:`HELD_OUT_Z` paired standard errors, then re-fitted
-jointly and dropped at or below :func:`joint_threshold`, :data:`ROUNDS` rounds). Baselines beside them:
-``baseline_ols_update`` (no prior) and ``baseline_ols_linear`` (OLS of the residual on the axis columns).
-The last stage is handed on unless a plainer one is better by more than :data:`FALLBACK_Z` (``kept_stage``).
-Noise floor of the held-out figure: ``√3·σ``. The method and its reasons: ``docs/explanation/closed-loop.md``.
-"""
+Check measurements (``docs/reference/file-formats.md``): the machine's axis columns and ``dx_um, dy_um,
+dz_um`` (optional ``time_s``, ``temp_c``, ``dir_<w>``, ``seq``); the first ``fit_fraction`` by ``seq`` fit,
+the rest is held out. Stages judged by the MEASURED held-out residual: identified, updated
+(:func:`update_elements`, the identification's covariance as prior), updated + effects (a forward search
+over :data:`errormap.chain_truth.EFFECT_KINDS`; :data:`HELD_OUT_Z`, :func:`joint_threshold`,
+:data:`ROUNDS`), beside ``baseline_ols_update`` and ``baseline_ols_linear``; the last stage is kept unless a
+plainer one is better by more than :data:`FALLBACK_Z`. Noise floor ``√3·σ``. Method and reasons:
+``docs/explanation/closed-loop.md``."""
 from __future__ import annotations
 
 import numpy as np

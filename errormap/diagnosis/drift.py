@@ -1,37 +1,13 @@
-"""Thermal error modelling on drift logs: which temperature sensors explain each displacement.
+"""Drift logs (read, validated, repaired) and the sensor-subset + common-lag search on them.
 
-Log schema (CSV): ``time_s`` (increasing), any number of ``temp_<sensor>_c`` columns, any number
-of displacement columns ``<channel>_um``, optional ``speed_rpm``.
-
-Per displacement channel, on the earlier ``fit_fraction`` of the log (by time), the model is
-
-    d(t) = β0 + Σ_{s ∈ S} βs·Ts(t − lag)      (+ β·speed_rpm(t − lag) when logged and varying)
-
-with a common pure delay ``lag`` (``T(t − lag)`` by linear interpolation, held at the first value
-before the log starts). It is chosen as follows (why each step is as it is:
-``docs/decisions/009-closed-loop-history.md``, the drift log's sensor search):
-
-0. **smoothing** — each temperature is averaged over a centred window of ``smooth_s`` (60 s): sensor
-   noise is an error in the regressors. The prediction at t uses temperatures up to t − lag + smooth_s/2;
-1. **correlation grouping** — sensors whose temperatures correlate with |r| ≥ ``group_r`` on the
-   fitting part form one group (single linkage); groups are reported and reduce the search (one
-   representative per group, then swaps against every sensor) only when the exhaustive search would be
-   too large; they never forbid two members of a group from being selected together;
-2. **joint lag + subset search** — every subset of at most ``max_sensors`` regressors at every lag
-   of the grid (0 … ``max_lag_s`` at the sampling step; at most ``max_lag_steps`` lags, then refined
-   at the sampling step around the best) is fitted by least squares, all at once from the lagged
-   Gram matrices; the score is the BIC with the lag counted as a parameter;
-3. **size** — the smallest subset size whose best BIC is within ``min_delta_bic`` of the best over
-   all sizes (the null model included); each selected regressor must pass its partial F-test given the
-   others at ``alpha``, Bonferroni-corrected over the candidates (else the size steps down);
-4. **ambiguity** — the runner-up subset of the chosen size is reported with its ΔBIC; alternatives
-   within ``ambiguity_delta_bic`` make the channel ``ambiguous`` (listed, not silently picked), with each
-   selected sensor's closest other sensor and their correlation. The lag gets a profile-likelihood 95 %
-   interval (n·ln RSS within χ²₁(0.95) = 3.84 of its minimum).
-
-Before/after on the later part: "before" is the displacement itself (no compensation),
-"after" the displacement minus the model's prediction.
-"""
+Log schema (CSV): ``time_s`` (increasing), ``temp_<sensor>_c`` columns, displacement columns ``<channel>_um``,
+optional ``speed_rpm``. Per channel :class:`DriftModeller` fits ``d(t) = β0 + Σ_{s ∈ S} βs·Ts(t − lag)``
+(+ ``speed_rpm``) with one pure delay: temperatures smoothed over ``smooth_s``, every subset of at most
+``max_sensors`` regressors at every lag of the grid scored by BIC (the lag counted; correlated sensors grouped
+by ``group_r`` only to shrink a too-large search), the smallest size within ``min_delta_bic`` whose regressors
+pass a Bonferroni-corrected partial F-test at ``alpha``, alternatives within ``ambiguity_delta_bic`` flagged
+``ambiguous``, the lag with a profile-likelihood 95 % interval. Why each step is as it is:
+``docs/decisions/009-closed-loop-history.md``, the drift log's sensor search."""
 from __future__ import annotations
 
 import itertools
@@ -42,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from ..settings import keep_settings
 from ..io import InputError, read_table
 
 TEMP_RE = re.compile(r"^temp_(.+)_c$")
@@ -391,7 +368,7 @@ def _subset_rss(G, b, yy, subs) -> np.ndarray:
 class DriftModeller:
     """Sensor selection and lag for each displacement channel (see module doc).
 
-    Settings: ``fit_fraction``, ``max_lag_s`` (default: 20 % of the fitting span), ``lag_step_s``
+    Settings: ``max_lag_s`` (default: 20 % of the fitting span), ``lag_step_s``
     (default: the median sampling interval), ``max_lag_steps`` (coarser grid beyond, then refined),
     ``group_r``, ``alpha``, ``min_delta_bic``, ``max_sensors``, ``ambiguity_delta_bic``,
     ``max_subsets`` (beyond, the search runs over correlation-group representatives plus swaps),
@@ -399,26 +376,11 @@ class DriftModeller:
     Learned: ``channels_`` {channel: ChannelModel}, ``groups_`` {sensor: id}.
     """
 
-    def __init__(self, fit_fraction: float = 0.6, max_lag_s: float | None = None, lag_step_s: float | None = None,
+    def __init__(self, max_lag_s: float | None = None, lag_step_s: float | None = None,
                  group_r: float = 0.98, alpha: float = 0.01, min_delta_bic: float = 10.0, max_sensors: int = 4,
                  ambiguity_delta_bic: float = 10.0, max_subsets: int = 5000, max_lag_steps: int = 400,
                  smooth_s: float = 60.0):
-        self.smooth_s = smooth_s
-        self.fit_fraction = fit_fraction
-        self.max_lag_s = max_lag_s
-        self.lag_step_s = lag_step_s
-        self.group_r = group_r
-        self.alpha = alpha
-        self.min_delta_bic = min_delta_bic
-        self.max_sensors = max_sensors
-        self.ambiguity_delta_bic = ambiguity_delta_bic
-        self.max_subsets = max_subsets
-        self.max_lag_steps = max_lag_steps
-
-    def split(self, log: DriftLog):
-        n = len(log.time_s)
-        n_fit = int(round(self.fit_fraction * n))
-        return np.arange(n_fit), np.arange(n_fit, n)
+        keep_settings(self, locals())
 
     # -- the search -------------------------------------------------------------------------
     def _gram(self, log, names, fit, y, lags):
@@ -591,11 +553,6 @@ class DriftModeller:
             o = max(r, key=lambda v: abs(r[v]))
             model.closest[s] = {"sensor": o, "r": r[o]}
 
-    def fit(self, log: DriftLog) -> "DriftModeller":
-        if not 0 < self.fit_fraction < 1:
-            raise ValueError(f"Expected 0 < fit_fraction < 1, got {self.fit_fraction}")
-        return self.fit_rows(log, self.split(log)[0])
-
     def fit_rows(self, log: DriftLog, fit) -> "DriftModeller":
         """Fit on the rows ``fit`` (indices, earliest first; a cross-validation fold's training part)."""
         if len(fit) < 20:
@@ -617,27 +574,3 @@ class DriftModeller:
         return {ch: {"regressors": list(m.sensors), "lag_s": m.lag_s, "lag_interval_s": list(m.lag_interval_s),
                      "ambiguous": m.ambiguous, "alternatives": m.alternatives, "runner_up": m.runner_up}
                 for ch, m in self.channels_.items()}
-
-    def report(self, log: DriftLog) -> dict:
-        """``channels`` mapping in the diagnosis.json form (held-out before/after, selection certainty)."""
-        _, hold = self.split(log)
-        out = {}
-        for ch, m in self.channels_.items():
-            d = log.disp_um[ch]
-            after = d - m.predict(log)
-            b, a = d[hold], after[hold]
-
-            def unit(s):
-                return f"{s}_um_per_rpm" if s == "speed_rpm" else f"{s}_um_per_c"
-            out[ch] = {"sensors": [s for s in m.sensors if s != "speed_rpm"],
-                       "regressors": list(m.sensors), "lag_s": m.lag_s, "lag_interval_s": list(m.lag_interval_s),
-                       "coefficients": {"intercept_um": float(m.coef[0]),
-                                        **{unit(s): float(c) for s, c in zip(m.sensors, m.coef[1:])}},
-                       "standard_errors": {"intercept_um": float(m.se[0]),
-                                           **{unit(s): float(c) for s, c in zip(m.sensors, m.se[1:])}},
-                       "bic": m.bic, "ambiguous": m.ambiguous, "alternatives": m.alternatives,
-                       "runner_up": m.runner_up, "closest_sensors": m.closest, "search": m.search,
-                       "rms_before_um": float(np.sqrt(np.mean(b**2))), "rms_after_um": float(np.sqrt(np.mean(a**2))),
-                       "max_before_um": float(np.abs(b).max()), "max_after_um": float(np.abs(a).max())}
-        return out
-

@@ -1,23 +1,12 @@
 """The drift model families a :class:`~errormap.diagnosis.drift_selection.DriftSelector` chooses among.
 
-* ``ols`` — the baseline: ordinary least squares on every temperature and ``speed_rpm`` as logged
-  (no filter, no delay). Always a candidate, always reported.
-* ``constant`` — the plainest baseline: the training rows' mean displacement (a constant offset, no input).
-* ``subset_lag`` — :class:`~errormap.diagnosis.drift.DriftModeller`'s sensor-subset + common-lag
-  search (BIC), its selected regressors refitted causally (first-order smoothing of ``smooth_s``/2
-  in place of its centred window, then the lag).
-* ``ridge_bank`` — ridge on every input through a bank of first-order filters (``TAU_BANK_S``:
-  a distributed lag whose weights are one time constant per sensor or any mix of them); the
-  penalty λ is a hyper-parameter chosen by the same cross-validation.
-* ``transfer`` — a physically motivated transfer-function model: the spindle as heat source
-  (``speed_rpm`` and ``speed_rpm²``, heat ∝ speed^1…2) through two first-order paths whose time
-  constants are fitted (grid of ``TAU_GRID_S`` pairs), plus every temperature as logged, ridge-
-  stabilised.
-
-``ridge_ols`` (:class:`RidgeTowardOLSFamily`): the filter bank fitted to the OLS baseline's residual, so
-that the penalty pulls toward the baseline rather than toward zero (the largest λ is the baseline itself);
-it replaces ``ridge_bank`` among the default families (:func:`default_families`; measured in ``docs/decisions/020-benchmark-notebook.md``).
-"""
+``ols`` (every input as logged; always a candidate, always reported), ``constant`` (the training rows' mean),
+``subset_lag`` (:class:`~errormap.diagnosis.drift.DriftModeller`'s search, refitted causally: first-order
+smoothing of ``smooth_s``/2, then the lag), ``ridge_bank`` (ridge on every input through the filters of
+``TAU_BANK_S``), ``transfer`` (the spindle's speed and speed² through two first-order paths of
+``TAU_GRID_S``, plus the temperatures, ridge-stabilised) and ``ridge_ols`` (the bank fitted to the OLS
+residual, so the penalty pulls toward the baseline; it replaces ``ridge_bank`` among the defaults,
+:func:`default_families`). The families side by side: ``docs/explanation/drift.md``."""
 from __future__ import annotations
 
 import numpy as np

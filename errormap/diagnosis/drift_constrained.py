@@ -1,25 +1,14 @@
-"""Physically constrained drift families.
+"""Physically constrained drift families (each a :class:`~errormap.diagnosis.drift_features._Family`).
 
-Families (each a :class:`~errormap.diagnosis.drift_features._Family`: ``fit(log, channels, rows, cache)``
-→ {channel: {hyper: (features, intercept, coef)}}):
+* ``thermal_nn`` — each input (oriented by the sign of its least-squares coefficient) through first-order
+  lags of ``TAU_BANK_S`` with gains ≥ 0 (non-negative least squares, a small ridge λ the hyper-parameter):
+  monotone step responses, no cancelling pair of opposite gains;
+* ``greybox`` — ``d = c + Σ D_i u_i + x``, ``τ·dx/dt = −x + Σ g_i u_i``, τ from ``GREYBOX_TAUS_S``, the gains
+  by ridge-stabilised least squares (``GREYBOX_LAMBDA``);
+* ``ols_stable`` — OLS on the inputs a forward stepwise selection (BIC) picks in at least ``STABLE_FREQ`` of
+  ``STABLE_SUBSAMPLES`` block subsamples of the training rows.
 
-* ``thermal_nn`` — **first-order thermal responses with non-negative gains**: every input (each
-  temperature, ``speed_rpm``) through first-order lags of ``TAU_BANK_S``; each input is oriented by
-  the sign of its plain least-squares coefficient on the training rows, and the gains of its lags
-  are then constrained ≥ 0 (non-negative least squares, a small ridge λ as the hyper-parameter).
-  So each input's step response is a sum of first-order responses of ONE sign: monotone, no
-  overshoot, no cancelling pair of large opposite gains — what a body heated through conduction
-  does, and what extrapolates without the see-saw of unconstrained filter banks.
-* ``greybox`` — **a one-state grey-box state-space model per channel**: ``d = c + Σ D_i u_i + x``,
-  ``τ·dx/dt = −x + Σ g_i u_i`` (direct feed-through of every input as logged, plus one thermal state
-  of time constant τ driven by all inputs); τ is the hyper-parameter (``GREYBOX_TAUS_S``), the
-  gains are identified by ridge-stabilised least squares (``GREYBOX_LAMBDA``).
-* ``ols_stable`` — **OLS with sensor selection by stability across folds**: forward stepwise
-  selection (BIC) is run on ``STABLE_SUBSAMPLES`` contiguous-block subsamples of the training rows
-  (each leaves one block out); the inputs selected in at least ``STABLE_FREQ`` of them are kept
-  and fitted by plain least squares. A sensor that enters only on some stretches of the log is
-  left out: it is what made OLS on all sensors swing when a later stretch differs.
-"""
+The families side by side: ``docs/explanation/drift.md``."""
 from __future__ import annotations
 
 import numpy as np

@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..estimators import Estimator
+from ..settings import keep_settings
 from .drift import DriftLog
 from .drift_candidates import default_families
 from .drift_features import (RANGE_QUANTILE, _inputs, feature_matrix, feature_novelty, input_matrix, mahalanobis,
@@ -21,50 +22,26 @@ PLAIN_BASELINES = (("ols", ""), ("constant", ""))   # judged as they are: never 
 class DriftSelector(Estimator):
     """Per channel, a family (and hyper-parameter) chosen on the fitting part only, refitted on all of it.
 
-    Two sets of forward-chaining folds on the fitting part:
+    The rule (``docs/explanation/drift.md``, "How a model is chosen"): every family × hyper-parameter, shrunk
+    toward OLS as a whole (``shrink_weights``) and per sample by the distance ρ of its inputs (and, with
+    ``feature_distance``, its own features) from the training data (:func:`distance_weight`, scale from
+    ``shrink_scales``), is scored on three sets of forward-chaining folds of the fitting part: ranking
+    (``n_folds`` after the first ``cv_start``, :func:`rolling_origin_folds`), horizon (``n_horizon_folds``,
+    :func:`horizon_folds`, ``horizon`` default (1 − fit_fraction)/fit_fraction) and novelty
+    (``n_novelty_folds`` of ``n_novelty_blocks``, :func:`novelty_folds`). Eligible: below OLS on the ranking
+    folds, passing :func:`horizon_gate` (``gate_se``) with a mean log-gain ≥ ``min_gain`` on the horizon and
+    novelty folds, no fold worse than OLS by more than ``max_fold_loss`` (ranking folds too with
+    ``ranking_fold_loss``); the eligible of largest mean log-gain is returned if it also beats the constant
+    offset, else the better plain baseline (``PLAIN_BASELINES``, :meth:`_choose`). The band: ``band_rule``.
 
-    * **ranking folds** (``n_folds`` blocks after the first ``cv_start`` of the fitting part,
-      :func:`rolling_origin_folds`): every candidate is scored by its RMS over all their validation rows;
-    * **horizon folds** (``n_horizon_folds``, :func:`horizon_folds`): validation blocks as long, relative
-      to their training part, as the deployment's held-out part is to the fitting part (``horizon``,
-      default (1 − fit_fraction)/fit_fraction).
-
-    * **novelty folds** (``n_novelty_folds`` of ``n_novelty_blocks`` blocks,
-      :func:`novelty_folds`): the blocks of the fitting part whose
-      inputs are farthest (Mahalanobis) from the rest, held out.
-
-    Candidates are OLS and the constant offset as they are (``PLAIN_BASELINES``), and every other family ×
-    hyper-parameter, each shrunk toward OLS (``shrink_weights`` w0), predicting per sample OLS + w0·g(ρ)·(candidate − OLS): ρ = the larger of the distance
-    of the sample's raw inputs and of the candidate's own features from the training data, each over that
-    data's ``RANGE_QUANTILE`` distance, g = :func:`distance_weight` with the
-    scale of ``shrink_scales`` of lowest RMS on the novelty folds. A candidate is eligible when it
-    (a) scores below OLS on the ranking folds and passes :func:`horizon_gate` against OLS (b) on the
-    horizon folds and (c) on the novelty folds, (d) with a mean log-gain ≥ ``min_gain`` on each of (b)
-    and (c), and (e) no fold (horizon, novelty, and with ``ranking_fold_loss`` ranking) worse than OLS by
-    more than ``max_fold_loss``; the eligible one of largest mean log-gain over OLS (over the three sets)
-    is returned (docs/decisions/006: the other orders measured), if it also scores above the constant offset;
-    else the better plain baseline (:meth:`_choose`: the plainest-baseline rule). A model that loses to OLS in any of its validations is never returned. Learned
-    too: ``scale_`` {channel: s of the chosen}, ``worst_fold_`` {channel: {candidate: worst RMS ratio to
-    OLS over the horizon and novelty folds}}.
-
-    Settings: ``fit_fraction``, ``n_folds``, ``cv_start``, ``horizon``, ``n_horizon_folds``, ``gate_se``,
-    ``feature_distance`` (ρ also on the candidate's own features), ``ranking_fold_loss``, ``band_rule`` (``BAND_RULE``; the other rule's scale: ``band_alt_``),
-    ``n_novelty_folds`` (0: none), ``n_novelty_blocks``, ``shrink_weights``, ``families`` (default
-    :func:`default_families`). Also learned: ``cv_novelty_`` {channel: {candidate: RMS μm}}, ``gain_``
-    {channel: {candidate: mean log-gain over OLS}}, ``score_`` {channel: {candidate: the number the eligible are ranked
-    by, their mean log-gain}}, ``eligible_`` {channel: [candidates passing every gate]},
-    ``shrink_`` {channel: w}, ``novelty_`` (n_novelty_blocks,) median distance of each block.
-    Learned: ``model_`` (:class:`DriftModel`), ``cv_`` {channel: {candidate: RMS μm}} (ranking folds),
-    ``cv_horizon_`` {channel: {candidate: RMS μm}} (horizon folds), ``gate_`` {channel: {candidate:
-    (passes, mean log gain, its se)}}, ``chosen_`` {channel: candidate}, ``baseline_`` (the OLS
-    :class:`DriftModel`), ``subset_modeller_``, ``candidates_`` {channel: {(family, hyper, w0): every
-    validation statistic of the candidate}}.
-
-    ``deploy`` (False): also refit each channel's chosen candidate — the same family, hyper-parameter, weight, distance
-    scale and band — on EVERY row of the log, ``deployed_`` (:class:`DriftModel`; its meta ``fit_rows`` all rows,
-    ``validated_on_rows`` the fitting part); ``deployed_`` is None without it. The selection, ``model_`` and every
-    validation figure are the same with or without it (they read the fitting part only).
-    """
+    Learned: ``model_`` (:class:`DriftModel`), ``baseline_`` (the OLS :class:`DriftModel`), ``chosen_``,
+    ``scale_``, ``shrink_``, ``cv_`` / ``cv_horizon_`` / ``cv_novelty_`` ({channel: {candidate: RMS μm}}),
+    ``gate_`` ({channel: {candidate: (passes, mean log gain, its se)}}), ``gain_``, ``score_``, ``eligible_``,
+    ``worst_fold_``, ``band_alt_``, ``novelty_`` ((n_novelty_blocks,) median distance of each block),
+    ``subset_modeller_``, ``candidates_`` ({channel: {(family, hyper, w0): every validation statistic}}).
+    ``families``: default :func:`default_families`. ``deploy`` (False): also refit each channel's chosen
+    candidate on every row of the log, ``deployed_`` (its meta ``fit_rows`` all rows, ``validated_on_rows``
+    the fitting part; None without it); the selection and every validation figure are the same either way."""
 
     def __init__(self, fit_fraction: float = 0.6, n_folds: int = 4, cv_start: float = 0.5, families=None,
                  subset_kw: dict | None = None, horizon: float | None = None, n_horizon_folds: int = 4,
@@ -72,24 +49,7 @@ class DriftSelector(Estimator):
                  shrink_weights=SHRINK_WEIGHTS, shrink_scales=SHRINK_SCALES, max_fold_loss: float = MAX_FOLD_LOSS,
                  min_gain: float = MIN_GAIN, feature_distance: bool = FEATURE_DISTANCE,
                  ranking_fold_loss: bool = RANKING_FOLD_LOSS, band_rule: str = BAND_RULE, deploy: bool = False):
-        self.fit_fraction = fit_fraction
-        self.n_folds = n_folds
-        self.cv_start = cv_start
-        self.families = families
-        self.subset_kw = subset_kw
-        self.horizon = horizon
-        self.n_horizon_folds = n_horizon_folds
-        self.gate_se = gate_se
-        self.n_novelty_folds = n_novelty_folds
-        self.n_novelty_blocks = n_novelty_blocks
-        self.shrink_weights = shrink_weights
-        self.shrink_scales = shrink_scales
-        self.max_fold_loss = max_fold_loss
-        self.min_gain = min_gain
-        self.feature_distance = feature_distance
-        self.ranking_fold_loss = ranking_fold_loss
-        self.band_rule = band_rule
-        self.deploy = deploy
+        keep_settings(self, locals())
 
     def eligible(self, stats: dict, gate: tuple, w: float, ranking_ols: float, novelty: bool = True) -> bool:
         """Whether a candidate blended at weight ``w`` (its :func:`blend_statistics` ``stats`` and ``gate``) passes

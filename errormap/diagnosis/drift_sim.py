@@ -1,24 +1,11 @@
 """Drift-log simulators for development, tests and benchmarks: two independent families.
 
-Both return a dict of columns in the drift-log schema (``time_s``, ``speed_rpm``,
-``temp_<sensor>_c``, ``<channel>_um``) plus ``"_truth"``: ``{"noise_um": {channel: σ},
-"clean_um": {channel: (n,)}, ...}``. The truth is for evaluation only; an estimator never sees it.
-
-* :func:`simulate_lumped_log` — a lumped thermal network of a few bodies (spindle, headstock,
-  column, bed, ball screw) with time constants of 0.5–5 h, heat from a spindle-speed profile with
-  run/stop cycles and speed steps (∝ speed^1.6) and from the feed drive while running, ambient
-  swing; 18 sensors on surfaces between bodies (lagging the cores by 10–40 min; the spindle core is
-  never read directly), three of them far from any heat path and one in the air; five displacement
-  channels, each dominated by a different body, through path lags of 0–30 min, plus an exposed
-  frame following the ambient over 1–3 h (not sensed). White sensor noise, 0.01 °C quantisation, a few dropouts (empty cells).
-* :func:`simulate_rod_log` — an independent structure: a column conducting heat along 10
-  segments (diffusion: responses are not first-order), heat ∝ speed² from short machining cycles
-  in batches, a thermostatic coolant loop (on/off with hysteresis) and a day-cycle ambient with a
-  door step; 20 sensors along the column, on the coolant line and in the air, heteroscedastic
-  noise; four channels: elongation (the integral of temperature along the column), tilt (the
-  gradient), a second-order path with a pure delay, and spindle growth with AR(1) measurement
-  noise.
-"""
+Both return the drift-log columns plus ``"_truth"`` (``{"noise_um": {channel: σ}, "clean_um": {channel: (n,)},
+...}``, for evaluation only). :func:`simulate_lumped_log`: a lumped thermal network of a few bodies (0.5–5 h),
+spindle and feed-drive heat, ambient swing, 18 surface sensors, five channels with path lags, white noise,
+quantisation, dropouts. :func:`simulate_rod_log`: a column conducting heat along 10 segments, machining
+cycles, a thermostatic coolant loop, a day-cycle ambient with a door step, 20 sensors, four channels
+(elongation, tilt, a delayed second-order path, spindle growth with AR(1) noise)."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,39 +1,11 @@
 """Online update of a drift model from on-machine measurements.
 
-A saved :class:`~errormap.diagnosis.drift_models.DriftModel` predicts each channel as
-``intercept + Σ coef_j·f_j(t)`` from causal features. When the machine measures a channel (a probe
-cycle, a laser check) at some times ``t_k``, :class:`DriftUpdater` re-fits that channel's intercept
-and coefficients by a **Kalman filter on the parameters** (a random walk: the machine's thermal
-behaviour may change — a new fixture, a changed coolant — and the parameters follow):
-
-    z_j(t) = (f_j(t) − c_j) / s_j          c_j: f_j at the first row; s_j: its scale (below)
-    φ = [a, g_1 … g_p]                     prediction = a + Σ g_j z_j  (φ0 from the saved model)
-    at each measurement y_k (in time order):
-        prediction before the update:  ŷ_k = x_kᵀφ,  x_k = [1, z(t_k)]       (a priori: causal)
-        P ← P + Q·Δt_k / 3600          (random walk since the previous measurement, Δt_k in s)
-        S = x_kᵀ P x_k + R;  e = y_k − ŷ_k
-        if e² > STEP_CHI2·S:  P ← P·min(e²/S, MAX_INFLATE)    (a step: the covariance is opened up)
-        K = P x_k / (x_kᵀ P x_k + R);  φ ← φ + K e;  P ← (I − K x_kᵀ) P
-
-``s_j``: the standard deviation of f_j over the rows before the first measurement (at least
-``MIN_WARM_ROWS`` rows), floored at a typical excursion of its input (:func:`scale_floor`: 1 °C,
-1000 rpm, 0.1 for a power of speed): the gains are then in μm per typical excursion and one prior
-scale fits all.
-``P0 = diag(σ_a², σ_g² …)`` with σ = ``prior_um`` (default: the channel's band); ``R`` = (``noise_um``)²
-(default: half the band, squared); ``Q = P0 · drift_per_h`` (the fraction of the prior variance the
-parameters may wander per hour). The prediction at every row uses the parameters as they stood
-after the last measurement strictly before that row — never a measurement at or after it. The
-random walk alone adapts slowly (that is its job: measurement noise must not move the gains); an
-abrupt change — a 3 σ innovation — is met by opening the covariance up (an adaptive, fading-memory
-filter), and the rows where that happened are reported (``steps_``).
-
-**The distance rule in updated predictions** (``docs/explanation/drift.md``, online update): where the saved
-model shrinks a channel toward its OLS baseline beyond ρ = 1 (:meth:`DriftModel.channel_rho`), the updated
-prediction is ``base + g(ρ)·(updated − base)`` with the baseline updated by the same filter and ρ measured
-from the fit data (C = pinv(W·Wᵀ) from the saved whitening matrix, ``fit_rows`` samples) grown by each
-measured row strictly before the predicted one; the band grows as max(1, ρ)^band_gamma
-(``UpdateResult.band_um``). A saved updated model keeps the fit data's reference.
-"""
+:class:`DriftUpdater` re-fits a saved :class:`~errormap.diagnosis.drift_models.DriftModel`'s intercept and
+coefficients per measured channel by a Kalman filter on the parameters (a random walk, its covariance
+opened up on a step larger than ``STEP_CHI2``; the prediction at a row uses only measurements strictly
+before it), and keeps the saved model's distance rule (the updated prediction shrunk toward the updated
+OLS baseline beyond ρ = 1). Equations, defaults and measured behaviour: ``docs/explanation/drift.md``,
+"Online update"."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field

@@ -1,22 +1,12 @@
 """The library of candidate effects: small parametric terms with a physical meaning.
 
-A term acts on ONE error element ``e`` (one of the 23 names) or directly on one WCS error
-component (``dx``/``dy``/``dz``). Its contribution to the spatial error at axes ``q`` under
-conditions ``c`` is::
-
-    Δerror(q, c) = J_e(q) · g(θ; q, c)        shape (n, 3) μm
-
-where ``J_e`` is the element's column of :func:`errormap.chain_kernel.error_jacobian` (μm per μm or per
-μrad; the unit vector for ``dx``/``dy``/``dz``) and ``g`` a scalar function of the inputs, linear in its
-coefficients θ except for the period of ``periodic`` (found by a periodogram, as the integer order of
-``harmonic``). The kinds, their formulas ``g`` and parameters (``u`` = μm, or μrad for an angular
-element) are the diagnosed entries of :data:`errormap.effect_kinds.EFFECT_KINDS` (thermal, drift on x, z;
-reversal on x, z, a; periodic on x, z; harmonic on a; interaction on x*z). ``pos`` is the axis position,
-``lo`` the lower stroke, Δ the stroke length. Sinusoids are fitted as ``s·sin + c·cos`` (linear) and
-reported as amplitude and phase. The terms are those of the grinder's diagnosed model
-(``compensation.model_file.load_diagnosed_model`` reads them); each acts on an element of its axis' group
-(X, Z or A; both for ``x*z``) or a WCS component.
-"""
+A term acts on one error element ``e`` or on one WCS component (``dx``/``dy``/``dz``):
+``Δerror(q, c) = J_e(q) · g(θ; q, c)`` (n, 3) μm, ``J_e`` the element's column of
+:func:`errormap.chain_kernel.error_jacobian` (the unit vector for a WCS component), ``g`` linear in θ but for
+the period of ``periodic`` (a periodogram; an integer order for ``harmonic``); sinusoids fitted as
+``s·sin + c·cos``, reported as amplitude and phase. The kinds, formulas and parameters are the diagnosed
+entries of :data:`errormap.effect_kinds.EFFECT_KINDS`; ``pos`` is the axis position, ``lo`` the lower
+stroke, Δ the stroke length. The loop that fits them: ``docs/explanation/closed-loop.md``."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field

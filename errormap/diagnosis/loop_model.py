@@ -1,28 +1,13 @@
-"""The model file (``model.json``, ``format: volcomp-model/1``): its writer, and its elements and effect terms as
-an error field of a machine-tool chain.
+"""The model file (``model.json``, ``format: volcomp-model/1``; the older ``volcomp-chain-model/1`` read too):
+its writer, and its elements and effect terms as an error field of a machine-tool chain.
+Schema: ``docs/reference/file-formats.md``; ``compensation.model_file.read_model`` is the one reader.
 
-``model.json`` names the machine (``machine``, ``machine_sha256``), the element set (``elements``: a file
-beside it, e.g. ``updated_elements.json``; null for a network alone), that set's covariance (``covariance``: a
-file beside it or null), the kept stage (``kept_stage``), the accepted effect terms
-(:class:`errormap.diagnosis.chain_loop.EffectTerm`: kind, axis words, element, shape, coefficients; empty when a
-plainer stage was kept), the learned residual when kept (``learned_residual``, owned by the compensation
-layer), the surrogate network (``network``: ``{"folder": ...}`` relative to the file, or ``{"mlflow": ...}``;
-null when none) and ``provenance`` (what wrote it, from which inputs). docs/reference/file-formats.md holds the
-schema; ``compensation.model_file.read_model`` is the one reader (older formats included). The chain loop's
-earlier ``volcomp-chain-model/1`` (the same keys less ``covariance``, ``network``, ``provenance``) is read here
-too.
-
-:class:`ChainModelField` is the error field of it over the machine's axes: ``E(q, c) = B(q) + t(q, c)``
-with ``B`` the :class:`errormap.chain_field.ChainField` of the elements and ``t`` the terms' spatial
-contribution — exactly the columns the loop fitted (the chain's error-Jacobian column of the term's
-element at the nominal chain times the effect's shape, times the coefficients;
-:func:`errormap.diagnosis.chain_loop.effect_columns`). Value (n, 3) μm and axis Jacobian (n, 3, k):
-``B``'s compiled Jacobian plus the terms' by central differences (:data:`TERM_STEP`).
-
-Conditions: a thermal term needs ``temp_c``, a reversal term ``dir_<w>`` (±1). They are given to
-the field as constants or per-point arrays (``conditions``); a needed one missing is an
-:class:`InputError` naming it when the field is evaluated (never a silent reference value).
-"""
+:class:`ChainModelField` is ``E(q, c) = B(q) + t(q, c)``: ``B`` the :class:`errormap.chain_field.ChainField`
+of the elements, ``t`` the terms' spatial contribution, exactly the columns the loop fitted
+(:func:`errormap.diagnosis.chain_loop.effect_columns`). Value (n, 3) μm and axis Jacobian (n, 3, k): ``B``'s
+compiled Jacobian plus the terms' by central differences (:data:`TERM_STEP`). A thermal term needs
+``temp_c``, a reversal term ``dir_<w>`` (±1), given as constants or per-point arrays; a missing one is an
+:class:`InputError` naming it."""
 from __future__ import annotations
 
 import json

@@ -1,20 +1,11 @@
-"""Plausibility gates on measured deviations, before any estimate (the grinder's and every chain's checks).
+"""Plausibility gates on measured deviations, before any estimate (every chain's checks).
 
-A check file's deviation columns (``dx_um, dy_um, dz_um``, tool-point error in μm) are judged against the
-model they are diagnosed with (its prediction at the checks, (n, 3) μm) and, where the input states one, the
-instrument's noise σ (μm per coordinate). The data itself decides, never the file's name:
-
-* **another unit** (:func:`deviation_unit_mistake`): a column whose RMS is far below what the model predicts
-  there (:data:`UNIT_RATIO`), or far below the stated noise (:data:`NOISE_UNIT_RATIO`): mm or m written as μm.
-  The likely unit is the one whose factor (1000 for mm, 10⁶ for m) is nearest, in log scale, to the
-  least-squares scale of the column onto the prediction (or to the RMS ratio);
-* **another axis** (:func:`deviation_axis_mistake`): an order of the three columns other than the given one
-  that the model explains much better (its squared residual below :data:`AXIS_FIT_RATIO` of the given order's):
-  headers exchanged (``dx_um``/``dy_um``).
-
-Each raises :class:`~errormap.io.InputError` naming the file, the columns and the likely mistake (exit status 2);
-``--units as-written`` skips the unit gate (the user's word), never the axis gate.
-"""
+A check file's ``dx_um, dy_um, dz_um`` are judged against the model's prediction at the checks ((n, 3) μm) and
+a stated instrument noise σ; the data decides, never the file's name. Another unit
+(:func:`deviation_unit_mistake`: an RMS far below the prediction's, :data:`UNIT_RATIO`, or the noise's,
+:data:`NOISE_UNIT_RATIO`; the likely factor 10³ or 10⁶ nearest the least-squares scale) and another axis
+order (:func:`deviation_axis_mistake`, :data:`AXIS_FIT_RATIO`) raise :class:`~errormap.io.InputError` naming
+file, columns and the likely mistake; ``--units as-written`` skips the unit gate, never the axis gate."""
 from __future__ import annotations
 
 import itertools

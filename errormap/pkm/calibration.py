@@ -1,22 +1,12 @@
 """Error model and regularised identification for the PKMs (pkm-calibration paper).
 
-**Parameters** ``r`` (in this order): base joints (3k, mm, base frame), platform joints (3k, mm,
-platform frame), leg zero lengths = offsets (k, mm), optionally leg scales (k); ``k = 6`` for the
-hexapod, 3 for the tripod. A leg's actual length is ``scale * q + offset`` for drive command ``q``.
-Error model: with ``c_i(x, r) = |tip + R (a_i - t) - b_i| - (s_i q_i + o_i) = 0`` the pose ``x`` (tip
-mm, small rotation ``phi`` rad, ``R = (I + [phi]x) R0``) moves by ``dx/dr = -(dc/dx)^-1 dc/dr``
-(``torch.func`` autodiff of the exact constraint).
-
-**Measurements**: poses in the instrument's frame, ``meas = R_g p + t_g`` (the registration, estimated
-with the parameters, not regularised); orientation residuals (rad) times ``lever_mm`` are lengths in mm,
-so one noise level ``delta`` (mm per component) describes every residual component.
-
-**Identification**: iteratively regularised Gauss-Newton (Tikhonov steps by SVD, ``lambda`` by GCV,
-Morozov or the L-curve), the 6 gauge directions fixed (:meth:`PKMCalibrator.gauge_basis`), other null
-directions truncated below ``rcond * s_max``, Armijo line search, bounds ``joint_bound_mm``,
-``offset_bound_mm``, ``scale_bound``. The method, its reasons and the report's keys:
-``docs/explanation/parallel-kinematics.md`` (PKM calibration).
-"""
+Parameters ``r``: base joints (3k, mm), platform joints (3k, mm), leg zero lengths (k, mm), optionally leg
+scales (k); ``k = 6`` (hexapod) or 3 (tripod); a leg's length is ``scale * q + offset``. The pose moves by
+``dx/dr = -(dc/dx)^-1 dc/dr`` (``torch.func`` autodiff of the exact leg constraint); orientation residuals
+(rad) times ``lever_mm`` are mm, so one noise level ``delta`` describes every residual component. Solved by
+iteratively regularised Gauss-Newton (Tikhonov by SVD, λ by GCV, Morozov or the L-curve, the 6 gauge
+directions fixed, Armijo line search, bounds). The method, its reasons and the report's keys:
+``docs/explanation/parallel-kinematics.md`` (PKM calibration)."""
 from __future__ import annotations
 
 import time
@@ -28,6 +18,7 @@ from scipy.linalg import svd
 from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
 
+from ..settings import keep_settings
 from ..io import InputError
 from ..threads import limit_threads
 from .hexapod import KinematicsError, forward_kinematics, inverse_kinematics, skew, workspace_poses
@@ -187,22 +178,7 @@ class PKMCalibrator:
             raise ValueError(f"lambda_rule must be one of {self.RULES}, got {lambda_rule!r}")
         if max_iter < 1 or not xtol_mm > 0 or not ftol > 0:
             raise ValueError("max_iter, xtol_mm and ftol must be positive")
-        self.machine = machine
-        self.estimate_scales = estimate_scales
-        self.register = register
-        self.noise_um = noise_um
-        self.lambda_rule = lambda_rule
-        self.tau = tau
-        self.lever_mm = lever_mm
-        self.joint_scale_mm = joint_scale_mm
-        self.joint_bound_mm = joint_bound_mm
-        self.offset_bound_mm = offset_bound_mm
-        self.scale_bound = scale_bound
-        self.max_iter = max_iter
-        self.xtol_mm = xtol_mm
-        self.ftol = ftol
-        self.rcond = rcond
-        self.progress = progress
+        keep_settings(self, locals())
 
     # -- helpers ---------------------------------------------------------------------------
     def _layout(self):
@@ -642,8 +618,3 @@ def _with(r0: np.ndarray, est: np.ndarray, delta: np.ndarray) -> np.ndarray:
     r = r0.copy()
     r[est] += delta
     return r
-
-
-def calibrate(machine: PKM, data: PoseData, **settings) -> CalibrationResult:
-    """Convenience: ``PKMCalibrator(machine, **settings).fit(data)``."""
-    return PKMCalibrator(machine, **settings).fit(data)

@@ -1,20 +1,11 @@
 """Kinematics of the 6-UPS Stewart hexapod (and the shared leg-length machinery of the tripod).
 
-Frames: the base (machine) frame holds the base joints; the platform frame holds the platform
-joints and the tool tip (``tool_in_platform_mm``; the hexapod's tip is at ``(0, 0, -lt)``).
-A *tool pose* is the tool tip in the base frame, shape (n, 3), plus the platform orientation
-``platform2base`` rotation matrices, shape (n, 3, 3). Leg ``i``'s vector is
-``tip + R (a_i - t) - b_i`` and its length is the leg length.
-
-Orientation input:
-
-* fixed-axis X-Y-Z angles ``(rx, ry, rz)`` in degrees (``R = Rz(rz) Ry(ry) Rx(rx)``,
-  scipy ``Rotation.from_euler("xyz", ...)``);
-* unit quaternions in the order ``(qx, qy, qz, qw)`` (scipy's scalar-last order);
-* a tool-axis direction (direction cosines), turned into the paper's Euler angles:
-  ``R = Rz(alpha) Rx(beta) Rz(gamma)`` with ``beta = -+theta_z``, ``alpha = -+arcsin(cos theta_x / sin theta_z)``
-  (minus when ``n_y >= 0``) and ``gamma = -alpha`` so that the platform does not spin about its own z.
-"""
+The base (machine) frame holds the base joints; the platform frame the platform joints and the tool tip
+(``tool_in_platform_mm``; the hexapod's at ``(0, 0, -lt)``). A tool pose is the tip in the base frame (n, 3)
+plus ``platform2base`` rotations (n, 3, 3); leg ``i`` is ``tip + R (a_i - t) - b_i``. Orientation input:
+fixed-axis angles ``(rx, ry, rz)`` deg (``R = Rz Ry Rx``), unit quaternions ``(qx, qy, qz, qw)``, or a
+tool-axis direction turned into the paper's ``R = Rz(alpha) Rx(beta) Rz(gamma)`` with ``gamma = -alpha``
+(no spin about the platform's z). Conventions: ``docs/reference/file-formats.md``."""
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -1,15 +1,11 @@
 """Leg-space tools for PKM calibration: measured leg lengths, the plain baseline fit, and the loop on
 leg residuals.
 
-**Leg residual** (mm, shape (n, k)): the leg lengths a measured pose (instrument frame, taken back through
-the registration; the hexapod needs position + orientation) implies by inverse kinematics, minus the
-model's ``s q + o`` (plus any accepted leg terms). **Plain baseline** (:func:`plain_leg_fit`): ordinary
-least squares of the leg residual over the raw parameters and the instrument frame (scipy
-``least_squares``, no regularisation; pose-space without measured orientations). **The loop**
-(:func:`leg_residual_loop`): per-leg ``nonlinearity`` and ``direction`` terms, functions of the drive
-commands only, accepted by K-fold CV and a Bonferroni F-test, one at a time. The rules and the
-``calibration.json`` keys: ``docs/explanation/parallel-kinematics.md`` (the loop on leg residuals).
-"""
+Leg residual (mm, (n, k)): the leg lengths a measured pose implies by inverse kinematics (through the
+registration) minus the model's ``s q + o`` (plus accepted leg terms). :func:`plain_leg_fit`: unregularised
+least squares over the raw parameters and the instrument frame. :func:`leg_residual_loop`: per-leg
+``nonlinearity`` and ``direction`` terms of the drive commands, accepted one at a time by K-fold CV and a
+Bonferroni F-test. Rules and ``calibration.json`` keys: ``docs/explanation/parallel-kinematics.md``."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field

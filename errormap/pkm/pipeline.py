@@ -1,16 +1,11 @@
 """The whole PKM calibration as ``volcomp calibrate`` runs it, validated on held-out poses.
 
-:func:`validated_calibration`: rigid-model identification (:class:`~errormap.pkm.calibration.PKMCalibrator`),
-the loop on leg residuals (:func:`~errormap.pkm.legspace.fit_leg_terms`; terms kept only when the held-out
-residual improves), the plain baseline (:func:`~errormap.pkm.legspace.plain_leg_fit`), the choice of the
-returned model (never one that loses to the baseline on the held-out poses) and the success verdict with
-its reasons. Benchmarks and the CLI both call it, so a benchmark measures the user's path.
-
-**No false success**: ``success`` is false, with one reason per failed check, when the fit did not
-converge; when the held-out residual is not better than the nominal model's; when it is far above the
-noise -- the noise the user gave (``NOISE_FACTOR``), else the noise estimated from repeated poses (poses
-with identical commands) when the file has them, else the fit's own estimate (``GAP_FACTOR``).
-"""
+:func:`validated_calibration`: the rigid-model identification (:class:`~.calibration.PKMCalibrator`), the
+loop on leg residuals (:func:`~.legspace.fit_leg_terms`), the plain baseline
+(:func:`~.legspace.plain_leg_fit`), the returned model (never one that loses to the baseline on the held-out
+poses) and the success verdict with one reason per failed check (``NOISE_FACTOR``, ``GAP_FACTOR``;
+``docs/explanation/parallel-kinematics.md``, "No false success"). Benchmarks and the CLI both call it, so a
+benchmark measures the user's path."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field

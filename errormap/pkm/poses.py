@@ -1,21 +1,11 @@
-"""PKM pose measurements: the file (:func:`read_poses` → :class:`PoseData`) and the plausibility checks before a
-calibration (refuse what we cannot interpret).
+"""PKM pose measurements: the file (:func:`read_poses` → :class:`PoseData`) and the plausibility checks
+before a calibration (refuse what we cannot interpret).
 
-Each check compares the measurements with the *nominal* forward kinematics of the commands, in a way
-that does not depend on the unknown instrument frame or on machine errors of the expected size:
-
-* **Position units** (:func:`check_position_units`): the spread of the measured tips about their
-  centroid against the spread of the nominal tips (a rigid frame change keeps it). A ratio near 1e-3
-  means metres, near 1/25.4 inches; anything outside ``UNIT_RATIO_RANGE`` is refused.
-* **Orientation convention** (:func:`check_orientation_convention`): ``Q_i = R_measured,i R_nominal,i^T``
-  is the (constant) frame rotation up to machine errors and noise; its scatter about its mean is small
-  for the right convention. The file's convention (quaternion x-y-z-w, angles in degrees) and the
-  usual alternatives (w-x-y-z, radians, the inverse rotation) are scored; a file whose scatter is large
-  (> ``ORIENT_SCATTER_MIN_DEG``) and ``ORIENT_RATIO``x worse than an alternative's is refused naming it
-  ("this file looks like w-x-y-z").
-* **Degenerate pose sets** (:func:`check_pose_set`): all identical poses, fewer distinct poses than the
-  parameters need, a leg that never moves, or a command spread too small to determine the parameters.
-"""
+Each check compares the measurements with the nominal forward kinematics of the commands, independent of the
+unknown instrument frame: position units (:func:`check_position_units`, the tips' spread against the
+nominal's, ``UNIT_RATIO_RANGE``), orientation convention (:func:`check_orientation_convention`: the scatter
+of ``R_measured R_nominalᵀ`` scored against w-x-y-z, radians and the inverse rotation) and degenerate pose
+sets (:func:`check_pose_set`). Thresholds and examples: ``docs/explanation/parallel-kinematics.md``."""
 from __future__ import annotations
 
 from dataclasses import dataclass

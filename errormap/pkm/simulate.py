@@ -1,22 +1,11 @@
 """Simulated "truth" PKMs and simulated pose measurements (for tests and benchmarks).
 
-A truth machine is the nominal one with perturbed joints, leg zero lengths and (optionally) leg
-scales. The rigid-motion part of the base-joint perturbation is removed (tripod: of the
-base-minus-platform hinge perturbation): it is indistinguishable from a change of the machine
-frame, and the machine frame is *defined* by the joints (the gauge convention the identification
-uses too). The measuring instrument's frame is a rigid transform of the machine frame
-(``p_instrument = R p_machine + t``), by default hundreds of mm and a few degrees away.
-
-**Default machine errors** (:class:`MachineErrors`, used when ``pose_error_mm`` is None): what a
-real platform shows -- leg scale errors up to +-5 % (uniform, relative), leg zero-length errors of
-tens of mm (uniform +-30 mm), joint position errors (1 mm per component), an unknown instrument frame,
-and orientation noise as motion capture gives it (a marker cluster of ``cluster_radius_mm``: the
-orientation noise is the position noise over that radius, 5x the 500 mm lever the fit assumes by
-default). Optionally an *unmodelled* leg nonlinearity in drive units (``nonlinearity_mm``: per leg a
-quadratic plus cubic in the normalised command, the legs' signs and shares drawn from the seed) --
-the real-like case. ``pose_error_mm`` (a number) keeps the older small-error model: joints, offsets
-and scales with fixed relative sizes scaled to that RMS tool-tip error.
-"""
+A truth machine is the nominal one with perturbed joints, leg zero lengths and (optionally) leg scales, the
+rigid-motion part of the base-joint perturbation removed (it is a change of the machine frame, the gauge the
+identification uses too); the instrument frame is a rigid transform of the machine frame. Default errors:
+:class:`MachineErrors` (scales ±5 %, zero lengths ±30 mm, joints 1 mm, orientation noise of a marker cluster
+of ``cluster_radius_mm``, optionally an unmodelled leg nonlinearity ``nonlinearity_mm``); a number
+``pose_error_mm`` keeps the older small-error model scaled to that RMS tool-tip error."""
 from __future__ import annotations
 
 from dataclasses import dataclass, replace

@@ -1,16 +1,10 @@
 """The 3-TPT translational tripod: kinematics and the error transfer matrices of the tripod paper.
 
-The platform only translates: leg ``i`` is ``p + a_i - b_i`` (``p`` the platform centre / tool tip
-in the base frame, ``a_i`` the moving-platform hinge in the platform frame, ``b_i`` the fixed-platform
-hinge), its length ``l_i``. Differentiating ``|p + a_i - b_i| = l_i`` gives
-
-    A dp = dl + U_B(dB) - U_A(dA),     A = rows u_i^T (unit leg vectors), shape (3, 3)
-
-so the leg-length transfer matrix is ``f_l = A^-1``, the fixed-platform hinge transfer of hinge ``i``
-is ``f_B_i = A^-1 e_i u_i^T`` and the moving-platform hinge transfer ``f_A_i = -A^-1 e_i u_i^T``
-(the paper's eqs (4)-(12)). The sensitivity measure is ``K = ||A^-1||_inf`` (max row sum).
-The size ratio is ``lambda = l / c`` with ``c = R - r``.
-"""
+Leg ``i`` is ``p + a_i - b_i`` (platform centre ``p``, moving hinge ``a_i``, fixed hinge ``b_i``) of length
+``l_i``; differentiating gives ``A dp = dl + U_B(dB) - U_A(dA)`` (``A`` rows ``u_iᵀ``, (3, 3)), so
+``f_l = A⁻¹``, ``f_B_i = A⁻¹ e_i u_iᵀ``, ``f_A_i = −f_B_i`` (the paper's eqs (4)-(12)); sensitivity
+``K = ||A⁻¹||_inf``, size ratio ``lambda = l / c`` with ``c = R - r``
+(``docs/explanation/parallel-kinematics.md``)."""
 from __future__ import annotations
 
 from dataclasses import replace

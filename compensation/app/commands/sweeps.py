@@ -7,7 +7,7 @@ from errormap.chain_elements import ChainElementSet
 from errormap.machine import load_machine
 from errormap.seeds import spawn_seeds
 from errormap.chain_truth import MTTruth
-from errormap.chain_sweeps import simulate_mt_sweeps, write_sweeps
+from errormap.chain_sweeps import simulated_sweeps, write_sweeps
 from compensation.app.validate import UsageError
 
 from ..families import family_of, say_read_as
@@ -95,7 +95,7 @@ def _run_grinder(machine, args) -> int:
         what = f"truth seed {args.seed} ({getattr(args, 'family', 'default')} family)"
     print(f"simulating tracker sweeps of {what} (noise {args.noise_um} um, seed {args.seed_noise}) ...",
           file=sys.stderr)
-    cols = simulate_mt_sweeps(truth, noise_um=args.noise_um, seed=args.seed_noise, bidirectional=args.bidirectional,
+    cols = simulated_sweeps(truth, noise_um=args.noise_um, seed=args.seed_noise, bidirectional=args.bidirectional,
                               warmup_c=args.warmup_c)
     path = write_sweeps(args.out, cols, comments=[
         f"setup: {args.setup}", f"machine: {machine.name}", f"machine_sha256: {machine.sha256}",

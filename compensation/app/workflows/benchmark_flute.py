@@ -138,8 +138,8 @@ def grinder_truth(machine, s: BenchmarkSettings, effect=None):
 
 def condition_sweeps(s: BenchmarkSettings, truth, c: GrinderCondition) -> dict:
     """Simulated tracker sweeps of ``truth`` under condition ``c`` (columns, as a sweep file holds them)."""
-    from errormap.chain_sweeps import simulate_mt_sweeps
-    return simulate_mt_sweeps(truth, noise_um=c.noise_um, seed=rng_streams(s.seed)["sweep_noise"], n_stations=c.stations)
+    from errormap.chain_sweeps import simulated_sweeps
+    return simulated_sweeps(truth, noise_um=c.noise_um, seed=rng_streams(s.seed)["sweep_noise"], n_stations=c.stations)
 
 
 def identify_from_sweeps(machine, s: BenchmarkSettings, truth, c: GrinderCondition):

@@ -107,7 +107,7 @@ def sweeps_chain(machine, out, seed=None, truth_file=None, effects=(), family="d
     """Simulate and write a sweep file of a truth (seeded, or an element-set file); ``(path, rows)``."""
     from errormap.chain_elements import ChainElementSet
     from errormap.chain_truth import MTTruth
-    from errormap.chain_sweeps import simulate_mt_sweeps, write_sweeps
+    from errormap.chain_sweeps import simulated_sweeps, write_sweeps
     if truth_file is not None:
         if effects:
             raise UsageError("--effect needs --seed (a truth element file carries no effects)")
@@ -116,7 +116,7 @@ def sweeps_chain(machine, out, seed=None, truth_file=None, effects=(), family="d
     else:
         truth = make_truth(machine, seed, effects, family)
         what = f"truth seed {seed} ({family} family)"
-    cols = simulate_mt_sweeps(truth, noise_um=noise_um, seed=seed_noise, bidirectional=bidirectional, warmup_c=warmup_c)
+    cols = simulated_sweeps(truth, noise_um=noise_um, seed=seed_noise, bidirectional=bidirectional, warmup_c=warmup_c)
     path = write_sweeps(out, cols, comments=[
         f"setup: {setup}", f"machine: {machine.name}", f"machine_sha256: {machine.sha256}", f"truth: {what}",
         f"effects: {','.join(truth.effects) or 'none'}", f"noise_um: {noise_um}", f"seed_noise: {seed_noise}",
@@ -160,9 +160,9 @@ def truth_in_gauge(machine, truth, gauge: str = "station-mean", stations: dict |
     ``tests/test_mt_loop.py``)."""
     from errormap.identification import ChainIdentification
     from errormap.chain_truth import MTTruth
-    from errormap.chain_sweeps import simulate_mt_sweeps, swept_words
+    from errormap.chain_sweeps import simulated_sweeps, swept_words
     from errormap.sweeps import sweeps_from_columns
-    cols = simulate_mt_sweeps(MTTruth(machine, truth, {}), noise_um=0.0, seed=0, stations=stations)
+    cols = simulated_sweeps(MTTruth(machine, truth, {}), noise_um=0.0, seed=0, stations=stations)
     sw = sweeps_from_columns(cols, "<noise-free sweeps of the truth>", axes=swept_words(machine))
     return ChainIdentification(gauge=gauge).fit(sw, machine).elements_
 
