@@ -1,41 +1,17 @@
-"""Guards on compensated commands: the search ball, the axis strokes, the calibrated volume
-and convergence. A job whose commands fail a guard stops with :class:`GuardError`, which
-lists every offending point with its reasons, unless the user overrides that guard
-explicitly (``allow``; the CLI's ``--allow``).
+"""Guards on compensated commands: the search ball, the axis strokes, the calibrated volume and convergence
+(docs/reference/tool-paths.md, "Guards"). A job whose commands fail a guard stops with :class:`GuardError`,
+which lists every offending point with its reasons, unless the user overrides that guard explicitly
+(``allow``; the CLI's ``--allow``). Every method passes through :func:`check`: the guards look at the
+result, never at how it was obtained.
 
-Guard names (the keys of ``allow`` and of :attr:`GuardReport.violations`):
-
-``ball``         ``|p_r - p_d| > ball_um`` (250 μm, the paper's search region), or a point the
-                 solver did not solve whose correction reached the ball's surface (the
-                 correction it needs lies beyond the ball: solvers stop on the surface).
-``stroke``       an axis command — or the nominal axes of its target (``target_axes``; a
-                 target outside the strokes is never compensated into them) — outside the
-                 machine file's strokes. **A rule:** when the A
-                 stroke spans at least one full turn (default grinder: 0–360°), A is a
-                 continuous rotary axis and any A passes (multi-turn paths run past 360°;
-                 errors are periodic in A, so A is effectively checked modulo 360°). When it
-                 spans less than a turn, A is checked as commanded, without folding.
-``volume``       an axis command or its target's nominal axes outside the field's calibrated
-                 volume (below).
-
-On a machine-tool chain (``kind = "machine-tool"``) the same guards run over the machine's own
-axis columns (``machine.axis_columns``): every full-turn rotary axis passes the stroke guard, the
-others are checked as commanded; the volume is the field's over those names, each ``*_deg`` axis
-with the A rule below.
-``convergence``  the solver did not converge for the point (``SolveResult.success`` False
-                 with the correction inside the ball).
-
-Every method passes through :func:`check` (``traditional`` included): the guards look at
-the result, never at how it was obtained.
-
-**Calibrated volume.** A field states the box it is valid in as its ``calibrated_volume``
-(:class:`errormap.field.CalibratedVolume`, per-axis ``lo``/``hi`` over x_mm, z_mm, a_deg; the
-HTM field: the range of its element stations; the learned field: its training-input range).
-A field whose volume is ``None`` cannot be checked: :func:`calibrated_volume` raises TypeError
-(a command is never emitted silently outside an unknown volume). In A, a calibrated range
-spanning a full turn accepts every A (periodic); a narrower one is checked with A folded
-modulo 360° into ``[lo, lo + 360)``. ``volume_tol`` (default 1e-9 mm/deg) absorbs rounding.
-"""
+Guard names (the keys of ``allow`` and of :attr:`GuardReport.violations`): ``ball`` (``|p_r - p_d| >
+ball_um``, or an unsolved point whose correction reached the ball's surface), ``stroke`` (an axis command,
+or the nominal axes of its target, outside the machine file's strokes; a rotary axis whose stroke spans a
+full turn passes, a narrower one is checked as commanded), ``volume`` (the same outside the field's
+calibrated volume, a :class:`errormap.field.CalibratedVolume` over the machine's axis columns: a full-turn
+rotary range accepts every angle, a narrower one is checked folded modulo 360° into ``[lo, lo + 360)``; a
+field without one cannot be checked: TypeError), ``convergence`` (``SolveResult.success`` False inside the
+ball). ``volume_tol`` (default 1e-9 mm/deg) absorbs rounding."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
