@@ -155,12 +155,7 @@ class ChainMLPField(MLPField):
         return J
 
     def _infer_rows(self, axes, jac: bool):
-        theta = self._theta().detach()
-        shapes = self.shapes
-        layers, k = [], 0
-        for (o, n_in), _ in zip(shapes[0::2], shapes[1::2]):
-            layers.append((theta[k:k + o * n_in].view(o, n_in), theta[k + o * n_in:k + o * n_in + o]))
-            k += o * n_in + o
+        layers = self.layers(self._theta().detach())
         n = axes.shape[0]
         E = np.empty((n, 3))
         J = np.empty((n, 3, self.n_axes)) if jac else None
@@ -177,15 +172,7 @@ class ChainMLPField(MLPField):
                     if i == len(layers) - 1:
                         h = z
                         break
-                    if self.activation == "sigmoid":
-                        h = torch.sigmoid(z)
-                        d = h * (1.0 - h)
-                    elif self.activation == "tanh":
-                        h = torch.tanh(z)
-                        d = 1.0 - h * h
-                    else:
-                        d = torch.sigmoid(z)
-                        h = torch.nn.functional.softplus(z)
+                    h, d = self.act_and_slope(z)
                     if jac:
                         Tt = Tt * d.unsqueeze(2)
                 E[s0:s0 + blk] = h.numpy() * self.out_scale_ + self.out_mean_
