@@ -1,20 +1,11 @@
 """Trainers for the error-field network and ``fit_field``, the one call that trains and tracks.
 
-Three trainers share one contract, ``train(model, theta0, u, y, settings, callback) ->
-(theta, TrainHistory)`` on scaled features ``u`` and scaled targets ``y``:
-
-* ``lm``    — Levenberg–Marquardt (:mod:`training.lm`), the paper's, the default (Nielsen damping,
-  μI damping matrix, geodesic acceleration; ``LMSettings(damping="trainlm", scaling="identity",
-  geodesic=False)`` is MATLAB's ``trainlm`` rule), from Nguyen–Widrow initial weights
-  (:func:`nguyen_widrow_params`, MATLAB's ``initnw``);
-* ``adam``  — :class:`torch.optim.Adam`, full batch, for comparison;
-* ``lbfgs`` — :class:`torch.optim.LBFGS` with a strong-Wolfe line search, full batch.
-
-All share the stopping rules (MSE goal on the scaled outputs, iteration cap, wall-clock
-budget). ``fit_field`` scales the data, trains, measures the fit in μm on the training
-points and on validation points (never seen in training), and records everything as an
-MLflow run (:mod:`training.tracking`).
-"""
+Three trainers share one contract, ``train(model, theta0, u, y, settings, callback) -> (theta,
+TrainHistory)`` on scaled features ``u`` and scaled targets ``y``, and the stopping rules (MSE goal on the
+scaled outputs, iteration cap, wall-clock budget): ``lm`` (Levenberg–Marquardt, :mod:`training.lm`, the
+paper's and the default, from Nguyen–Widrow initial weights, :func:`nguyen_widrow_params`), ``adam`` and
+``lbfgs`` (full batch, for comparison). ``fit_field`` scales the data, trains, measures the fit in μm on the
+training and on validation points, and records everything as an MLflow run (:mod:`training.tracking`)."""
 from __future__ import annotations
 
 import contextlib
