@@ -147,7 +147,8 @@ def stroke_violations(axes, machine, tol: float = 1e-9):
     """Axis commands (n, k) outside the machine's strokes: every full-turn rotary axis passes, the others
     are checked as commanded."""
     free = np.array([a.full_turn for a in machine.axes])
-    return _box_violations(axes, machine.stroke_lo, machine.stroke_hi, free, tol, "stroke", machine.axis_columns)
+    lo, hi = machine.stroke_lo, machine.stroke_hi
+    return _box_violations(axes, lo, hi, free, tol, "stroke", machine.axis_columns)
 
 
 def calibrated_volume(field, names=AXIS_NAMES) -> tuple[np.ndarray, np.ndarray]:
