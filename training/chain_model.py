@@ -25,7 +25,7 @@ import torch
 from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN, CalibratedVolume
 from errormap.io import InputError, read_document_text
 
-from .model import A_ENCODINGS, MODEL_FILES, PAPER_HIDDEN, MLPField, check_model_files, check_model_format
+from .model import A_ENCODINGS, PAPER_HIDDEN, MLPField, check_model_files
 from .physics import PHYSICS_FILES, PhysicsPart
 
 CHAIN_FORMAT = "volcomp-chain-mlpfield/1"
@@ -200,19 +200,14 @@ class ChainMLPField(MLPField):
     @classmethod
     def load(cls, directory) -> "ChainMLPField":
         """Load a folder written by :meth:`save` (InputError naming file and key otherwise)."""
-        d = Path(directory)
-        for name in ("config.json",) + MODEL_FILES:
-            if not (d / name).is_file():
-                raise InputError(f"{d}: not a saved chain network (missing {name})")
-        try:
-            cfg = json.loads(read_document_text(d / "config.json", "a trained model's config"))
-            sc = json.loads(read_document_text(d / "scalers.json", "a trained model's scalers"))
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise InputError(f"{d}: config.json or scalers.json is not valid JSON: {exc}") from None
-        check_model_format(d, cfg, CHAIN_FORMAT)
+        d, cfg = cls._config(directory, CHAIN_FORMAT, "chain network")
         if cfg.get("physics") and cls is ChainMLPField:  # a network on what a fitted physical part leaves
             return ChainPhysicsMLPField.load(d)
         check_model_files(cls, d, cfg)
+        try:
+            sc = json.loads(read_document_text(d / "scalers.json", "a trained model's scalers"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise InputError(f"{d / 'scalers.json'}: not valid JSON: {exc}") from None
         try:
             m = cls(cfg["inputs"], cfg["periodic"], cfg.get("machine", ""), cfg.get("machine_sha256", ""),
                     cfg["hidden"], cfg["activation"])

@@ -581,15 +581,7 @@ class MLPField:
     def load(cls, directory) -> "MLPField":
         """Load a folder written by :meth:`save`; raises :class:`InputError` for a missing file,
         another format or a file whose SHA-256 differs from the one ``config.json`` records."""
-        d = Path(directory)
-        for name in ("config.json",) + MODEL_FILES:
-            if not (d / name).is_file():
-                raise InputError(f"{d}: not a saved MLPField (missing {name})")
-        try:
-            cfg = json.loads(read_document_text(d / "config.json", "a trained model's config"))
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise InputError(f"{d / 'config.json'}: not valid JSON: {exc}") from None
-        check_model_format(d, cfg, FORMAT)
+        d, cfg = cls._config(directory, FORMAT, "MLPField")
         if cfg.get("physics") and cls is MLPField:  # a network on what a fitted physical part leaves
             return PhysicsMLPField.load(d)
         check_model_files(cls, d, cfg)
@@ -601,6 +593,21 @@ class MLPField:
         m.out_mean_ = np.asarray(sc["out_mean_um"], dtype=float)
         m.out_scale_ = float(sc["out_scale_um"])
         return m._read_weights(d)
+
+    @staticmethod
+    def _config(directory, fmt: str, what: str) -> tuple:
+        """``(folder, its config.json)`` of a folder written by :meth:`save` in format ``fmt``; InputError
+        naming the file for a missing file (``what``: the model's name), bad JSON or another format."""
+        d = Path(directory)
+        for name in ("config.json",) + MODEL_FILES:
+            if not (d / name).is_file():
+                raise InputError(f"{d}: not a saved {what} (missing {name})")
+        try:
+            cfg = json.loads(read_document_text(d / "config.json", "a trained model's config"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise InputError(f"{d / 'config.json'}: not valid JSON: {exc}") from None
+        check_model_format(d, cfg, fmt)
+        return d, cfg
 
     def _read_weights(self, d: Path):
         """The weights (``weights.npy``, ``n_params`` values) and extra files of a saved folder ``d``; returns self."""
