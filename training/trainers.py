@@ -363,8 +363,10 @@ class TrainSettings:
     physics_stations: int | None = None
 
     def __post_init__(self):
-        if self.physics not in PHYSICS:
-            raise ValueError(f"Expected physics in {PHYSICS}, got {self.physics!r}")
+        for name, allowed in (("physics", PHYSICS), ("trainer", TRAINERS), ("init", INITS),
+                              ("activation", sorted(ACTIVATIONS)), ("a_encoding", A_ENCODINGS)):
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"Expected {name} in {allowed}, got {getattr(self, name)!r}")
         if self.physics_stations is not None and not (
                 int(self.physics_stations) == self.physics_stations and MIN_STATIONS <= self.physics_stations <= MAX_STATIONS):
             raise ValueError(f"Expected physics_stations in [{MIN_STATIONS}, {MAX_STATIONS}] (an integer) or None, "
@@ -372,14 +374,6 @@ class TrainSettings:
         if self.physics_stations is not None and self.physics == "none":
             raise ValueError("Expected physics_stations only with physics 'first-order' (--physics first-order): "
                              "with physics 'none' there is no element set to place stations on")
-        if self.trainer not in TRAINERS:
-            raise ValueError(f"Expected trainer in {TRAINERS}, got {self.trainer!r}")
-        if self.init not in INITS:
-            raise ValueError(f"Expected init in {INITS}, got {self.init!r}")
-        if self.activation not in ACTIVATIONS:
-            raise ValueError(f"Expected activation in {sorted(ACTIVATIONS)}, got {self.activation!r}")
-        if self.a_encoding not in A_ENCODINGS:
-            raise ValueError(f"Expected a_encoding in {A_ENCODINGS}, got {self.a_encoding!r}")
         if not (self.max_time_s > 0):
             raise ValueError(f"Expected max_time_s > 0, got {self.max_time_s}")
         if not (int(self.max_iter) == self.max_iter and self.max_iter >= 1):

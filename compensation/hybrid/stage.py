@@ -221,12 +221,11 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
         per_term = None
         if condition_terms_um is not None:
             cts = np.asarray(condition_terms_um, dtype=float)
-            per_term = {"coefficient": [None] * len(cts), "coefficient_se": [None] * len(cts), "z": [None] * len(cts)}
             if reg_s.chosen_ != "none":
                 per_term = condition_term_test(reg_s, feats[inp_s][fit_idx], to_frame(r_static_um, R_chk, frame_s)[fit_idx],
                                                to_frame(cts, R_chk, frame_s)[:, fit_idx])
-            if per_term["z"] is None:
-                per_term = {"coefficient": [None] * len(cts), "coefficient_se": [None] * len(cts), "z": [None] * len(cts)}
+            if per_term is None or per_term["z"] is None:
+                per_term = {k: [None] * len(cts) for k in ("coefficient", "coefficient_se", "z")}
             keep_k = [reg_s.chosen_ == "none" or keeps_condition_terms(
                 {"coefficient": g, "coefficient_se": e, "z": z}) for g, e, z in
                 zip(per_term["coefficient"], per_term["coefficient_se"], per_term["z"])]
