@@ -142,18 +142,6 @@ class ChainMLPField(MLPField):
     def jacobian(self, axes) -> np.ndarray:
         return self.predict_and_jacobian(axes)[1]
 
-    def jacobian_reference(self, axes) -> np.ndarray:
-        """Central differences of :meth:`predict` (the tests' reference), (n, 3, k)."""
-        axes = self._check(axes)
-        J = np.empty((axes.shape[0], 3, self.n_axes))
-        for j in range(self.n_axes):
-            h = 1e-4
-            ap, am = axes.copy(), axes.copy()
-            ap[:, j] += h
-            am[:, j] -= h
-            J[:, :, j] = (self.predict(ap) - self.predict(am)) / (2 * h)
-        return J
-
     def _infer_rows(self, axes, jac: bool):
         layers = self.layers(self._theta().detach())
         n = axes.shape[0]

@@ -19,7 +19,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from torch.func import jvp
 
 from errormap.field import (FLOAT32, JACOBIAN, OFFSET_FITNESS, PREDICT_AND_JACOBIAN, PREDICT_COLUMNS, CalibratedVolume)
 from errormap.io import OUTPUT_LOCK_NAME, InputError, read_document_text, atomic_dir, atomic_write, load_array, sha256_file, write_json
@@ -249,16 +248,6 @@ class MLPField:
 
     __call__ = predict
 
-    def _raw_to_scaled(self, x: torch.Tensor) -> torch.Tensor:
-        """Differentiable raw axes (x_mm, z_mm, a_deg), shape (n, 3), A already wrapped -> features."""
-        lo = torch.as_tensor(self.in_lo_, dtype=DTYPE)
-        hi = torch.as_tensor(self.in_hi_, dtype=DTYPE)
-        u = 2.0 * (x - lo) / (hi - lo) - 1.0
-        if self.a_encoding == "periodic":
-            r = torch.deg2rad(x[:, 2])
-            u = torch.stack([u[:, 0], u[:, 1], torch.cos(r), torch.sin(r)], dim=1)
-        return u
-
     def jacobian(self, axes) -> np.ndarray:
         """∂(error μm)/∂(x_mm, z_mm, a_deg) at raw axes, shape (n, 3, 3).
 
@@ -273,48 +262,14 @@ class MLPField:
 
         Forward-mode differentiation written out: with ``z = W h + b`` and ``h' = σ(z)`` the
         three input tangents (one per axis) go through each layer as ``dh' = σ'(z) ⊙ (W dh)``,
-        as one matrix product over all points and the three tangents; equal to
-        :meth:`jacobian_reference` (``torch.func.jvp``) to float64 rounding (tested).
+        as one matrix product over all points and the three tangents; equal to ``torch.func.jvp``
+        to float64 rounding (tested).
         ``dtype=np.float32`` runs the network in float32 (a Newton start, where only the
         step direction matters); the arrays returned are float64 either way.
         """
         axes = _check_axes(axes)
         self._theta()
         return self._infer(axes, jac=True, dtype=dtype)
-
-    def jacobian_reference(self, axes) -> np.ndarray:
-        """The slow reference: ``torch.func.jvp`` on :meth:`forward`, shape (n, 3, 3), with the seam."""
-        axes = _check_axes(axes)
-        theta = self._theta()
-        a = wrap_a(axes[:, 2], self.a0_deg_)
-
-        def net(x):
-            return self.forward(theta, self._raw_to_scaled(x))
-
-        def jac_and_val(x_np):
-            x = torch.from_numpy(np.ascontiguousarray(x_np))
-            cols = []
-            with torch.no_grad():
-                for k in range(3):
-                    t = torch.zeros_like(x)
-                    t[:, k] = 1.0
-                    y, dy = jvp(net, (x,), (t,))
-                    cols.append(dy.numpy())
-            return y.numpy() * self.out_scale_ + self.out_mean_, np.stack(cols, axis=2) * self.out_scale_
-
-        x = np.column_stack([axes[:, 0], axes[:, 1], a])
-        e, J = jac_and_val(x)
-        w = self._seam_window()
-        if w:
-            t = (a - (self.a0_deg_ + 360.0 - w)) / w
-            m = t > 0
-            if m.any():
-                e0, J0 = jac_and_val(np.column_stack([x[m, :2], np.full(m.sum(), self.a0_deg_)]))
-                e1, J1 = jac_and_val(np.column_stack([x[m, :2], np.full(m.sum(), self.a0_deg_ + 360.0)]))
-                tm = t[m]
-                J[m, :, :2] += (tm * tm * (3 - 2 * tm))[:, None, None] * (J0 - J1)[:, :, :2]
-                J[m, :, 2] += (e0 - e1) * (6 * tm * (1 - tm) / w)[:, None]
-        return J
 
     # -- fast inference -----------------------------------------------------------------
     SEAM_WINDOW_DEG = 30.0
