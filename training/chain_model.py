@@ -1,16 +1,11 @@
 """The error-field network over a machine-tool chain's own axes, and its training.
 
-:class:`ChainMLPField` is the grinder's :class:`training.model.MLPField` (layers, activations, functional
-``forward``/``param_jacobian``, trainers, output scaling, file set) with one input per axis column of the chain
-in its canonical order, each scaled from its training range to ``[-1, 1]``, a full-turn rotary axis as
-``(cos q, sin q)`` (exactly periodic, no seam closure). Output ``(dx_um, dy_um, dz_um)``, the tool point's
-error in the workpiece frame. ``predict``/``jacobian``/``predict_and_jacobian``: float64 torch on rows in blocks
-of ``chunk`` points, the input Jacobian (n, 3, k) μm per mm / per deg by forward-mode tangents. Files: the
-grinder's set with ``format = "volcomp-chain-mlpfield/1"``, the axis columns, periodic inputs and machine
-(name, SHA-256) in ``config.json``; :func:`check_machine` refuses it on another machine.
-:func:`fit_chain_field` trains it like :func:`training.trainers.fit_field`. docs/reference/learned-stage.md
-("The network over a chain").
-"""
+:class:`ChainMLPField` is :class:`training.model.MLPField` (layers, activations, trainers, output scaling,
+file set) with one input per axis column of the chain, each scaled from its training range to ``[-1, 1]``, a
+full-turn rotary axis as ``(cos q, sin q)`` (exactly periodic). Output: the tool point's error (μm) in the
+workpiece frame, with the input Jacobian (n, 3, k) by forward-mode tangents. Its files record the format
+``volcomp-chain-mlpfield/1``, the axis columns and the machine (:func:`check_machine` refuses another);
+:func:`fit_chain_field` trains it. docs/reference/learned-stage.md ("The network over a chain")."""
 from __future__ import annotations
 
 import json
