@@ -87,6 +87,8 @@ class FusedOffsetFitness:
         return out
 
     def _block(self, pts, dT):
+        """One block through the closed-form inverse: ``x = c_x - p_x``, ``h = sqrt(p_y² + p_z² - t_y²)``,
+        ``z = h - c_h``, ``a = atan2(p_y, p_z) - atan2(t_y, h)`` (deg), then the network."""
         dm = dT * MM_PER_UM  # (3, k) mm
         xa = torch.empty_like(dT)
         torch.sub(self.x[pts], dm[0], out=xa[0])
