@@ -424,22 +424,16 @@ def fit_field(featurepoints, settings: TrainSettings | None = None, *, validatio
               tracking: TrackSettings | None = None, out_dir=None, quiet: bool = False, **overrides) -> FitResult:
     """Train an :class:`MLPField` on feature points and record the fit as an MLflow run.
 
-    ``featurepoints``: :class:`errormap.featurepoints.FeaturePoints` (axes, errors μm, meta).
-    ``settings``: :class:`TrainSettings`; ``tracking``: :class:`TrackSettings`. Keyword
-    ``overrides`` name fields of either (``fit_field(fp, max_iter=60, track=False)``) and go
-    through the same validation.
-    ``validation``: ``(axes (m, 3), errors (m, 3) μm)``; when None, ``n_validation`` random
-    off-grid points are generated from the HTM model named in the feature points' meta
-    (``elements_file``, ``machine_file``), and an :class:`InputError` is raised if there is none.
-    ``out_dir``: also save the model, plots and ``metrics.json`` there (written as a set).
-    ``selection`` (for ``select_best``): ``(axes (k, 3), errors (k, 3) μm)``, which must not be
-    the validation data; by default random off-grid points of the same HTM model as the
-    validation points from another stream of the seed (disjoint from them, so the reported
-    validation error stays independent). The feature-point fit keeps improving long after the
-    field between grid points stops improving (a 1,188-parameter network on an 11×11×11 grid
-    swings between the points); selection picks the iterate that is best over the volume. Off
-    when there is no HTM reference, and for the paper-target runs (``select_best=False``).
-    """
+    ``featurepoints``: :class:`errormap.featurepoints.FeaturePoints` (axes, errors μm, meta). ``settings``:
+    :class:`TrainSettings`; ``tracking``: :class:`TrackSettings`. Keyword ``overrides`` name fields of
+    either (``fit_field(fp, max_iter=60, track=False)``) and go through the same validation. ``validation``:
+    ``(axes (m, 3), errors (m, 3) μm)``; when None, ``n_validation`` random off-grid points of the HTM model
+    named in the feature points' meta (``elements_file``, ``machine_file``), InputError if there is none.
+    ``out_dir``: also save the model, plots and ``metrics.json`` there (written as a set). ``selection``
+    (for ``select_best``): ``(axes (k, 3), errors (k, 3) μm)``, never the validation data; by default random
+    off-grid points of the same model from another stream of the seed. Selection keeps the iterate best over
+    the volume, not on the grid (docs/reference/learned-stage.md); off without an HTM reference and with
+    ``select_best=False``."""
     s, t = _settings(settings, tracking, overrides)
     if out_dir is not None:
         check_run_folder(out_dir)
