@@ -1,27 +1,13 @@
 """One chunk plan for solving a batch of tool paths, whoever runs the chunks.
 
-``volcomp compensate`` solves every input through this module, in-process or on a Ray
-cluster (``compensation.app.workflows.cluster``), and both give the same bytes because they
-share everything that decides a result:
-
-* **fixed chunk boundaries**: each file's points are cut into chunks of ``chunk_points``
-  (the last one shorter), by point count only — never by the number of workers;
-* **per-chunk seeds**: chunk ``j`` of a file gets ``numpy.random.SeedSequence(seed).spawn(k)[j]``
-  (``k`` chunks in that file), so a file's result does not depend on the other files of the
-  batch, nor on which worker ran which chunk; the GA solvers draw from that stream only
-  (``batched-ga`` evolves a chunk as one block with one stream);
-* **one torch thread per chunk solve** (torch's float sums can change in the last bit with
-  its thread count).
-
-A batch solves with one or more **contexts**, ``(field, machine)`` pairs: a path whose points
-need another machine (a machine-tool program's tool lengths: the chain with that tool, and the
-field at its tool point) names its context (``path.context``), and its chunks carry it; the
-contexts travel to a worker once per batch.
-
-:class:`LocalExecutor` runs the chunks in threads of this process (the solvers' numerical
-kernels release the GIL); an executor is anything with ``run(method, contexts, tasks,
-options, progress) -> list[SolveResult]`` in task order. The library never imports Ray.
-"""
+``volcomp compensate`` solves every input through this module, in-process or on a Ray cluster
+(``compensation.app.workflows.cluster``), and both give the same bytes because they share everything that
+decides a result: fixed chunk boundaries (``chunk_points``, never the number of workers), per-chunk seeds
+(chunk ``j`` of a file's ``k`` gets ``numpy.random.SeedSequence(seed).spawn(k)[j]``) and one torch thread
+per chunk solve (docs/reference/tool-paths.md). A path whose points need another ``(field, machine)``
+context names it (``path.context``); the contexts travel to a worker once per batch. :class:`LocalExecutor`
+runs the chunks in threads of this process; an executor is anything with ``run(method, contexts, tasks,
+options, progress) -> list[SolveResult]`` in task order. The library never imports Ray."""
 from __future__ import annotations
 
 import inspect

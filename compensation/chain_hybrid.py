@@ -1,18 +1,11 @@
 """The hybrid error field on a machine-tool chain: the chain loop's model plus its learned residual.
 
-``volcomp diagnose --machine M`` runs the learned-residual stage (:func:`compensation.hybrid.learned_stage`)
-after the chain loop's effect search (``compensation/app/workflows/measurement.py``); when it is kept, the
-``model.json`` (``volcomp-model/1``) carries it under ``learned_residual``
-(:data:`errormap.diagnosis.loop_model.LEARNED_KEY`) beside the elements and the effect terms.
-
-:func:`compensation.model_file.read_model` reads such a file whole: the loop's
-:class:`~errormap.diagnosis.loop_model.ChainModelField` (elements + terms), wrapped in a :class:`ChainHybridField`
-when a learned residual is kept.
-:class:`ChainHybridField` is a :class:`compensation.hybrid.HybridField` (value and Jacobian: the chain's
-plus the learned part's in closed form; the calibrated volume narrowed to the checks' box in the linear
-axes) that also carries the loop model's conditions (``needs``, ``with_conditions``), so ``predict`` and
-``compensate`` give its effect terms their conditions as for the loop's model alone.
-"""
+When ``volcomp diagnose --machine M`` keeps the learned residual
+(:func:`compensation.hybrid.learned_stage`), its ``model.json`` carries it under ``learned_residual``
+(:data:`errormap.diagnosis.loop_model.LEARNED_KEY`), and :func:`compensation.model_file.read_model` wraps
+the loop's :class:`~errormap.diagnosis.loop_model.ChainModelField` in a :class:`ChainHybridField`: a
+:class:`compensation.hybrid.HybridField` that also carries the loop model's conditions (``needs``,
+``with_conditions``)."""
 from __future__ import annotations
 
 from errormap.diagnosis.loop_model import ChainModelField

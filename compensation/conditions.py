@@ -1,20 +1,13 @@
 """Effect-term conditions per point: the grinder file's old closed-loop model at given conditions, on paths.
 
-The grinder's closed-loop model (``volcomp-diagnosed-model/1``, read by :func:`compensation.model_file.read_model`)
-carries effect terms that may need conditions (``temp_c``, ``time_s``, ``dir_x``, ``dir_z``, ``dir_a``). For
-compensating a path, each needed condition is taken per point from the CSV
-path file's column of that name when it has one (the check-measurement columns' names and
-rules: a finite number, ``dir_*`` ±1, ``temp_c`` within 0…45 °C, °F and kelvin named), else from the constant
-option (``--temp-c`` …) for the whole path; a needed condition found in neither is refused,
-naming the file, the column and the option (a column's bad cell: file, row and column).
-
-Per-point conditions are solved exactly by moving the terms into the targets
-(:func:`solve_with_conditions`): with the model ``E(q) = B(q) + t(q, c)``, compensating
-``p_d`` is compensating ``p_d − t(q*, c)`` with the axes-only field ``B``, where ``q*`` is the
-solution; two or three fixed-point passes make ``t`` consistent (its change over a
-correction of ≤ 250 μm is far below the solver tolerance), and the model residual is then
-computed with the terms at the final commands and the points' own conditions.
-"""
+The grinder's closed-loop model (``volcomp-diagnosed-model/1``) carries effect terms that may need
+conditions; each is taken per point from the CSV path's column of that name, else from the constant option
+for the whole path, else refused naming the file, column and option (docs/reference/file-formats.md,
+"Conditions per point"). They are solved exactly by moving the terms into the targets
+(:func:`solve_with_conditions`): with ``E(q) = B(q) + t(q, c)``, compensating ``p_d`` is compensating ``p_d
+− t(q*, c)`` with the axes-only field ``B`` (``q*`` the solution; two or three fixed-point passes make ``t``
+consistent), and the model residual is then computed with the terms at the final commands and the points'
+own conditions."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,22 +1,13 @@
 """Evaluating compensated commands: the model residual and, on a simulated machine, the true one.
 
-The three residuals of docs/explanation/kinematics.md, never mixed up:
-
-* **model residual** — ``p_r + E(axes(p_r)) − p_d`` (μm): how well a solver satisfied its
-  own error field ``E``; it comes with each :class:`~compensation.solvers.SolveResult`.
-* **true residual** — the tool point the simulated truth machine reaches when driven with
-  the compensated axis commands, minus the target (μm). Only the simulator knows it:
-  :func:`true_residual_um` drives the truth's chain (its nominal tool point plus its true error).
-* (the **measured residual** — measurement minus model at check points — belongs to
-  diagnosis, not here.)
-
-A truth is any simulated machine tool with ``machine``, ``spatial_error(axes, **conditions) -> (n, 3)`` μm and
+The residuals of docs/explanation/kinematics.md, never mixed up: the **model residual** ``p_r + E(axes(p_r))
+− p_d`` (μm, how well a solver satisfied its own field; with each
+:class:`~compensation.solvers.SolveResult`) and the **true residual** (the tool point the simulated truth
+machine reaches with the compensated commands, minus the target: :func:`true_residual_um`). A truth is any
+simulated machine tool with ``machine``, ``spatial_error(axes, **conditions) -> (n, 3)`` μm and
 ``default_conditions(n)`` (:class:`errormap.chain_truth.MTTruth`); :func:`load_truth` reads one from what
-``simulate`` wrote, for every machine tool through its chain.
-
-The magnitude of a residual is the vector norm ``|r|`` per point; the grinder paper's
-figures show its square ``|r|²`` (μm²), so metrics give both.
-"""
+``simulate`` wrote. Metrics give the norm ``|r|`` and its square ``|r|²`` (μm², the grinder paper's
+figures)."""
 from __future__ import annotations
 
 import json

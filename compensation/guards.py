@@ -1,41 +1,17 @@
-"""Guards on compensated commands: the search ball, the axis strokes, the calibrated volume
-and convergence. A job whose commands fail a guard stops with :class:`GuardError`, which
-lists every offending point with its reasons, unless the user overrides that guard
-explicitly (``allow``; the CLI's ``--allow``).
+"""Guards on compensated commands: the search ball, the axis strokes, the calibrated volume and convergence
+(docs/reference/tool-paths.md, "Guards"). A job whose commands fail a guard stops with :class:`GuardError`,
+which lists every offending point with its reasons, unless the user overrides that guard explicitly
+(``allow``; the CLI's ``--allow``). Every method passes through :func:`check`: the guards look at the
+result, never at how it was obtained.
 
-Guard names (the keys of ``allow`` and of :attr:`GuardReport.violations`):
-
-``ball``         ``|p_r - p_d| > ball_um`` (250 μm, the paper's search region), or a point the
-                 solver did not solve whose correction reached the ball's surface (the
-                 correction it needs lies beyond the ball: solvers stop on the surface).
-``stroke``       an axis command — or the nominal axes of its target (``target_axes``; a
-                 target outside the strokes is never compensated into them) — outside the
-                 machine file's strokes. **A rule:** when the A
-                 stroke spans at least one full turn (default grinder: 0–360°), A is a
-                 continuous rotary axis and any A passes (multi-turn paths run past 360°;
-                 errors are periodic in A, so A is effectively checked modulo 360°). When it
-                 spans less than a turn, A is checked as commanded, without folding.
-``volume``       an axis command or its target's nominal axes outside the field's calibrated
-                 volume (below).
-
-On a machine-tool chain (``kind = "machine-tool"``) the same guards run over the machine's own
-axis columns (``machine.axis_columns``): every full-turn rotary axis passes the stroke guard, the
-others are checked as commanded; the volume is the field's over those names, each ``*_deg`` axis
-with the A rule below.
-``convergence``  the solver did not converge for the point (``SolveResult.success`` False
-                 with the correction inside the ball).
-
-Every method passes through :func:`check` (``traditional`` included): the guards look at
-the result, never at how it was obtained.
-
-**Calibrated volume.** A field states the box it is valid in as its ``calibrated_volume``
-(:class:`errormap.field.CalibratedVolume`, per-axis ``lo``/``hi`` over x_mm, z_mm, a_deg; the
-HTM field: the range of its element stations; the learned field: its training-input range).
-A field whose volume is ``None`` cannot be checked: :func:`calibrated_volume` raises TypeError
-(a command is never emitted silently outside an unknown volume). In A, a calibrated range
-spanning a full turn accepts every A (periodic); a narrower one is checked with A folded
-modulo 360° into ``[lo, lo + 360)``. ``volume_tol`` (default 1e-9 mm/deg) absorbs rounding.
-"""
+Guard names (the keys of ``allow`` and of :attr:`GuardReport.violations`): ``ball`` (``|p_r - p_d| >
+ball_um``, or an unsolved point whose correction reached the ball's surface), ``stroke`` (an axis command,
+or the nominal axes of its target, outside the machine file's strokes; a rotary axis whose stroke spans a
+full turn passes, a narrower one is checked as commanded), ``volume`` (the same outside the field's
+calibrated volume, a :class:`errormap.field.CalibratedVolume` over the machine's axis columns: a full-turn
+rotary range accepts every angle, a narrower one is checked folded modulo 360° into ``[lo, lo + 360)``; a
+field without one cannot be checked: TypeError), ``convergence`` (``SolveResult.success`` False inside the
+ball). ``volume_tol`` (default 1e-9 mm/deg) absorbs rounding."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -145,20 +121,12 @@ def ball_violations(correction_um, radius_um: float = BALL_RADIUS_UM, tol_um: fl
     return bad, np.array(reasons, dtype=object)
 
 
-def _box_violations(axes, lo, hi, a_full_turn, tol: float, what: str, names=AXIS_NAMES):
-    """Shared box test with the rotary rule; axes (n, k), lo/hi (k,), ``names`` (k,) the axis
-    columns. ``a_full_turn``: a bool (the grinder: its A, the last column) or a (k,) bool array
-    (a machine-tool chain: per axis) marking the full-turn axes, which pass whatever their value.
-    Returns (indices, reasons)."""
+def _box_violations(axes, lo, hi, free, tol: float, what: str, names=AXIS_NAMES):
+    """Axes (n, k) outside the box ``lo``/``hi`` (k,); ``free`` (k,) bool marks the full-turn axes, which pass
+    whatever their value; ``names`` (k,) the axis columns. Returns (indices, reasons)."""
     vals = np.asarray(axes, dtype=float)
     lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
-    k_all = vals.shape[1]
-    if np.ndim(a_full_turn) == 0:
-        free = np.zeros(k_all, bool)
-        free[k_all - 1] = bool(a_full_turn)
-    else:
-        free = np.asarray(a_full_turn, dtype=bool)
-    chk = np.flatnonzero(~free)  # the columns checked (a full-turn axis passes)
+    chk = np.flatnonzero(~np.asarray(free, dtype=bool))  # the columns checked (a full-turn axis passes)
     cols = vals[:, chk]
     # one pass for the common case (nothing out): NaN fails both comparisons, so it is caught
     inside = (cols >= lo[chk] - tol) & (cols <= hi[chk] + tol)
@@ -170,24 +138,17 @@ def _box_violations(axes, lo, hi, a_full_turn, tol: float, what: str, names=AXIS
     reasons = []
     for i in bad:  # formatting the offenders only (a message, not a computation)
         parts = [f"{names[k]} = {vals[i, k]:.6g} outside {what} [{lo[k]:g}, {hi[k]:g}]"
-                 for k in range(k_all) if out[i, k]]
+                 for k in range(vals.shape[1]) if out[i, k]]
         reasons.append(", ".join(parts))
     return bad, np.array(reasons, dtype=object)
 
 
-def _is_chain(machine) -> bool:
-    """A machine-tool chain (``kind = "machine-tool"``): axes, strokes and full turns per axis."""
-    return getattr(machine, "kind", None) == "machine-tool"
-
-
 def stroke_violations(axes, machine, tol: float = 1e-9):
-    """Axis commands (n, k) outside the machine's strokes (A rule in the module docstring; a
-    machine-tool chain: every full-turn rotary axis passes, the others are checked as commanded)."""
+    """Axis commands (n, k) outside the machine's strokes: every full-turn rotary axis passes, the others
+    are checked as commanded."""
+    free = np.array([a.full_turn for a in machine.axes])
     lo, hi = machine.stroke_lo, machine.stroke_hi
-    if _is_chain(machine):
-        free = np.array([a.full_turn for a in machine.axes])
-        return _box_violations(axes, lo, hi, a_full_turn=free, tol=tol, what="stroke", names=machine.axis_columns)
-    return _box_violations(axes, lo, hi, a_full_turn=hi[2] - lo[2] >= 360.0 - 1e-9, tol=tol, what="stroke")
+    return _box_violations(axes, lo, hi, free, tol, "stroke", machine.axis_columns)
 
 
 def calibrated_volume(field, names=AXIS_NAMES) -> tuple[np.ndarray, np.ndarray]:
@@ -205,25 +166,18 @@ def calibrated_volume(field, names=AXIS_NAMES) -> tuple[np.ndarray, np.ndarray]:
 
 
 def volume_violations(axes, field, tol: float = 1e-9, names=AXIS_NAMES):
-    """Axis commands (n, k) outside the field's calibrated volume over ``names`` (A rule in the
-    module docstring; over a chain's axes the same rule for each ``*_deg`` column: a calibrated
-    range of a full turn accepts every angle, a narrower one is checked folded into its turn)."""
+    """Axis commands (n, k) outside the field's calibrated volume over ``names``: a rotary (``*_deg``) range
+    of a full turn accepts every angle, a narrower one is checked folded into its turn."""
     names = tuple(names)
     lo, hi = calibrated_volume(field, names)
     axes = np.asarray(axes, dtype=float)
-    if names == AXIS_NAMES:
-        full = hi[2] - lo[2] >= 360.0 - 1e-9
-        if not full:
-            axes = axes.copy()
-            axes[:, 2] = lo[2] + np.mod(axes[:, 2] - lo[2], 360.0)
-        return _box_violations(axes, lo, hi, a_full_turn=full, tol=tol, what="calibrated volume")
     rot = np.array([is_rotary_column(n) for n in names])
     free = rot & (hi - lo >= 360.0 - 1e-9)
     fold = np.flatnonzero(rot & ~free)
     if fold.size:
         axes = axes.copy()
         axes[:, fold] = lo[fold] + np.mod(axes[:, fold] - lo[fold], 360.0)
-    return _box_violations(axes, lo, hi, a_full_turn=free, tol=tol, what="calibrated volume", names=names)
+    return _box_violations(axes, lo, hi, free, tol, "calibrated volume", names)
 
 
 def convergence_violations(result):

@@ -1,25 +1,13 @@
 """The one reader of model files: :func:`read_model` -> :class:`Model` (the error field and what it holds).
 
-``--model`` (and :func:`compensation.load_model`) names a ``model.json`` (``format: volcomp-model/1``, written by
-``volcomp diagnose`` and :func:`compensation.save_model`; schema in docs/reference/file-formats.md and
-:mod:`errormap.diagnosis.loop_model`), or any older model file volcomp wrote, recognised by content
-(:func:`compensation.fields.resolve_model`):
-
-* an element set (``volcomp-elements/1``; its covariance ``NAME.cov.npz`` beside it when present);
-* the chain loop's ``model.json`` (``volcomp-chain-model/1``): elements + effect terms (+ learned residual);
-* the grinder file's old closed-loop ``model.json`` (``volcomp-diagnosed-model/1``): elements + the grinder's
-  effect terms (+ learned residual), whose conditions a compensated path gives per point
-  (:attr:`Model.per_point`, :mod:`compensation.conditions`);
-* a trained network folder (``volcomp-mlpfield/1``, ``volcomp-chain-mlpfield/1``) or an MLflow reference;
-* a serial arm's or parallel machine's ``model.json`` (key ``family``; its ``calibration`` section), or their older
-  ``calibration.json`` (``volcomp-arm-calibration/2`` … ``/4``, ``volcomp-pkm-calibration/1``):
-  :mod:`compensation.calibration_models`; :attr:`Model.calibration` holds what was calibrated.
-
-Every command that evaluates a model (``predict``, ``compensate``, ``export``, ``report``) calls
-:func:`read_model` and asks the :class:`Model` what it holds (elements, covariance, terms, learned residual,
-network): no command branches on the file's format. A drift model (``volcomp.drift_model``) is not an error
-field of the axes and is refused here, naming the commands that take it.
-"""
+``--model`` (and :func:`compensation.load_model`) names a ``model.json`` (``format: volcomp-model/1``,
+written by ``volcomp diagnose`` and :func:`compensation.save_model`), or any older model file volcomp wrote,
+recognised by content (:func:`compensation.fields.resolve_model`): an element set, an older closed-loop
+``model.json``, a trained network folder or an MLflow reference, an arm's or parallel machine's calibration
+(:mod:`compensation.calibration_models`); every format in docs/reference/file-formats.md. Every command that
+evaluates a model (``predict``, ``compensate``, ``export``, ``report``) calls :func:`read_model` and asks
+the :class:`Model` what it holds: no command branches on the file's format. A drift model is not an error
+field of the axes and is refused here, naming the commands that take it."""
 from __future__ import annotations
 
 import json

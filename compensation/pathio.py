@@ -1,29 +1,14 @@
 """Tool-path files: CSV and G-code readers and writers.
 
-Formats (docs/reference/file-formats.md and docs/reference/tool-paths.md):
-
-* **CSV, axis commands** — columns ``x_mm, z_mm, a_deg`` (absolute mm / deg; A may run
-  past 360° on multi-turn paths). The program means the nominal tool points
-  ``forward(axes)``; those are the targets.
-* **CSV, WCS targets** — columns ``px_mm, py_mm, pz_mm``. The targets are the values;
-  the nominal axes are ``inverse(targets)`` with A unwrapped along the path.
-  (A file with both sets of columns is refused as ambiguous.) Extra columns are kept; the
-  input's provenance (its sidecar or leading ``#`` lines) goes to the output's sidecar.
-* **G-code** — any file whose first line (after blank and ``#`` lines) is not a CSV header
-  (:func:`is_csv`: told by content, whatever the file's name); read by
-  :mod:`compensation.gcode` with an explicit allow-list (RS274 numbers, ``G0 G1 G2 G3``,
-  ``G90/G91``, ``G20/G21``, arcs in ``G18``; everything that could move or reinterpret an
-  axis otherwise is refused naming file, line, column and word). :func:`plan_gcode` places
-  the vertices of each compensated move (arcs linearised, long moves split); one
-  :class:`ToolPathFile` row per vertex.
-
-Writers (:func:`write_compensated`) produce the compensated program in the input's own
-format, atomically (temporary file + rename, :func:`errormap.io.atomic_write`): CSV axis
-files get new ``x_mm, z_mm, a_deg``; CSV target files get the compensated WCS commands
-``p_r`` in ``px_mm, py_mm, pz_mm`` (the controller's post-processor then does the rest);
-G-code gets new ``X Z A`` numbers on each compensated line, in the line's own units and
-distance mode (:func:`compensation.gcode.render_program`).
-"""
+Formats (docs/reference/tool-paths.md, docs/reference/file-formats.md): CSV axis commands (the program means
+the nominal tool points ``forward(axes)``), CSV WCS targets ``px_mm, py_mm, pz_mm`` (the nominal axes are
+``inverse(targets)`` unwrapped along the path; a file with both sets is refused as ambiguous; extra columns
+and the input's provenance are kept), and G-code: any file whose first line (after blank and ``#`` lines) is
+not a CSV header (:func:`is_csv`), read by :mod:`compensation.gcode` with an explicit allow-list;
+:func:`plan_gcode` places the vertices of each compensated move (arcs linearised, long moves split), one
+:class:`ToolPathFile` row per vertex. :func:`write_compensated` writes the compensated program in the
+input's own format, atomically (:func:`errormap.io.atomic_write`); G-code gets new axis numbers on each
+compensated line in the line's own units and distance mode (:func:`compensation.gcode.render_program`)."""
 from __future__ import annotations
 
 import csv

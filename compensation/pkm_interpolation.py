@@ -1,21 +1,13 @@
 """Time-division interpolation for the PKMs (stewart-interpolation paper) and compensated leg commands.
 
-The contour step is ``f = feed * period``. A linear move advances the tool tip by ``f`` per
-interpolation period along the line; a circular move advances the arc angle by ``f / r``. Each
-step's end pose (tool tip plus orientation: fixed, slerped between the move's end orientations, or
-the surface normal for the sphere pass) goes through the inverse kinematics; the six leg increments
-between steps are the leg-command program. With a calibration, the *identified* parameters are used
-in the inverse kinematics and in the drive conversion (``q = (l - offset) / scale``): the
-compensated commands (pkm-calibration paper, error compensation by corrected kinematics).
-
-Test paths (the paper's parts): a spherical surface pass (radius 100 mm, 60 deg cap, apex at 980 mm,
-circular moves along meridians, tool along the surface normal, tool length 30 mm) and a one-sheet
-hyperboloid pass (waist radius 100 mm, rulings tilted 20 deg, centred at 980 mm, linear moves along
-the rulings with a fixed vertical tool, tool length 200 mm).
-
-``true_path_residual`` is the *true residual* (docs/explanation/kinematics.md): the tool tip the simulated truth machine
-reaches with the (compensated) commands, minus the target, in um.
-"""
+Each interpolation period advances the tool tip by the contour step ``f = feed * period`` along a line (or
+the arc angle by ``f / r``); each step's end pose goes through the inverse kinematics, and the leg
+increments between steps are the leg-command program. With a calibration, the *identified* parameters are
+used in the inverse kinematics and in the drive conversion (``q = (l - offset) / scale``): the compensated
+commands. The test paths (the paper's sphere and hyperboloid passes) and their constants:
+docs/explanation/parallel-kinematics.md ("Interpolation"). ``true_path_residual`` is the *true residual*
+(docs/explanation/kinematics.md): the tool tip the simulated truth machine reaches with the (compensated)
+commands, minus the target, in um."""
 from __future__ import annotations
 
 from dataclasses import dataclass, replace

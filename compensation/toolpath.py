@@ -1,32 +1,12 @@
 """The grinder paper's test path: the variable-helix-angle flute of a micro drill.
 
-The path is the bottom line of one flute, given as WCS targets (mm) on the default
-grinder, whose A axis is the WCS x axis (the drill axis). Along the flute parameter
-``u ∈ [0, 1]`` (the fraction of the flute's total angle):
-
-* angle about the drill axis ``θ(u) = 360°·turns·u`` (the A command, unwrapped:
-  7 turns run A from 0 to 2520°);
-* flute-bottom radius ``r(u) = r0 + (r1 - r0)·u`` (a constant radius by default;
-  a tapered core when ``radius_end_mm`` differs);
-* helix angle ``β(u)``, measured at the flute-bottom radius, between ``helix_start_deg``
-  and ``helix_end_deg``. The lead law says what varies linearly with ``u``:
-  ``"linear-helix"`` (default; β itself) or ``"linear-lead"`` (the lead
-  ``L = 2πr / tan β``, between the leads of the two end angles);
-* axial position from ``dpx/dθ = L(u)/(2π) = r(u)/tan β(u)``:
-  ``px(θ) = px_start ∓ ∫₀^θ r/tan β dθ`` (``-`` for a right-hand flute, the default).
-
-The target point is ``p = (px, r·sin θ, r·cos θ)``: nominally the tool point of the axis
-command ``(x, z, a) = (x(px), r - ρ0, θ)`` (docs/explanation/kinematics.md: ``ρ = ρ0 + z``, ``ρ0 = 0.1 mm`` on
-the default grinder). A right-hand flute advances along ``-px`` as A increases because
-``(py, pz) = r·(sin a, cos a)`` turns from +z towards +y, i.e. negatively about +x.
-
-Defaults (:data:`FLUTE_DEFAULTS`), chosen for a 1 mm micro drill inside the default
-grinder's strokes: 7 turns, 400 points per turn (2,800 points), flute-bottom radius
-0.4 mm (Z command ≈ 0.3 mm, so even the full 250 μm search ball stays inside the Z
-stroke), helix angle 30° → 40° (leads ≈ 4.35 → 3.00 mm per turn, flute ≈ 25.3 mm
-long), starting at px = 110 mm (X = 90 mm) and running towards smaller px (X increasing
-to ≈ 115.3 mm).
-"""
+The path is the bottom line of one flute, as WCS targets (mm) on the default grinder, whose A axis is the
+drill axis: along ``u ∈ [0, 1]`` the angle ``θ = 360°·turns·u`` (the A command, unwrapped), the flute-bottom
+radius ``r(u)`` and the helix angle ``β(u)`` (``lead_law`` says whether β or the lead is linear in ``u``)
+give ``p = (px, r·sin θ, r·cos θ)`` with ``dpx/dθ = ∓r/tan β`` (``-`` for a right-hand flute, the default):
+the tool point of ``(x, z, a) = (x(px), r - ρ0, θ)``. The parameters and :data:`FLUTE_DEFAULTS` (7 turns of
+400 points, radius 0.4 mm, helix 30° → 40°, px from 110 mm): docs/reference/tool-paths.md; the kinematics:
+docs/explanation/kinematics.md."""
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass

@@ -1,24 +1,15 @@
 """Turning mode on a lathe: while the spindle turns, C is the spindle, not a positioning axis.
 
-A lathe's machine file names its work spindle and the M codes that start and end turning
-(``[spindle]``: ``axis = "C"``, ``turning_on = ["M3", "M4"]``, ``turning_off = ["M5"]``; docs/how-to/machine-file.md).
-While the spindle turns the tool cuts a **surface of revolution**: what a move must hit is the
-programmed radius ``r`` (distance from the spindle axis) and axial position ``z`` of the tool tip in the
-workpiece frame, whatever the spindle's angle. So a turning move is compensated with the two linear axes
-(X and Z) and C is left untouched (never written):
+A lathe's machine file names its work spindle and the M codes that start and end turning (``[spindle]``;
+docs/how-to/machine-file.md). While the spindle turns, a move is compensated with X and Z alone (C is never
+written) so that the tool tip's radius and axial position, averaged over one turn, are the programmed ones::
 
-    g(X, Z) = mean over one turn of [ r(X, Z, c) − r_d ,  z(X, Z, c) − z_d ]  = 0   (μm)
+g(X, Z) = mean over one turn of [ r(X, Z, c) − r_d ,  z(X, Z, c) − z_d ]  = 0   (μm)
 
-with the tool tip ``fwd(q) + 1e-3·E(q)`` at :data:`TURN_SAMPLES` spindle angles ``c`` evenly over the turn,
-solved by Newton (finite-difference 2×2 Jacobian, step :data:`FD_STEP_MM`). The part of the error that
-changes with the spindle angle (its spread over the turn: out-of-roundness) is not correctable by X and Z
-and is reported (``roundness_um``). Where the spindle does not turn (C-axis mode) C is an axis: solved with
-X and Z as on every three-axis machine.
-
-A program with no C word at all is read with the X and Z words only (every move compensated this way; C
-is never commanded). One with C words is read with C: a C word on a line where the spindle turns is
-refused, and C must be known before the first move (a positioning C before turning starts).
-"""
+with the tip ``fwd(q) + 1e-3·E(q)`` at :data:`TURN_SAMPLES` spindle angles, solved by Newton
+(finite-difference 2×2 Jacobian, step :data:`FD_STEP_MM`); the spread over the turn (out-of-roundness) is
+reported (``roundness_um``). In C-axis mode C is solved with X and Z as on every three-axis machine. The
+program rules (C words, turning codes): docs/reference/tool-paths.md ("Turning mode")."""
 from __future__ import annotations
 
 import dataclasses

@@ -56,3 +56,16 @@ def grinder_variant(geometry=None, strokes=None, targets=None, edit=None, sha_su
     mt = parse_machine_tool(chain, OLD_GRINDER_FILE, "grinder" + sha_suffix)
     check_grinder_chain(mt, OLD_GRINDER_FILE)
     return mt
+
+
+def central_jacobian(field, axes, h: float = 1e-4) -> np.ndarray:
+    """Central differences of ``field.predict`` in each axis column, (n, 3, k): the tests' reference
+    Jacobian."""
+    axes = np.asarray(axes, dtype=float)
+    J = np.empty((len(axes), 3, axes.shape[1]))
+    for j in range(axes.shape[1]):
+        ap, am = axes.copy(), axes.copy()
+        ap[:, j] += h
+        am[:, j] -= h
+        J[:, :, j] = (field.predict(ap) - field.predict(am)) / (2 * h)
+    return J

@@ -1,16 +1,11 @@
-"""The learned residual stage of an arm calibration: the project's :class:`training.residual.ResidualRegressor`
-on the inputs the physics of a serial chain suggests.
+"""The learned residual stage of an arm calibration: the project's
+:class:`training.residual.ResidualRegressor` on the inputs the physics of a serial chain suggests.
 
-Inputs (``inputs``, derived from the chain, nothing machine-specific): ``"physics"`` — each revolute joint as
-sin/cos (prismatic: value / stroke) and per joint the gravity moment about its axis of unit masses at the
-downstream joint origins and the tool point, from the NOMINAL chain, in m
-(:func:`errormap.arm_simulate.gravity_moment_mm`); ``"sincos"`` — the joints alone (the plain learner);
-``"physics+h2"`` — adds each revolute joint's sin 2q, cos 2q; ``"physics+wrist"`` — adds the pairwise products of
-the last three revolute joints' sin/cos. Output: the 3-D position residual (measured − geometric model), mm.
-The GP, its choice against predicting zero by CV inside the fit set, the band and the Jacobian are
-:class:`~training.residual.ResidualRegressor`'s; ``chosen_ == "none"``: nothing is added.
-docs/reference/arm-calibration.md.
-"""
+Inputs (:data:`INPUTS`, derived from the chain): ``"physics"`` (each revolute joint as sin/cos, prismatic as
+value / stroke, and per joint the gravity moment of unit masses from the NOMINAL chain,
+:func:`errormap.arm_simulate.gravity_moment_mm`), ``"sincos"`` (the joints alone), ``"physics+h2"`` and
+``"physics+wrist"`` (second harmonics, wrist products). Output: the 3-D position residual (measured −
+geometric model), mm; ``chosen_ == "none"``: nothing is added. docs/reference/arm-calibration.md."""
 from __future__ import annotations
 
 import numpy as np

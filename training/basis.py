@@ -1,17 +1,11 @@
 """A Bayesian regression on a tensor-product basis: a learned-residual family of few effective parameters.
 
 :class:`BasisRegression` is the ``"basis"`` family of :class:`training.residual.ResidualRegressor` (the GP's
-interface: ``fit(Xs, Ys)`` on standardised inputs and scaled outputs, ``predict(Xs, return_std, jacobian)``,
-``noise_var()``). Per input GROUP (``groups``, as the regressor's ``input_groups``) a one-dimensional family —
-Legendre polynomials of one input mapped to [−1, 1] over the training range, or the Fourier harmonics
-``cos kθ, sin kθ`` of a two-input group's angle ``θ = atan2(s, c)`` (a rotary axis' cos and sin) — and the
-columns are the products over the groups with TOTAL degree at most :data:`DEGREE`. Prior: independent
-zero-mean Gaussian coefficients of variance ``σ² · q^degree``; ``σ²``, ``q`` and the noise by maximum marginal
-likelihood per output; posterior mean and standard deviation are prediction and band. Outside the training
-range of a linear input the basis is multiplied by a C¹ envelope falling to 0 over :data:`ENVELOPE_FRAC` of the
-range (never an extrapolated polynomial). Closed-form Jacobian. Numpy/scipy only.
-docs/reference/learned-stage.md.
-"""
+interface: ``fit(Xs, Ys)``, ``predict(Xs, return_std, jacobian)``, ``noise_var()``): per input group
+Legendre polynomials of one input or the Fourier harmonics of a two-input group's angle, products of total
+degree at most :data:`DEGREE`, independent Gaussian coefficients of variance ``σ² · q^degree`` (``σ²``,
+``q`` and the noise by maximum marginal likelihood), a C¹ envelope outside the training range of a linear
+input (:data:`ENVELOPE_FRAC`); closed-form Jacobian, numpy/scipy only. docs/reference/learned-stage.md."""
 from __future__ import annotations
 
 from itertools import product

@@ -1,16 +1,11 @@
 """The error-field network over a machine-tool chain's own axes, and its training.
 
-:class:`ChainMLPField` is the grinder's :class:`training.model.MLPField` (layers, activations, functional
-``forward``/``param_jacobian``, trainers, output scaling, file set) with one input per axis column of the chain
-in its canonical order, each scaled from its training range to ``[-1, 1]``, a full-turn rotary axis as
-``(cos q, sin q)`` (exactly periodic, no seam closure). Output ``(dx_um, dy_um, dz_um)``, the tool point's
-error in the workpiece frame. ``predict``/``jacobian``/``predict_and_jacobian``: float64 torch on rows in blocks
-of ``chunk`` points, the input Jacobian (n, 3, k) μm per mm / per deg by forward-mode tangents. Files: the
-grinder's set with ``format = "volcomp-chain-mlpfield/1"``, the axis columns, periodic inputs and machine
-(name, SHA-256) in ``config.json``; :func:`check_machine` refuses it on another machine.
-:func:`fit_chain_field` trains it like :func:`training.trainers.fit_field`. docs/reference/learned-stage.md
-("The network over a chain").
-"""
+:class:`ChainMLPField` is :class:`training.model.MLPField` (layers, activations, trainers, output scaling,
+file set) with one input per axis column of the chain, each scaled from its training range to ``[-1, 1]``, a
+full-turn rotary axis as ``(cos q, sin q)`` (exactly periodic). Output: the tool point's error (μm) in the
+workpiece frame, with the input Jacobian (n, 3, k) by forward-mode tangents. Its files record the format
+``volcomp-chain-mlpfield/1``, the axis columns and the machine (:func:`check_machine` refuses another);
+:func:`fit_chain_field` trains it. docs/reference/learned-stage.md ("The network over a chain")."""
 from __future__ import annotations
 
 import json
@@ -25,7 +20,7 @@ import torch
 from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN, CalibratedVolume
 from errormap.io import InputError, read_document_text
 
-from .model import A_ENCODINGS, MODEL_FILES, PAPER_HIDDEN, MLPField, check_model_files, check_model_format
+from .model import A_ENCODINGS, PAPER_HIDDEN, MLPField, check_model_files
 from .physics import PHYSICS_FILES, PhysicsPart
 
 CHAIN_FORMAT = "volcomp-chain-mlpfield/1"
@@ -142,25 +137,8 @@ class ChainMLPField(MLPField):
     def jacobian(self, axes) -> np.ndarray:
         return self.predict_and_jacobian(axes)[1]
 
-    def jacobian_reference(self, axes) -> np.ndarray:
-        """Central differences of :meth:`predict` (the tests' reference), (n, 3, k)."""
-        axes = self._check(axes)
-        J = np.empty((axes.shape[0], 3, self.n_axes))
-        for j in range(self.n_axes):
-            h = 1e-4
-            ap, am = axes.copy(), axes.copy()
-            ap[:, j] += h
-            am[:, j] -= h
-            J[:, :, j] = (self.predict(ap) - self.predict(am)) / (2 * h)
-        return J
-
     def _infer_rows(self, axes, jac: bool):
-        theta = self._theta().detach()
-        shapes = self.shapes
-        layers, k = [], 0
-        for (o, n_in), _ in zip(shapes[0::2], shapes[1::2]):
-            layers.append((theta[k:k + o * n_in].view(o, n_in), theta[k + o * n_in:k + o * n_in + o]))
-            k += o * n_in + o
+        layers = self.layers(self._theta().detach())
         n = axes.shape[0]
         E = np.empty((n, 3))
         J = np.empty((n, 3, self.n_axes)) if jac else None
@@ -177,15 +155,7 @@ class ChainMLPField(MLPField):
                     if i == len(layers) - 1:
                         h = z
                         break
-                    if self.activation == "sigmoid":
-                        h = torch.sigmoid(z)
-                        d = h * (1.0 - h)
-                    elif self.activation == "tanh":
-                        h = torch.tanh(z)
-                        d = 1.0 - h * h
-                    else:
-                        d = torch.sigmoid(z)
-                        h = torch.nn.functional.softplus(z)
+                    h, d = self.act_and_slope(z)
                     if jac:
                         Tt = Tt * d.unsqueeze(2)
                 E[s0:s0 + blk] = h.numpy() * self.out_scale_ + self.out_mean_
@@ -213,19 +183,14 @@ class ChainMLPField(MLPField):
     @classmethod
     def load(cls, directory) -> "ChainMLPField":
         """Load a folder written by :meth:`save` (InputError naming file and key otherwise)."""
-        d = Path(directory)
-        for name in ("config.json",) + MODEL_FILES:
-            if not (d / name).is_file():
-                raise InputError(f"{d}: not a saved chain network (missing {name})")
-        try:
-            cfg = json.loads(read_document_text(d / "config.json", "a trained model's config"))
-            sc = json.loads(read_document_text(d / "scalers.json", "a trained model's scalers"))
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise InputError(f"{d}: config.json or scalers.json is not valid JSON: {exc}") from None
-        check_model_format(d, cfg, CHAIN_FORMAT)
+        d, cfg = cls._config(directory, CHAIN_FORMAT, "chain network")
         if cfg.get("physics") and cls is ChainMLPField:  # a network on what a fitted physical part leaves
             return ChainPhysicsMLPField.load(d)
         check_model_files(cls, d, cfg)
+        try:
+            sc = json.loads(read_document_text(d / "scalers.json", "a trained model's scalers"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise InputError(f"{d / 'scalers.json'}: not valid JSON: {exc}") from None
         try:
             m = cls(cfg["inputs"], cfg["periodic"], cfg.get("machine", ""), cfg.get("machine_sha256", ""),
                     cfg["hidden"], cfg["activation"])

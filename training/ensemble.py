@@ -1,14 +1,11 @@
 """A deep ensemble of small multilayer perceptrons: a learned-residual family beside the GP.
 
 :class:`MLPEnsemble` is the ``"ensemble"`` family of :class:`training.residual.ResidualRegressor` (the GP's
-interface: ``fit(Xs, Ys)`` on standardised inputs and scaled outputs, ``predict(Xs, return_std, jacobian)``,
-``noise_var()``): :data:`N_MEMBERS` networks ``d → H → H → 3`` (tanh, :data:`HIDDEN` units), each from its own
-child of ``SeedSequence.spawn``, trained by L-BFGS on the MSE plus a weight decay toward zero
-(:data:`WEIGHT_DECAY`); prediction the members' mean, band their spread (calibrated by the regressor on the
-held-out folds), noise the mean's training residual variance; closed-form Jacobian through the tanh layers.
-Numpy only. An MLP does not decay to zero outside its data by itself: :class:`compensation.hybrid.LearnedResidual`
-tapers every family there. docs/reference/learned-stage.md.
-"""
+interface): :data:`N_MEMBERS` tanh networks ``d → H → H → 3``, each from its own ``SeedSequence.spawn``
+child, trained by L-BFGS on the MSE plus a weight decay toward zero (:data:`WEIGHT_DECAY`); prediction the
+members' mean, band their spread, noise the mean's training residual variance; closed-form Jacobian.
+:class:`compensation.hybrid.LearnedResidual` tapers it to zero outside its data.
+docs/reference/learned-stage.md."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,22 +1,13 @@
 """The batched GA's fitness through the network as one float32 torch pipeline.
 
-The ``offset_fitness`` capability of :class:`training.model.MLPField` (:mod:`errormap.field`):
-for WCS targets ``p_d`` and offsets ``d`` (μm) the fitness is ``-|d + E(IK(p_d + 1e-3·d))|²``
-(μm²), the nominal inverse kinematics and the network run on columns (points as columns), no
-round trip through numpy between them. float32 is ample here: the offsets resolve 1.5e-5 μm at
-250 μm, and the field's float32 error is ~1e-4 μm (``tests/test_model_inference.py``) against
-the GA's ~0.01 μm resolution; the solver recomputes commands and residuals in float64.
-
-IK: the closed-form inverse of a chain whose nominal tool point is
-``p = (c_x - q0, Rot_x(-q2)·(t_y, c_h + q1))`` (a linear axis along -x, a linear axis along the
-radius of a rotary axis about x: the X-Z-A grinder): ``x = c_x - p_x``,
-``h = sqrt(p_y² + p_z² - t_y²)``, ``z = h - c_h``, ``a = atan2(p_y, p_z) - atan2(t_y, h)`` (deg), which
-``predict_columns`` folds into the field's turn (the generic path folds into the stroke's turn
-first; E is periodic, so both are the same point of the field). The constants ``(c_x, t_y, c_h)``
-are read from the machine's chain (:func:`closed_form_constants`: its nominal tool point at zero
-axes), and the form itself is checked on the chain there; a machine of another form is refused,
-never given a wrong inverse. No machine's geometry is named here.
-"""
+The ``offset_fitness`` capability of :class:`training.model.MLPField` (:mod:`errormap.field`): for WCS
+targets ``p_d`` and offsets ``d`` (μm) the fitness is ``-|d + E(IK(p_d + 1e-3·d))|²`` (μm²), the nominal
+inverse kinematics and the network run on columns, no round trip through numpy between them (float32 is
+ample: the field's float32 error ~1e-4 μm against the GA's ~0.01 μm resolution; the solver recomputes
+commands and residuals in float64). IK: the closed-form inverse of a chain whose nominal tool point is ``p =
+(c_x - q0, Rot_x(-q2)·(t_y, c_h + q1))`` (the X-Z-A grinder's form), its constants read and its form checked
+on the machine's chain (:func:`closed_form_constants`); a machine of another form is refused. The
+derivation: docs/explanation/solvers.md."""
 from __future__ import annotations
 
 import math
@@ -96,6 +87,8 @@ class FusedOffsetFitness:
         return out
 
     def _block(self, pts, dT):
+        """One block through the closed-form inverse: ``x = c_x - p_x``, ``h = sqrt(p_y² + p_z² - t_y²)``,
+        ``z = h - c_h``, ``a = atan2(p_y, p_z) - atan2(t_y, h)`` (deg), then the network."""
         dm = dT * MM_PER_UM  # (3, k) mm
         xa = torch.empty_like(dT)
         torch.sub(self.x[pts], dm[0], out=xa[0])

@@ -13,41 +13,28 @@ from scipy.optimize import minimize
 
 GP_KERNELS = {"gp": "rbf", "gp_matern52": "matern52", "gp_matern32": "matern32", "gp_sum": "rbf_sum",
               "gp_additive": "additive"}
-"""The Gaussian-process families and their kernel (:func:`_kernel`): the squared exponential
-(infinitely smooth), Matérn 5/2 (twice differentiable) and Matérn 3/2 (once differentiable: the
-roughest that still has the closed-form Jacobian the solvers need). A local feature (a bump of a
-few length scales) may be fitted with less smoothing by a rougher kernel; which one serves is
-decided by the blocked cross-validation like any other family. ``rbf_sum`` is the sum of a
-LONG- and a SHORT-length-scale ARD squared exponential (:data:`SUM_LOG_LENGTH_BOUNDS`): a smooth
-trend over the volume plus a local feature, each with its own length scales and variance.
-``additive`` is an ADDITIVE kernel (:func:`additive_terms`): a sum of squared exponentials, one on
-each input group alone (first order) and one on each pair of groups (second order), with one
-length scale per input shared by every term it enters and one variance per term, all by maximum
-marginal likelihood. A field that is a sum of one- and two-group functions is then learned with
-far fewer effective degrees of freedom than by one ARD kernel on all inputs at once (which can
-represent any interaction of every input, so it must also estimate them)."""
+"""The Gaussian-process families and their kernel (:func:`_kernel`): the squared exponential, Matérn 5/2 and
+Matérn 3/2 (the roughest that keeps the closed-form Jacobian), ``rbf_sum`` (a LONG- plus a
+SHORT-length-scale ARD squared exponential, :data:`SUM_LOG_LENGTH_BOUNDS`) and ``additive`` (a sum of
+squared exponentials on each input group and each pair of groups, :func:`additive_terms`). Which one serves
+is decided by the blocked cross-validation; the families: docs/reference/learned-stage.md."""
 
 LOG_LENGTH_BOUNDS = (np.log(0.05), np.log(5.0))
-"""Length scales in standardised input units: below 0.05 σ a GP interpolates noise point by
-point; 5 σ is already nearly flat over the data (which spans about ±1.7 σ), and the bound keeps
-the learned part decaying to zero within a few data widths outside the data (no extrapolation
-of a trend: at 15 σ outside, the kernel is exp(−4.5) of its value inside)."""
+"""Length scales in standardised input units: below 0.05 σ a GP interpolates noise point by point; 5 σ is
+nearly flat over the data (±1.7 σ) and keeps the learned part decaying to zero within a few data widths
+outside it."""
 
 SUM_LOG_LENGTH_BOUNDS = ((np.log(0.7), np.log(5.0)), (np.log(0.05), np.log(0.7)))
-"""The ``rbf_sum`` kernel's two parts, in standardised input units: the LONG part's length
-scales from 0.7 σ to the single kernel's upper bound (5 σ), the SHORT part's from the single
-kernel's lower bound (0.05 σ) to 0.7 σ, so the two parts cannot swap roles (the split at 0.7 σ:
-about a fifth of the data's width, ±1.7 σ)."""
+"""The ``rbf_sum`` kernel's two parts, in standardised input units: the LONG part's length scales from 0.7 σ
+to 5 σ, the SHORT part's from 0.05 σ to 0.7 σ, so the two parts cannot swap roles."""
 
 LOG_VAR_BOUNDS = (np.log(1e-6), np.log(10.0))
 """Signal and noise variances relative to the output's mean square (outputs are scaled by their
 RMS): 1e-6 is 'nothing', 10 is ten times all there is."""
 
 ADDITIVE_MAX_ORDER = 2
-"""The additive kernel's terms go up to pairs of input groups (first and second order): the orders
-an engineer's error budget is written in (an error of one axis, a coupling of two). It is fixed in
-advance for every input set, not chosen from the effects a benchmark designs; a field of three
-groups at once is left to the full ARD kernels, which the cross-validation compares with it."""
+"""The additive kernel's terms go up to pairs of input groups (an error of one axis, a coupling of two),
+fixed in advance for every input set; a field of three groups at once is left to the full ARD kernels."""
 
 PREDICT_CHUNK = 2048
 """Rows of X predicted at once (the cross-kernel is chunk × n_train × d floats)."""

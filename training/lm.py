@@ -1,36 +1,18 @@
 """Levenberg–Marquardt training of an :class:`~training.model.MLPField` (float64).
 
-Damped Gauss–Newton on the flat parameter vector ``theta``: with residuals ``r`` (scaled
-network outputs minus scaled targets, all samples and outputs, shape (3n,)) and their
-Jacobian ``J`` (shape (3n, P), by explicit backpropagation, or per-sample
-``vmap(jacrev(...))`` from :mod:`torch.func`), each step solves
+Damped Gauss–Newton on the flat parameter vector ``theta``: with residuals ``r`` (scaled network outputs
+minus scaled targets, shape (3n,)) and their Jacobian ``J`` (3n, P), by explicit backpropagation or
+``vmap(jacrev(...))`` from :mod:`torch.func`, each step solves ``(JᵀJ + μ D) δ = -Jᵀ r`` by a Cholesky
+factorisation (``JᵀJ`` and ``Jᵀr`` formed once per Jacobian; a rejected step only re-factors).
 
-    (JᵀJ + μ D) δ = -Jᵀ r
-
-by a Cholesky factorisation (``torch.linalg.cholesky_ex``, float64). ``JᵀJ`` and ``Jᵀr`` are
-formed once per Jacobian; a rejected step only re-factors with the new μ.
-
-Settings (:class:`LMSettings`):
-
-* ``scaling``: ``"identity"`` (default) — ``D = I`` (as MATLAB ``trainlm``, the paper's tool);
-  ``"marquardt"`` — ``D`` = the running maximum over iterations of ``diag(JᵀJ)`` (Marquardt's
-  scaling with Moré's safeguard). On the grinder data the identity reached 0.0267 μm max in
-  52 s, Marquardt's in 197 s (docs/decisions/020-benchmark-notebook.md).
-* ``damping``: ``"nielsen"`` (default) — gain ratio ``ρ`` = actual / predicted decrease of
-  the sum of squares; a step is taken when ``ρ > 0`` and then ``μ ← μ·max(1/3, 1−(2ρ−1)³)``,
-  ``ν ← 2``; a rejection sets ``μ ← μ·ν``, ``ν ← 2ν`` (Nielsen 1999; Madsen, Nielsen &
-  Tingleff, *Methods for non-linear least squares problems*, 2004). ``"trainlm"`` —
-  MATLAB's rule: taken when the loss falls, then ``μ × mu_dec``, else ``μ × mu_inc``.
-* ``geodesic`` (default on): add Transtrum's geodesic acceleration (Transtrum & Sethna 2012): the
-  second directional derivative of ``r`` along the step ``v`` by one extra forward pass,
-  ``a`` from the same factorisation, step ``v + a/2``, kept only when
-  ``2|a|/|v| ≤ geo_alpha``.
-
-Only steps that lower the loss are ever taken. Stopping rules (the paper's defaults): MSE
-goal on the scaled outputs (``mse_goal = 2.5e-10``), optional ``max_abs_goal`` (largest
-|scaled residual|, i.e. max error / output scale), ``max_iter`` iterations, ``max_time_s``
-wall clock, μ above ``mu_max``, gradient norm below ``min_grad``.
-"""
+Settings (:class:`LMSettings`): ``scaling`` ``"identity"`` (``D = I``, MATLAB ``trainlm``'s, the default) or
+``"marquardt"`` (``D`` the running maximum of ``diag(JᵀJ)``); ``damping`` ``"nielsen"`` (the default: gain
+ratio ``ρ``; taken when ``ρ > 0``, then ``μ ← μ·max(1/3, 1−(2ρ−1)³)``, ``ν ← 2``; a rejection ``μ ← μ·ν``,
+``ν ← 2ν``) or ``"trainlm"`` (MATLAB's ``mu_dec`` / ``mu_inc``); ``geodesic`` (default on: Transtrum's
+geodesic acceleration, step ``v + a/2`` kept when ``2|a|/|v| ≤ geo_alpha``). Only steps that lower the loss
+are taken. Stopping: MSE goal on the scaled outputs, optional ``max_abs_goal``, ``max_iter``,
+``max_time_s``, ``mu_max``, ``min_grad``. The measurements behind the defaults:
+docs/decisions/020-benchmark-notebook.md."""
 from __future__ import annotations
 
 import time

@@ -2,25 +2,15 @@
 
 A float64 multilayer perceptron (default hidden layers 10, 15, 25, 15, 10, sigmoid: the grinder paper's), in
 functional form ``forward(theta, features)`` with all weights in one flat vector ``theta`` so the trainers
-(Levenberg–Marquardt) take per-sample Jacobians with :mod:`torch.func`. Scaling lives inside the model and its
-saved files: inputs mapped from their training range to ``[-1, 1]`` (``a_encoding="periodic"``: A as
-``(cos a, sin a)``); outputs minus their per-axis mean, divided by ONE common scale (the largest per-axis
-half-range), so the loss weighs every axis alike in μm (the paper's MSE goal 2.5e-10 ≈ RMS 1.6e-5 × scale μm).
+(Levenberg–Marquardt) take per-sample Jacobians. Scaling lives inside the model and its saved files: inputs
+mapped from their training range to ``[-1, 1]`` (``a_encoding="periodic"``: A as ``(cos a, sin a)``);
+outputs minus their per-axis mean, divided by ONE common scale (the largest per-axis half-range).
 
-``predict``/``jacobian`` fold A outside the training turn ``[a0, a0 + 360]`` back into it. **Seam closure**
-(raw A input, which is not periodic): at inference
-
-    E(x, z, a) = N(x, z, a) + (N(x, z, a0) − N(x, z, a0 + 360))·r(t),
-    t = (a − (a0 + 360 − w))/w,   r = 0 for t ≤ 0, r = t²(3 − 2t) for 0 < t ≤ 1,
-
-``w = SEAM_WINDOW_DEG`` (30°), so E is periodic and continuous (included in ``jacobian``; ``forward``,
-``param_jacobian`` and the training metrics use the raw network). **Fast inference**: ``predict`` /
-``predict_and_jacobian`` run cached weights on points as columns in blocks of ``BLOCK``, the input Jacobian by
-forward-mode tangents; calls under ``SMALL_BATCH`` points on one torch thread; ``dtype=np.float32`` a float32
-path; ``predict_columns`` the solvers' inner loop (columns in and out, no validation, scalings folded into the
-first and last layers); ``jacobian_reference`` the ``torch.func.jvp`` reference. docs/explanation/solvers.md
-("Known limits", "Speed").
-"""
+``predict``/``jacobian`` fold A into the training turn ``[a0, a0 + 360]`` and, with the raw A input, close
+the seam: over the last ``SEAM_WINDOW_DEG`` (30°) they add ``(N(x, z, a0) − N(x, z, a0 + 360))·t²(3 − 2t)``,
+``t`` the ramp's fraction (docs/explanation/solvers.md, "Known limits"; ``forward``, ``param_jacobian`` and
+the training metrics use the raw network). Fast inference (cached weights, points as columns, a float32
+path, ``predict_columns`` for the solvers' inner loop): docs/explanation/solvers.md ("Speed")."""
 from __future__ import annotations
 
 import json
@@ -29,7 +19,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from torch.func import jvp
 
 from errormap.field import (FLOAT32, JACOBIAN, OFFSET_FITNESS, PREDICT_AND_JACOBIAN, PREDICT_COLUMNS, CalibratedVolume)
 from errormap.io import OUTPUT_LOCK_NAME, InputError, read_document_text, atomic_dir, atomic_write, load_array, sha256_file, write_json
@@ -141,21 +130,32 @@ class MLPField:
             parts.append((torch.rand(math.prod(shp), generator=g, dtype=DTYPE) * 2 - 1) * bound)
         return torch.cat(parts)
 
+    def layers(self, theta: torch.Tensor) -> list:
+        """``[(W (out, in), b (out,))]`` per layer: views of the flat parameter vector ``theta``."""
+        out, k = [], 0
+        for (o, n_in), _ in zip(self.shapes[0::2], self.shapes[1::2]):
+            out.append((theta[k:k + o * n_in].view(o, n_in), theta[k + o * n_in:k + o * n_in + o]))
+            k += o * n_in + o
+        return out
+
+    def act_and_slope(self, z: torch.Tensor):
+        """The activation at the pre-activations ``z`` and its derivative there."""
+        if self.activation == "sigmoid":
+            h = torch.sigmoid(z)
+            return h, h * (1 - h)
+        if self.activation == "tanh":
+            h = torch.tanh(z)
+            return h, 1 - h * h
+        return torch.nn.functional.softplus(z), torch.sigmoid(z)
+
     def forward(self, theta: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         """Scaled outputs from scaled features; ``u`` shape (n, n_inputs) or (n_inputs,)."""
         act = ACTIVATIONS[self.activation]
+        layers = self.layers(theta)
         h = u
-        k = 0
-        shapes = self.shapes
-        n_layers = len(shapes) // 2
-        for i in range(n_layers):
-            (o, n_in), _ = shapes[2 * i], shapes[2 * i + 1]
-            W = theta[k:k + o * n_in].view(o, n_in)
-            k += o * n_in
-            b = theta[k:k + o]
-            k += o
+        for i, (W, b) in enumerate(layers):
             h = h @ W.T + b
-            if i < n_layers - 1:
+            if i < len(layers) - 1:
                 h = act(h)
         return h
 
@@ -166,29 +166,14 @@ class MLPField:
         times faster, because all samples and the three outputs go through one batched
         backward pass of plain matrix products.
         """
-        shapes = self.shapes
-        n_layers = len(shapes) // 2
-        Ws, acts, dacts = [], [u], []
-        k = 0
+        layers = self.layers(theta)
+        n_layers = len(layers)
+        acts, dacts = [u], []
         h = u
-        for i in range(n_layers):
-            (o, n_in) = shapes[2 * i]
-            W = theta[k:k + o * n_in].view(o, n_in)
-            k += o * n_in + o
-            b = theta[k - o:k]
-            Ws.append(W)
-            z = h @ W.T + b
-            if i < n_layers - 1:
-                if self.activation == "sigmoid":
-                    h = torch.sigmoid(z)
-                    dacts.append(h * (1 - h))
-                elif self.activation == "tanh":
-                    h = torch.tanh(z)
-                    dacts.append(1 - h * h)
-                else:
-                    h = torch.nn.functional.softplus(z)
-                    dacts.append(torch.sigmoid(z))
-                acts.append(h)
+        for W, b in layers[:-1]:
+            h, d = self.act_and_slope(h @ W.T + b)
+            dacts.append(d)
+            acts.append(h)
         n = u.shape[0]
         blocks = [None] * (2 * n_layers)
         delta = torch.eye(3, dtype=u.dtype).expand(n, 3, 3)  # (n, out k, units of last layer)
@@ -197,7 +182,7 @@ class MLPField:
             blocks[2 * i] = (delta[:, :, :, None] * a_prev[:, None, None, :]).reshape(n, 3, -1)
             blocks[2 * i + 1] = delta
             if i > 0:
-                delta = (delta @ Ws[i]) * dacts[i - 1][:, None, :]
+                delta = (delta @ layers[i][0]) * dacts[i - 1][:, None, :]
         return torch.cat(blocks, dim=2)
 
     # -- scaling ------------------------------------------------------------------------
@@ -263,16 +248,6 @@ class MLPField:
 
     __call__ = predict
 
-    def _raw_to_scaled(self, x: torch.Tensor) -> torch.Tensor:
-        """Differentiable raw axes (x_mm, z_mm, a_deg), shape (n, 3), A already wrapped -> features."""
-        lo = torch.as_tensor(self.in_lo_, dtype=DTYPE)
-        hi = torch.as_tensor(self.in_hi_, dtype=DTYPE)
-        u = 2.0 * (x - lo) / (hi - lo) - 1.0
-        if self.a_encoding == "periodic":
-            r = torch.deg2rad(x[:, 2])
-            u = torch.stack([u[:, 0], u[:, 1], torch.cos(r), torch.sin(r)], dim=1)
-        return u
-
     def jacobian(self, axes) -> np.ndarray:
         """∂(error μm)/∂(x_mm, z_mm, a_deg) at raw axes, shape (n, 3, 3).
 
@@ -287,48 +262,14 @@ class MLPField:
 
         Forward-mode differentiation written out: with ``z = W h + b`` and ``h' = σ(z)`` the
         three input tangents (one per axis) go through each layer as ``dh' = σ'(z) ⊙ (W dh)``,
-        as one matrix product over all points and the three tangents; equal to
-        :meth:`jacobian_reference` (``torch.func.jvp``) to float64 rounding (tested).
+        as one matrix product over all points and the three tangents; equal to ``torch.func.jvp``
+        to float64 rounding (tested).
         ``dtype=np.float32`` runs the network in float32 (a Newton start, where only the
         step direction matters); the arrays returned are float64 either way.
         """
         axes = _check_axes(axes)
         self._theta()
         return self._infer(axes, jac=True, dtype=dtype)
-
-    def jacobian_reference(self, axes) -> np.ndarray:
-        """The slow reference: ``torch.func.jvp`` on :meth:`forward`, shape (n, 3, 3), with the seam."""
-        axes = _check_axes(axes)
-        theta = self._theta()
-        a = wrap_a(axes[:, 2], self.a0_deg_)
-
-        def net(x):
-            return self.forward(theta, self._raw_to_scaled(x))
-
-        def jac_and_val(x_np):
-            x = torch.from_numpy(np.ascontiguousarray(x_np))
-            cols = []
-            with torch.no_grad():
-                for k in range(3):
-                    t = torch.zeros_like(x)
-                    t[:, k] = 1.0
-                    y, dy = jvp(net, (x,), (t,))
-                    cols.append(dy.numpy())
-            return y.numpy() * self.out_scale_ + self.out_mean_, np.stack(cols, axis=2) * self.out_scale_
-
-        x = np.column_stack([axes[:, 0], axes[:, 1], a])
-        e, J = jac_and_val(x)
-        w = self._seam_window()
-        if w:
-            t = (a - (self.a0_deg_ + 360.0 - w)) / w
-            m = t > 0
-            if m.any():
-                e0, J0 = jac_and_val(np.column_stack([x[m, :2], np.full(m.sum(), self.a0_deg_)]))
-                e1, J1 = jac_and_val(np.column_stack([x[m, :2], np.full(m.sum(), self.a0_deg_ + 360.0)]))
-                tm = t[m]
-                J[m, :, :2] += (tm * tm * (3 - 2 * tm))[:, None, None] * (J0 - J1)[:, :, :2]
-                J[m, :, 2] += (e0 - e1) * (6 * tm * (1 - tm) / w)[:, None]
-        return J
 
     # -- fast inference -----------------------------------------------------------------
     SEAM_WINDOW_DEG = 30.0
@@ -360,14 +301,9 @@ class MLPField:
         nets = cache[1]
         if dtype not in nets:
             tdt = torch.float32 if dtype == np.float32 else torch.float64
-            layers, k = [], 0
             with torch.no_grad():
-                for (o, n_in), _ in zip(self.shapes[0::2], self.shapes[1::2]):
-                    W = theta[k:k + o * n_in].detach().view(o, n_in)
-                    k += o * n_in
-                    b = theta[k:k + o].detach()
-                    k += o
-                    layers.append((W.contiguous().to(tdt), b.reshape(o, 1).to(tdt)))
+                layers = [(W.contiguous().to(tdt), b.reshape(-1, 1).to(tdt))
+                          for W, b in self.layers(theta.detach())]
                 s = 2.0 / (self.in_hi_ - self.in_lo_)
                 W1 = layers[0][0]  # (h1, n_inputs)
                 # first layer's pre-activation tangent per axis, (h1, 3 axes, 1); the periodic
@@ -600,15 +536,7 @@ class MLPField:
     def load(cls, directory) -> "MLPField":
         """Load a folder written by :meth:`save`; raises :class:`InputError` for a missing file,
         another format or a file whose SHA-256 differs from the one ``config.json`` records."""
-        d = Path(directory)
-        for name in ("config.json",) + MODEL_FILES:
-            if not (d / name).is_file():
-                raise InputError(f"{d}: not a saved MLPField (missing {name})")
-        try:
-            cfg = json.loads(read_document_text(d / "config.json", "a trained model's config"))
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise InputError(f"{d / 'config.json'}: not valid JSON: {exc}") from None
-        check_model_format(d, cfg, FORMAT)
+        d, cfg = cls._config(directory, FORMAT, "MLPField")
         if cfg.get("physics") and cls is MLPField:  # a network on what a fitted physical part leaves
             return PhysicsMLPField.load(d)
         check_model_files(cls, d, cfg)
@@ -620,6 +548,21 @@ class MLPField:
         m.out_mean_ = np.asarray(sc["out_mean_um"], dtype=float)
         m.out_scale_ = float(sc["out_scale_um"])
         return m._read_weights(d)
+
+    @staticmethod
+    def _config(directory, fmt: str, what: str) -> tuple:
+        """``(folder, its config.json)`` of a folder written by :meth:`save` in format ``fmt``; InputError
+        naming the file for a missing file (``what``: the model's name), bad JSON or another format."""
+        d = Path(directory)
+        for name in ("config.json",) + MODEL_FILES:
+            if not (d / name).is_file():
+                raise InputError(f"{d}: not a saved {what} (missing {name})")
+        try:
+            cfg = json.loads(read_document_text(d / "config.json", "a trained model's config"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise InputError(f"{d / 'config.json'}: not valid JSON: {exc}") from None
+        check_model_format(d, cfg, fmt)
+        return d, cfg
 
     def _read_weights(self, d: Path):
         """The weights (``weights.npy``, ``n_params`` values) and extra files of a saved folder ``d``; returns self."""

@@ -1,19 +1,12 @@
 """The physical part of the residual-on-physics surrogate: an element set fitted to feature points.
 
-``volcomp train --physics first-order`` trains the network on what a cheap physical model leaves: the machine's
-element set fitted by ONE minimum-norm linear least-squares solve to the same feature points (never to the set
-the points were computed from)::
-
-    E(axes) ≈ J(axes) · v(axes)       (first-order error transfer, errormap.chain_kernel.error_jacobian)
-
-each axis-motion element a cubic interpolating B-spline through ``n_stations`` equally spaced stations of its
-axis (periodic on a full turn; zero at the first station), plus the constants; the unknowns are the station
-values, and gauge combinations the grid cannot see take no value. The fitted set is evaluated with the EXACT
-chain (:class:`errormap.chain_field.ChainField`). Stations default to the grid's own nodes (at most
-:data:`MAX_STATIONS`). :func:`solve_station_values` is the solve, :func:`fit_chain_physics_elements` a chain's
-slots, :class:`PhysicsPart` the physical part of :class:`training.model.PhysicsMLPField` and
-:class:`training.chain_model.ChainPhysicsMLPField`. docs/reference/learned-stage.md ("Physics first").
-"""
+``volcomp train --physics first-order`` trains the network on what a cheap physical model leaves: the
+machine's element set fitted by ONE minimum-norm linear least-squares solve to the same feature points,
+``E(axes) ≈ J(axes)·v(axes)`` (first-order error transfer), each axis-motion element a cubic interpolating
+B-spline through ``n_stations`` stations of its axis, and evaluated with the EXACT chain
+(:class:`errormap.chain_field.ChainField`). :func:`solve_station_values` is the solve,
+:func:`fit_chain_physics_elements` a chain's slots, :class:`PhysicsPart` the physical part of the networks.
+docs/reference/learned-stage.md ("Physics first")."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,19 +1,11 @@
 """The learned field as an MLflow ``pyfunc`` model.
 
-A run's ``model/`` artifact is a pyfunc model folder::
-
-    model/MLmodel              flavor python_function (loader_module training.pyfunc, data "."),
-                               signature: x_mm, z_mm, a_deg (double) -> dx_um, dy_um, dz_um (double)
-    model/input_example.json   three axis points inside the training range
-    model/config.json, scalers.json, weights.npy   the network and its scalers (MLPField.save)
-    model/machine.toml         the machine file the field was trained for, when known
-
-so ``mlflow models serve -m runs:/<id>/model`` and ``mlflow.pyfunc.load_model(...).predict(df)``
-work on it (volcomp must be importable where it is served: ``--env-manager local`` in an
-environment with volcomp installed), and ``volcomp --model <run id>`` loads the same folder as
-before. The pyfunc predicts exactly what :meth:`training.model.MLPField.predict` does (float64)
-and applies no guard: the range checks stay with ``volcomp predict`` / ``compensate``.
-"""
+A run's ``model/`` artifact is a pyfunc model folder (``MLmodel``: flavor ``python_function``, loader module
+``training.pyfunc``, signature x_mm, z_mm, a_deg -> dx_um, dy_um, dz_um; ``input_example.json``; the
+network's files of :meth:`training.model.MLPField.save`; ``machine.toml`` when known), so ``mlflow models
+serve`` and ``mlflow.pyfunc.load_model(...).predict(df)`` work on it and ``volcomp --model <run id>`` loads
+it. It predicts exactly what :meth:`training.model.MLPField.predict` does and applies no guard.
+docs/reference/file-formats.md."""
 from __future__ import annotations
 
 import shutil

@@ -1,18 +1,11 @@
 """MLflow tracking: every fit is a run; trained fields load back by run id or URI.
 
-Store: ``MLFLOW_TRACKING_URI`` when set (or an explicit ``tracking_uri``: a tracking server
-``http://host:port`` or any MLflow URI); otherwise an embedded SQLite store at
-``runs/mlflow.db`` with artifacts under ``runs/artifacts``, relative to the working folder
-(as MLflow's own default ``./mlruns`` is; never inside the installed package).
-No server is needed for the default. For any ``sqlite:///…/name.db`` store the experiment's
-artifacts go to ``artifacts/`` beside the database file (MLflow would otherwise put them
-under the working directory).
-
-A run holds: parameters (architecture, trainer, stopping rules, seed, SHA-256 of the
-feature-point data and of the machine file, ...), metrics (``loss`` per iteration =
-MSE on scaled outputs, ``train_*``/``val_*`` max and RMS in μm), artifacts (``model/``: an
-MLflow pyfunc model holding config, scalers, weights, see :mod:`training.pyfunc`; the two fit plots; ``metrics.json``) and tags (``machine``, ...).
-"""
+Store: ``MLFLOW_TRACKING_URI`` or an explicit ``tracking_uri``; otherwise an embedded SQLite store at
+``runs/mlflow.db`` with artifacts under ``runs/artifacts`` in the working folder (for any
+``sqlite:///…/name.db`` store, ``artifacts/`` beside the database file): docs/reference/file-formats.md
+("The MLflow store"). A run holds parameters (architecture, trainer, stopping rules, seed, data and machine
+SHA-256, ...), metrics (``loss`` per iteration, ``train_*``/``val_*`` max and RMS in μm), artifacts
+(``model/``, an MLflow pyfunc model, :mod:`training.pyfunc`; the fit plots; ``metrics.json``) and tags."""
 from __future__ import annotations
 
 import os

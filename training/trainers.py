@@ -1,20 +1,11 @@
 """Trainers for the error-field network and ``fit_field``, the one call that trains and tracks.
 
-Three trainers share one contract, ``train(model, theta0, u, y, settings, callback) ->
-(theta, TrainHistory)`` on scaled features ``u`` and scaled targets ``y``:
-
-* ``lm``    — Levenberg–Marquardt (:mod:`training.lm`), the paper's, the default (Nielsen damping,
-  μI damping matrix, geodesic acceleration; ``LMSettings(damping="trainlm", scaling="identity",
-  geodesic=False)`` is MATLAB's ``trainlm`` rule), from Nguyen–Widrow initial weights
-  (:func:`nguyen_widrow_params`, MATLAB's ``initnw``);
-* ``adam``  — :class:`torch.optim.Adam`, full batch, for comparison;
-* ``lbfgs`` — :class:`torch.optim.LBFGS` with a strong-Wolfe line search, full batch.
-
-All share the stopping rules (MSE goal on the scaled outputs, iteration cap, wall-clock
-budget). ``fit_field`` scales the data, trains, measures the fit in μm on the training
-points and on validation points (never seen in training), and records everything as an
-MLflow run (:mod:`training.tracking`).
-"""
+Three trainers share one contract, ``train(model, theta0, u, y, settings, callback) -> (theta,
+TrainHistory)`` on scaled features ``u`` and scaled targets ``y``, and the stopping rules (MSE goal on the
+scaled outputs, iteration cap, wall-clock budget): ``lm`` (Levenberg–Marquardt, :mod:`training.lm`, the
+paper's and the default, from Nguyen–Widrow initial weights, :func:`nguyen_widrow_params`), ``adam`` and
+``lbfgs`` (full batch, for comparison). ``fit_field`` scales the data, trains, measures the fit in μm on the
+training and on validation points, and records everything as an MLflow run (:mod:`training.tracking`)."""
 from __future__ import annotations
 
 import contextlib
@@ -372,8 +363,10 @@ class TrainSettings:
     physics_stations: int | None = None
 
     def __post_init__(self):
-        if self.physics not in PHYSICS:
-            raise ValueError(f"Expected physics in {PHYSICS}, got {self.physics!r}")
+        for name, allowed in (("physics", PHYSICS), ("trainer", TRAINERS), ("init", INITS),
+                              ("activation", sorted(ACTIVATIONS)), ("a_encoding", A_ENCODINGS)):
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"Expected {name} in {allowed}, got {getattr(self, name)!r}")
         if self.physics_stations is not None and not (
                 int(self.physics_stations) == self.physics_stations and MIN_STATIONS <= self.physics_stations <= MAX_STATIONS):
             raise ValueError(f"Expected physics_stations in [{MIN_STATIONS}, {MAX_STATIONS}] (an integer) or None, "
@@ -381,14 +374,6 @@ class TrainSettings:
         if self.physics_stations is not None and self.physics == "none":
             raise ValueError("Expected physics_stations only with physics 'first-order' (--physics first-order): "
                              "with physics 'none' there is no element set to place stations on")
-        if self.trainer not in TRAINERS:
-            raise ValueError(f"Expected trainer in {TRAINERS}, got {self.trainer!r}")
-        if self.init not in INITS:
-            raise ValueError(f"Expected init in {INITS}, got {self.init!r}")
-        if self.activation not in ACTIVATIONS:
-            raise ValueError(f"Expected activation in {sorted(ACTIVATIONS)}, got {self.activation!r}")
-        if self.a_encoding not in A_ENCODINGS:
-            raise ValueError(f"Expected a_encoding in {A_ENCODINGS}, got {self.a_encoding!r}")
         if not (self.max_time_s > 0):
             raise ValueError(f"Expected max_time_s > 0, got {self.max_time_s}")
         if not (int(self.max_iter) == self.max_iter and self.max_iter >= 1):
@@ -439,22 +424,16 @@ def fit_field(featurepoints, settings: TrainSettings | None = None, *, validatio
               tracking: TrackSettings | None = None, out_dir=None, quiet: bool = False, **overrides) -> FitResult:
     """Train an :class:`MLPField` on feature points and record the fit as an MLflow run.
 
-    ``featurepoints``: :class:`errormap.featurepoints.FeaturePoints` (axes, errors μm, meta).
-    ``settings``: :class:`TrainSettings`; ``tracking``: :class:`TrackSettings`. Keyword
-    ``overrides`` name fields of either (``fit_field(fp, max_iter=60, track=False)``) and go
-    through the same validation.
-    ``validation``: ``(axes (m, 3), errors (m, 3) μm)``; when None, ``n_validation`` random
-    off-grid points are generated from the HTM model named in the feature points' meta
-    (``elements_file``, ``machine_file``), and an :class:`InputError` is raised if there is none.
-    ``out_dir``: also save the model, plots and ``metrics.json`` there (written as a set).
-    ``selection`` (for ``select_best``): ``(axes (k, 3), errors (k, 3) μm)``, which must not be
-    the validation data; by default random off-grid points of the same HTM model as the
-    validation points from another stream of the seed (disjoint from them, so the reported
-    validation error stays independent). The feature-point fit keeps improving long after the
-    field between grid points stops improving (a 1,188-parameter network on an 11×11×11 grid
-    swings between the points); selection picks the iterate that is best over the volume. Off
-    when there is no HTM reference, and for the paper-target runs (``select_best=False``).
-    """
+    ``featurepoints``: :class:`errormap.featurepoints.FeaturePoints` (axes, errors μm, meta). ``settings``:
+    :class:`TrainSettings`; ``tracking``: :class:`TrackSettings`. Keyword ``overrides`` name fields of
+    either (``fit_field(fp, max_iter=60, track=False)``) and go through the same validation. ``validation``:
+    ``(axes (m, 3), errors (m, 3) μm)``; when None, ``n_validation`` random off-grid points of the HTM model
+    named in the feature points' meta (``elements_file``, ``machine_file``), InputError if there is none.
+    ``out_dir``: also save the model, plots and ``metrics.json`` there (written as a set). ``selection``
+    (for ``select_best``): ``(axes (k, 3), errors (k, 3) μm)``, never the validation data; by default random
+    off-grid points of the same model from another stream of the seed. Selection keeps the iterate best over
+    the volume, not on the grid (docs/reference/learned-stage.md); off without an HTM reference and with
+    ``select_best=False``."""
     s, t = _settings(settings, tracking, overrides)
     if out_dir is not None:
         check_run_folder(out_dir)

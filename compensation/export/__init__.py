@@ -1,28 +1,12 @@
 """Controller compensation tables from an error model, each checked against the model before writing.
 
 One export for every machine tool (a ``kind = "grinder"`` file is read as its chain): three table formats of
-a volumetric error model (:data:`FORMATS`) and a drift model's coefficients (``drift``), each with a writer,
-a reader and a *controller simulation* — how a controller uses the table — so that the check reports,
-before anything is written, the error the table leaves.
-
-``iso-tables`` (:mod:`.iso_tables`)
-    Per-axis ISO 230-1 component tables (``iso_<W>.csv``) and the location errors (``iso_location.csv``),
-    in the fixed machine frame; the controller interpolates every component linearly between rows and
-    rebuilds the elements. Rows are chosen to meet the tolerance.
-``grid`` (:mod:`.grid`)
-    A regular grid over every axis (a full-turn rotary axis over one turn, periodic) of the volumetric
-    error — ``grid.csv``; the controller interpolates multilinearly. The spacing is chosen to meet the
-    tolerance.
-``linuxcnc`` (:mod:`.linuxcnc`)
-    One pitch table per joint the exact solver moves (``joint_<w>.comp``: nominal forward reverse),
-    the model's correction projected onto that joint (averaged over the other axes inside ``region``),
-    forward/reverse from the model's reversal terms (a diagnosed backlash).
-``drift`` (:mod:`.drift`)
-    A thermal-drift model's discrete-time coefficients at a fixed sample period.
-
-The model and truth: :mod:`.model`, :mod:`.sources`; the check and the sizing: :mod:`.check`; the staged
-write: :mod:`.common`. The command: :mod:`compensation.app.commands.export`.
-"""
+a volumetric error model (:data:`FORMATS`: ``iso-tables`` :mod:`.iso_tables`, ``grid`` :mod:`.grid`,
+``linuxcnc`` :mod:`.linuxcnc`) and a drift model's coefficients (``drift``, :mod:`.drift`), each with a
+writer, a reader and a *controller simulation*, so that the check reports, before anything is written, the
+error the table leaves (docs/reference/controller-tables.md). The model and truth: :mod:`.model`,
+:mod:`.sources`; the check and the sizing: :mod:`.check`; the staged write: :mod:`.common`. The command:
+:mod:`compensation.app.commands.export`."""
 from .check import (build_checked_table, build_table, check_export, check_sets, point_set, read_back,
                     table_difference_um, volume_points, worst_model_um, write_table)
 from .common import (ALL_FORMATS, LINUXCNC_MAX_POINTS, TableField, staged_folder, table_bytes, weighted_node_means,

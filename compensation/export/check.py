@@ -36,11 +36,8 @@ def motion_dirs(axes) -> np.ndarray:
     out = np.ones_like(d)
     for k in range(d.shape[1]):
         nz = np.flatnonzero(d[:, k])
-        last = d[nz[0], k] if nz.size else 1.0
-        for i in range(len(d)):
-            if d[i, k] != 0:
-                last = d[i, k]
-            out[i, k] = last
+        if nz.size:   # forward fill from the latest move (before the first: the first move's)
+            out[:, k] = d[np.maximum.accumulate(np.where(d[:, k] != 0, np.arange(len(d)), nz[0])), k]
     return out
 
 

@@ -1,23 +1,12 @@
 """``iso-tables``: per-axis ISO 230-1 component tables of an element set, on any machine tool.
 
-``iso_<W>.csv`` for every axis ``W`` with component errors: the position column and the six components
-``E{X,Y,Z}<W>_um``, ``E{A,B,C}<W>_urad``, one row per position; ``iso_location.csv``: the location and
-squareness errors (constants), one row each (``name, value, unit, meaning``).
-
-Conventions (ISO 230-1, as :mod:`errormap.iso230` states them for the grinder, here for every chain): the
-error motion of the axis' moving body relative to its nominal pose, in the **fixed machine frame (MCS)**:
-translations μm along +X/+Y/+Z, angles μrad right-handed about +X/+Y/+Z, translations at the body's
-reference point (the origin of its frame in the chain, :meth:`errormap.machine_tool.MachineTool.body_frames`).
-The chain applies each axis' errors in the frame the body moves in; the tables turn them into the MCS with
-that frame's nominal rotation with the axis at the row's position and the other axes at their reference pose
-(0 clipped into the stroke: a body carried by another rotary axis, a five-axis table's C on its A, is
-tabulated with that axis at 0, as ISO 230 measures it), so a controller's kinematic compensation reads them
-without the chain's conventions; it turns them back the same way.
-
-Controller (the check): every component linearly between rows (a full-turn rotary axis over one turn,
-periodic; other axes clamped), the elements rebuilt from them, the exact chain's spatial error, and the
-axis command that puts the tool on the target.
-"""
+``iso_<W>.csv`` for every axis ``W`` with component errors (the position column and the six components
+``E{X,Y,Z}<W>_um``, ``E{A,B,C}<W>_urad``, one row per position) and ``iso_location.csv`` (the location and
+squareness errors, one row each: ``name, value, unit, meaning``), in the fixed machine frame (MCS) with the
+other axes at their reference pose, as :mod:`errormap.iso230` states the conventions. Controller (the
+check): every component linearly between rows (a full-turn rotary axis periodic, other axes clamped), the
+elements rebuilt from them, the exact chain's spatial error. The conventions and the rebuild:
+docs/reference/controller-tables.md."""
 from __future__ import annotations
 
 from dataclasses import dataclass

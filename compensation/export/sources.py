@@ -20,8 +20,14 @@ BACKLASH_EXPORT = "linuxcnc-backlash"
 CHECKS_DIAGNOSIS_FORMAT = "volcomp-checks-diagnosis/1"
 """The ``format`` key of ``diagnosis.json`` written by ``volcomp diagnose CHECKS`` on a grinder file (the drift
 diagnosis has its own content and no ``effects``)."""
-GRINDER_JOINT_ELEMENT = {"x": "dx_x", "z": "dz_z", "a": "ex_a"}
-"""A grinder file's joints and the element that is each one's own positioning error."""
+
+
+def joint_elements(machine) -> dict:
+    """``{axis word: the element that is its own positioning error}`` read from the machine's axes (a
+    linear axis along x: ``dx_<w>``; a rotary one about x: ``ex_<w>``); the grinder's
+    ``{x: dx_x, z: dz_z, a: ex_a}``."""
+    return {a.word.lower(): ("d" if a.kind == "linear" else "e") + "xyz"[a.along] + "_" + a.word.lower()
+            for a in machine.axes}
 
 
 def load_model(spec, fmt: str, machine, tracking_uri=None) -> tuple:
@@ -107,7 +113,7 @@ def reversal_from_diagnosis(path, model: ModelError) -> tuple:
         raise ValueError("--diagnosis needs an element-set model (the reversal is added to its elements)")
     doc = _diagnosis_doc(path)
     if is_grinder_chain(machine) and not (isinstance(doc, dict) and "machine" in doc):  # the grinder's older diagnosis
-        back, left = backlash_from_diagnosis(path, doc)
+        back, left = backlash_from_diagnosis(path, doc, machine)
         return ModelError(machine, model.elements, reversal={j.upper(): b for j, b in back.items()}), left
     from errormap.diagnosis.loop_model import ChainModelField
     terms, left = reversal_terms_from_diagnosis(doc, path, machine)
@@ -124,11 +130,15 @@ def _diagnosis_doc(path) -> dict:
         raise InputError(f"{path}: not valid JSON: {exc}") from None
 
 
-def backlash_from_diagnosis(path, doc=None) -> tuple[dict, list[str]]:
+def backlash_from_diagnosis(path, doc=None, machine=None) -> tuple[dict, list[str]]:
     """Joint backlash (in its element's unit, μm or μrad) from a grinder file's ``diagnosis.json`` reversal
     terms, and the effects NOT exported: ``({joint: backlash}, [labels])``. A reversal term on a joint's own
     positioning element (``dx_x``, ``dz_z``, ``ex_a``) is a joint backlash; one on any other element cannot be
-    carried by a per-joint table and is refused. ``doc``: the file's parsed JSON where the caller has read it."""
+    carried by a per-joint table and is refused. ``doc``: the file's parsed JSON where the caller has read it;
+    ``machine``: the grinder file's chain (default the built-in grinder): it names each joint's own
+    element."""
+    from errormap.machine import load_machine
+    own = joint_elements(machine if machine is not None else load_machine())
     d = _diagnosis_doc(path) if doc is None else doc
     fmt = d.get("format") if isinstance(d, dict) else None
     if fmt is not None and fmt != CHECKS_DIAGNOSIS_FORMAT:  # by content; files from before the key: by 'effects'
@@ -149,9 +159,9 @@ def backlash_from_diagnosis(path, doc=None) -> tuple[dict, list[str]]:
             left.append(f"{e.get('kind')}({e.get('axis')}) on {e.get('element')}")
             continue
         j, el = e.get("axis"), e.get("element")
-        if j not in GRINDER_JOINT_ELEMENT or el != GRINDER_JOINT_ELEMENT[j]:
+        if j not in own or el != own[j]:
             raise InputError(f"{path}: key 'effects[{i}].element': a per-joint table carries a reversal on the "
-                             f"joint's own element ({GRINDER_JOINT_ELEMENT}), got reversal({j}) on {el!r}")
+                             f"joint's own element ({own}), got reversal({j}) on {el!r}")
         p = (e.get("parameters") or {})
         key = next((k for k in p if k.startswith("backlash_")), None)
         try:

@@ -30,17 +30,9 @@ MAP_N = 11
 """Points per linear axis of the learned correction's map in diagnosis.json (11 × 11 over X–Z)."""
 
 LEARNED_FAMILIES = ("gp", "ensemble", "gp_matern52", "gp_matern32", "gp_additive", "basis")
-"""The learned families the stage cross-validates on the same blocked folds (the Gaussian
-process with the squared-exponential, Matérn 5/2 and Matérn 3/2 kernels, the deep ensemble, the
-additive Gaussian process and the empirical-Bayes basis regression of :mod:`training.residual` /
-:mod:`training.basis`); the rule of :class:`~training.residual.ResidualRegressor` picks one (or
-none) and the stage names it. ``gp_sum`` (a long- plus a short-length-scale squared exponential)
-is a candidate the stage can be given (``families``) but not in the default set: on the blocked
-folds it cross-validated no better than ``gp`` (docs/decisions/008-learned-residual-measurements.md).
-
-``gp_additive`` and ``basis`` are in the default set: on the development seeds (decided on the held-out
-MEASURED RMS, never the truth) they lowered or kept the held-out RMS, and with them the condition-term rule holds
-(:data:`TERM_KEEP_Z`, :func:`condition_term_test`); the measurements: docs/decisions/008-learned-residual-measurements.md."""
+"""The learned families the stage cross-validates on the same blocked folds (:mod:`training.residual`,
+:mod:`training.basis`); ``gp_sum`` is a candidate the stage can be given (``families``) but not a default. Why
+this set: docs/decisions/008-learned-residual-measurements.md."""
 
 CANDIDATE_FAMILIES = ()
 """Families measured beside the default set but not in it: none at present (the measured ones are in
@@ -91,53 +83,30 @@ INPUT_SETS = {"axes": FEATURE_NAMES,
               "work": ("x_mm", "wy_mm", "wz_mm"),
               "axes+work": FEATURE_NAMES + ("wy_mm", "wz_mm")}
 """What the learned part can take as inputs (:func:`input_features`), named for the grinder
-(:func:`input_set_features` gives any machine's): ``axes`` — the axes with each rotary axis on the
-circle; ``work`` — the nominal tool point in the work frame, ``x`` and the point's
-``(wy, wz) = ρ·(sin a, cos a)`` with ``ρ = ρ0 + z`` its radius about the A axis (the work frame's
-x is an affine map of the X axis, so X itself is used); ``axes+work`` — both (the work-frame sets
-only on a machine of :data:`WORK_AXES` with a ``rho0_mm``). In the work frame
-the same field of the part is the same function whatever A brought the tool there, and an error
-that rotates with the work (a tilt of the A axis) is a low-order function of the point; on the
-axes it is a product of the radius and the angle's sine and cosine."""
+(:func:`input_set_features` gives any machine's): ``axes`` (each rotary axis on the circle), ``work`` (``x``
+and the tool point's ``(wy, wz) = ρ·(sin a, cos a)``, ``ρ = ρ0 + z``), ``axes+work`` (both; the work-frame
+sets only on a machine of :data:`WORK_AXES` with a ``rho0_mm``). docs/reference/learned-stage.md."""
 
 INPUT_GROUPS = {"axes": axes_input_groups(GRINDER_AXES),
                 "work": ((0,), (1,), (2,)),
                 "axes+work": axes_input_groups(GRINDER_AXES) + ((4,), (5,))}
-"""The columns of each input set that belong to one input (:class:`training.residual.ResidualRegressor`
-``input_groups``), for the grinder (:func:`input_set_groups` gives any machine's): cos a and sin a are
-one rotary axis, so the ``gp_additive`` family's terms (each group alone and each pair of groups) are
-functions of X, of Z, of A, and of each pair of them — never of cos a without sin a."""
+"""The columns of each input set that belong to one input (``ResidualRegressor(input_groups=…)``), for the
+grinder (:func:`input_set_groups` gives any machine's): cos a and sin a are one rotary axis."""
 
 LEARNED_INPUTS = ("axes",)
-"""The input sets the learned stage cross-validates by default (each with every family of
-:data:`LEARNED_FAMILIES`, on the same blocked folds; the lowest CV RMS of the eligible
-(input set, family) pairs wins, the stage names both). The work-frame sets are candidates the
-stage can be given (``inputs``) but not in the default set: on the blocked folds they
-cross-validated no better than the axes (docs/decisions/008-learned-residual-measurements.md, input and kernel variants)."""
+"""The input sets the learned stage cross-validates by default; the work-frame sets can be given (``inputs``)
+(docs/decisions/008-learned-residual-measurements.md, input and kernel variants)."""
 
 
 OUTPUT_FRAMES = ("work", "machine")
-"""The frames the learned part can learn the residual in. ``work``: as measured, in the workpiece frame
-(the spatial error's frame). ``machine``: turned into the machine (base) frame by the nominal rotation
-of the work frame (:class:`errormap.machine_tool.WorkRotation`, from the machine's work chain), learned
-there, and turned back: ``r_work = R(axes)ᵀ·g(axes)``. An error of a body that does not turn with the
-work (a slide on the tool side, whose error the rotary axes under the work turn with the part: on the
-grinder ``r = (0, −cos a, sin a)·e_y(x, z)`` for a y error of the X slide) is, in the machine frame, one
-field of the linear axes per direction instead of a product of that field with the angle's cosine and
-sine in two components; an error of the turning body itself (the A axis' own motion) is simplest in the
-work frame. Which one holds is a property of the machine at hand, so both are cross-validated
-(:data:`LEARNED_FRAMES`) and the lowest CV RMS wins, as for the input sets (the CV RMS is of the vector,
-the same in both frames). Only on a machine whose work frame turns with an axis (on the others the two
-frames differ by a constant rotation and learn the same)."""
+"""The frames the learned part can learn the residual in: ``work`` (as measured) or ``machine`` (turned by the
+work frame's nominal rotation, :class:`errormap.machine_tool.WorkRotation`, learned there and turned back:
+``r_work = R(axes)ᵀ·g(axes)``); both are cross-validated where the work frame turns with an axis.
+docs/reference/learned-stage.md."""
 
 LEARNED_FRAMES = ("work", "machine")
-"""The output frames the learned stage cross-validates by default (:data:`OUTPUT_FRAMES`; each with
-every input set and family, on the same blocked folds). Decided on two diagnostic machines, then judged
-(docs/decisions/008-learned-residual-measurements.md): on the bump, a y error
-of the X slide local in X–Z, the machine frame cross-validated lower and was chosen on 20 of 20
-machines of both truth families, TRUE error 0.08–0.18 μm lower on every one; on the A-axis tilt and
-lobe, errors of the turning axis, the work frame cross-validated lower on every machine (results equal
-to the work frame alone); on no-effect machines the stage stayed declined (30 of 30)."""
+"""The output frames the learned stage cross-validates by default (:data:`OUTPUT_FRAMES`); the measurements
+that chose them: docs/decisions/008-learned-residual-measurements.md."""
 
 
 def frame_key(inputs: str, frame: str) -> str:

@@ -22,42 +22,17 @@ KEEP_Z = 1.0
 than one paired standard error of the per-point squared-norm gain (the issue's rule)."""
 
 TERM_KEEP_Z = 3.0
-"""Condition terms of the stage before the learned one STAY only when their coefficient, estimated
-jointly with a static learned field of the axes (:func:`condition_term_test`), is positive by more
-than 3 standard errors; otherwise the learned field replaces them. A term that only stood in for a
-static error has no condition-dependence left once a field of the axes takes the static part: its
-coefficient is 0 ± se. Its z is then nearly, not exactly, a standard normal: the loop fitted the
-term's coefficient on these same checks, so the term's sign follows the part of the noise that
-varies with the condition and z is biased upward (theory for the warming checks, where ~37 % of the
-term's norm varies with the temperature beyond its static part: P(z > 1) ≈ 23 %, P(z > 2) ≈ 3.8 %,
-P(z > 3) ≈ 0.24 %; measured on the designed stand-in of tests/test_hybrid_condition_terms.py, development seeds
-103–162, family gp: mean z +0.30, P(z > 1) 27 %, P(z > 2) 3.3 %, P(z > 3) 0 of 60; seed 101 gave
-z = 2.3). 3 standard errors keeps that below 1 % while a real thermal growth of the catalogue's size
-shows z ≈ 16–17 (coefficient 1.00 ± 0.06, 0.94 ± 0.06, 1.01 ± 0.06 on the designed thermal case,
-development seeds 100–102, every family). Decided on those development seeds before any judged run.
-On the judged benchmark (docs/decisions/008-learned-residual-measurements.md) it does NOT hold on the X–A tilt:
-it kept the loop's stand-in thermal term of X on 6 of 20 machines without thermal growth
-(coefficients 0.28–0.39 ± 0.09–0.11, z 3.05–3.95: a small, systematic temperature-correlated part of
-that residual), where the earlier paired-CV rule replaced it; see docs/explanation/closed-loop.md. Hence the second
-condition, :data:`TERM_CONSISTENT_Z`."""
+"""Condition terms of the stage before the learned one STAY only when their coefficient, estimated jointly
+with a static learned field of the axes (:func:`condition_term_test`), is positive by more than 3 standard
+errors (and :data:`TERM_CONSISTENT_Z`); otherwise the learned field replaces them. Why 3, and the
+measurements: docs/reference/learned-stage.md and docs/decisions/008-learned-residual-measurements.md."""
 
 TERM_CONSISTENT_Z = 3.0
-"""Condition terms whose coefficient is significantly non-zero (:data:`TERM_KEEP_Z`) STAY only when it
-is also consistent with 1, ``|γ̂ − 1| / se < 3``: the loop fitted the terms on these checks, so a
-real term, estimated beside a static field of the axes, lands at 1 within its standard error (the
-designed thermal case: 1.00 ± 0.06, 0.94 ± 0.06, 1.01 ± 0.06 on development seeds 100–102, i.e. 0.0,
-1.0 and 0.2 se from 1). A coefficient far from 1 says the terms as identified are not the condition's
-effect: only a part of them varies with the condition, the rest stood in for a static error that
-the static field of the axes takes; shipped, they subtract that rest at the reference conditions.
-They are then replaced like a stand-in. 3 standard errors, two-sided, drops a real term in ~0.3 %
-of machines. Written after the judged tilt machines that kept a term at
-γ̂ 0.28–0.39 (5.6–8 se below 1) and before any judged run of this rule; the development seeds'
-figures are in docs/explanation/closed-loop.md. The alternative, shipping the terms scaled by γ̂, was not taken:
-on a machine without thermal growth it still ships γ̂ times the stand-in. Applied PER TERM when
-:func:`learned_stage` is given each term's contribution (``condition_terms_um``; the grinder loop
-does): on development seeds with a real thermal growth of X beside the tilt, the loop accepted the
-real term (dx_x) and a stand-in (dz) together, and their joint coefficient (0.74–0.80 ± 0.05) would
-have replaced the real one too."""
+"""Condition terms whose coefficient is significantly non-zero (:data:`TERM_KEEP_Z`) STAY only when it is
+also consistent with 1, ``|γ̂ − 1| / se < 3``: a coefficient far from 1 says only part of a term varies with
+its condition, the rest stood in for a static error. Applied per term when :func:`learned_stage` is given
+each term's contribution (``condition_terms_um``). Why, and the development seeds' figures:
+docs/reference/learned-stage.md, docs/explanation/closed-loop.md."""
 
 
 def keeps_condition_terms(term: dict) -> bool:
@@ -84,16 +59,10 @@ hyper-parameters kept, the weights re-solved on all checks
 (:meth:`~training.residual.ResidualRegressor.with_data`)."""
 
 BACKFIT_ROUNDS = 3
-"""Rounds of backfitting of the learned residual with the element update it sits on
-(:func:`learned_stage` ``base_update``): each round re-estimates the base stage (its element update and
-effect terms) on its residual minus what the learned part predicts at the checks, then re-estimates the
-learned part (family, input set and frame kept; hyper-parameters re-estimated) on what that base leaves.
-Sequentially (without backfitting) the update takes up, through its element profiles, the part of an effect they can
-imitate, and the learned part must then learn the effect MINUS that projection — a field with the element
-profiles' shape in it, harder to learn than the effect itself (on the grinder's X–A tilt a noise-free
-ARD GP leaves 0.42 μm RMS at its own training checks); backfitting converges to the joint estimate of both
-parts, where the sweep prior keeps the elements at what the sweeps measured and the learned part takes the
-effect whole (docs/decisions/008-learned-residual-measurements.md)."""
+"""Rounds of backfitting of the learned residual with the element update it sits on (:func:`learned_stage`
+``base_update``): each round re-estimates the base stage on its residual minus the learned part's
+prediction, then the learned part (family, input set and frame kept) on what that base leaves. Why:
+docs/reference/learned-stage.md, docs/decisions/008-learned-residual-measurements.md."""
 
 
 def _cv_key(reg) -> str:
@@ -131,23 +100,16 @@ def _fit_inputs(feats, r_um, fit_idx, groups, families, seed, columns=GRINDER_AX
 def condition_term_test(reg_static, f, r_static_um, c_um) -> dict:
     """Is the condition terms' dependence on their conditions in the data, once a static field of the axes
     takes the static part? ``reg_static``: the :class:`ResidualRegressor` fitted (its family chosen) on
-    ``f`` (n, d), ``r_static_um`` (n, 3), the stage's residual WITHOUT its condition terms; ``c_um``
-    (n, 3) the terms' contribution at the same checks (``r_static − r_prev``), or (m, n, 3) each
-    term's own contribution: then one coefficient per term, estimated jointly
-    (``γ̂ = B⁻¹a``, ``cov = B⁻¹``, ``B_kl = Σ c_kᵀV⁻¹c_l``, ``a_k = Σ c_kᵀV⁻¹r``) and the result's
-    values are lists in the terms' order.
+    ``f`` (n, d), ``r_static_um`` (n, 3), the stage's residual WITHOUT its condition terms; ``c_um`` (n, 3)
+    the terms' contribution at the same checks (``r_static − r_prev``), or (m, n, 3) each term's own
+    contribution: then one coefficient per term, estimated jointly and the result's values are lists in the
+    terms' order.
 
-    The model ``r_static = g(axes) + γ·c + noise`` with ``g`` the chosen family's Gaussian prior
-    (its hyper-parameters as fitted on ``r_static``: the SAME family and hyper-parameters as the static
-    variant) is estimated by generalised least squares, per component ``V = K + σ²I``:
-    ``γ̂ = Σ cᵀV⁻¹r / Σ cᵀV⁻¹c``, ``se = 1 / √(Σ cᵀV⁻¹c)``, computed with the family's own posterior
-    mean ``m(·)`` at the checks (``V⁻¹y = (y − m(y)) / σ²``). The part of ``c`` that a field of the axes
-    can take (its value at the checks' typical condition) is taken by ``g``; ``γ`` is identified
-    only by how ``c`` varies with the condition beyond that. A term that only stood in for a static
-    error gives ``γ̂ ≈ 0``; a real one ``γ̂ ≈ 1``. When the chosen family is not a
-    :data:`LINEAR_SMOOTHERS` one (the ensemble), the one of those cross-validated with the lowest
-    CV RMS is re-estimated on ``r_static`` and used. Returns {``coefficient``, ``coefficient_se``,
-    ``z``, ``family``} (``z`` None and no family when no such family was cross-validated)."""
+    The model ``r_static = g(axes) + γ·c + noise`` (``g`` the chosen family's Gaussian prior with its fitted
+    hyper-parameters; a :data:`LINEAR_SMOOTHERS` family stands in for the ensemble) is estimated by
+    generalised least squares (docs/reference/learned-stage.md). Returns {``coefficient``,
+    ``coefficient_se``, ``z``, ``family``} (``z`` None and no family when no such family was
+    cross-validated)."""
     fam = reg_static.chosen_
     reg = reg_static
     if fam not in LINEAR_SMOOTHERS:
@@ -196,59 +158,29 @@ def _backfit(reg, f, make, axes, idx, base_update, replaced, R, frame, estimate,
 def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=None, r_static_um=None,
                   covariance=None, refit_residual=None, refit_mode: str = "hyper", inputs=None,
                   condition_terms_um=None, frames=None, base_update=None):
-    """Fit the learned residual on what the previous stage leaves at the checks and gate it.
+    """Fit the learned residual on what the previous stage leaves at the checks and gate it (the rules:
+    docs/reference/learned-stage.md).
 
-    ``r_prev_um`` (n, 3): measured residual of the previous (kept) stage at every check;
-    ``axes`` (n, k); ``fit_idx`` / ``hold_idx``: the loop's fitting and held-out checks.
-    ``r_static_um`` (n, 3) or None: the same stage's residual WITHOUT its condition terms
-    (temperature, time, direction), when it has some. A condition term fitted on checks whose
-    condition hardly varies (the machine warm after the first blocks) can stand in for a static
-    error the elements could not take up; at other conditions (the reference temperature of
-    compensation) it then subtracts what is not there. So the learned field of the axes is also
-    fitted on ``r_static_um`` (same blocked folds), and the terms STAY only when their coefficient,
-    estimated jointly with that static field (its family and hyper-parameters:
-    :func:`condition_term_test`, on the fitting checks), is positive by more than
-    :data:`TERM_KEEP_Z` standard errors and within :data:`TERM_CONSISTENT_Z` standard errors of 1
-    (:func:`keeps_condition_terms`), i.e. only when the data show the terms' dependence on
-    their condition beyond what a field of the axes takes, at the size the loop gave them; otherwise the learned field of the axes
-    REPLACES them (the blocked-CV errors of the two variants are reported beside it: on warm checks
-    they hardly differ, so they cannot decide). The held-out gate against the previous stage (with
-    its terms) is then the same.
-    ``condition_terms_um`` (m, n, 3) or None: with ``r_static_um``, each condition term's own
-    contribution at the checks (``r_static − r_prev`` is their sum). The rule is then applied PER
-    TERM, the coefficients estimated jointly (:func:`condition_term_test`): the terms that pass
-    stay, the others are replaced (the learned field is then fitted, on the same blocked folds,
-    to the residual without the replaced terms only); ``stage["learned"]["replaced_condition_terms"]``
-    lists the replaced ones (indices into ``condition_terms_um``) and ``refit_residual`` is called
-    with that tuple instead of the bool. Without it the terms are tested and replaced together.
-    ``axes`` (n, k) in the machine's axis columns (:func:`errormap.field.machine_axes`).
-    ``families``: the learned families cross-validated (None: :data:`LEARNED_FAMILIES` at call time);
-    ``inputs``: the input sets (:data:`INPUT_SETS`) each family is cross-validated on (None:
-    :data:`LEARNED_INPUTS` at call time; the work-frame sets need the grinder's ``rho0_mm``, :func:`errormap.grinder_file.rho0_mm`).
-    ``frames``: the output frames (:data:`OUTPUT_FRAMES`) each input set is cross-validated in (None:
-    :data:`LEARNED_FRAMES` at call time; ``machine`` only where the machine's work frame turns with an axis).
-    ``covariance``: the previous stage's element covariance (or None): with it, the stage also
-    reports the coverage of the hybrid's TOTAL band on the held-out checks
-    (``held_out_band95_cover_total``: learned band ⊕ elements' J Σ Jᵀ ⊕ the fitted noise) and
-    its map carries the total band.
-    ``refit_residual``: None, or a callable ``(replaces_condition_terms: bool) -> (n, 3)`` giving the
-    residual at every check of the base model RE-ESTIMATED ON ALL CHECKS (without its condition
-    terms when the learned field replaces them): the shipped learned part is then estimated on
-    that residual (``refit_mode``, :data:`REFIT_MODES`) instead of the validated base's.
-    Selection, gate and every held-out figure are made before any refit (the validated ones).
-    ``base_update``: None, or a callable ``(replaced, offset_um, idx) -> (n, 3)``: the base stage
-    (without the condition terms ``replaced``, as for ``refit_residual``) re-estimated on the checks
-    ``idx`` with ``offset_um`` (n, 3, work frame) taken off its residual, returning the new base's
-    residual at every check. With it, once the family, input set and frame are chosen (blocked CV on
-    the sequential residual, as without it), the learned part and the base are BACKFITTED
-    (:data:`BACKFIT_ROUNDS`) on the fitting checks before the held-out gate — the gate and every
-    held-out figure judge the backfitted hybrid (base re-estimated too) against the stage before;
-    the sequential hybrid's held-out figures are reported beside (``learned["backfit"]``) — and, with
-    ``refit_residual``, again on all checks before it is shipped (the caller ships the base of its
-    last ``base_update`` call on all checks; without ``refit_residual``, of its last call on ``fit_idx``).
-    Returns ``(learned or None, stage)``: ``learned`` (refitted on all checks) when kept, and
-    the stage's summary for diagnosis.json (held-out and fitting statistics, CV table, gate;
-    ``replaces_condition_terms`` True when the static variant was used)."""
+    ``r_prev_um`` (n, 3): measured residual of the previous (kept) stage at every check; ``axes`` (n, k) in
+    the machine's axis columns (:func:`errormap.field.machine_axes`); ``fit_idx`` / ``hold_idx``: the loop's
+    fitting and held-out checks. ``r_static_um`` (n, 3) or None: the same stage's residual WITHOUT its
+    condition terms; the terms stay only when :func:`keeps_condition_terms` says so on
+    :func:`condition_term_test`, else the learned field of the axes replaces them. ``condition_terms_um``
+    (m, n, 3) or None: each term's own contribution (the rule is then applied per term;
+    ``stage["learned"]["replaced_condition_terms"]`` lists the replaced ones and ``refit_residual`` is
+    called with that tuple instead of the bool). ``families`` / ``inputs`` / ``frames``: what is
+    cross-validated (None: :data:`LEARNED_FAMILIES`, :data:`LEARNED_INPUTS`, :data:`LEARNED_FRAMES` at call
+    time). ``covariance``: the previous stage's element covariance or None (with it, the held-out coverage
+    of the TOTAL band, ``held_out_band95_cover_total``). ``refit_residual``: None or
+    ``(replaces_condition_terms) -> (n, 3)``, the residual of the base re-estimated on all checks, on which
+    the shipped learned part is estimated (``refit_mode``, :data:`REFIT_MODES`); selection, gate and
+    held-out figures come before any refit. ``base_update``: None or ``(replaced, offset_um, idx) -> (n,
+    3)``, the base re-estimated on the checks ``idx`` with ``offset_um`` taken off its residual: the two are
+    then backfitted (:data:`BACKFIT_ROUNDS`) before the gate, the sequential hybrid's held-out figures
+    reported beside (``learned["backfit"]``).
+
+    Returns ``(learned or None, stage)``: ``learned`` when kept, and the stage's summary for diagnosis.json.
+    """
     columns = tuple(machine_axes(machine))
     axes = check_points(axes, f"axes ({', '.join(columns)})", len(columns))
     lin = list(linear_columns(columns))
@@ -289,12 +221,11 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
         per_term = None
         if condition_terms_um is not None:
             cts = np.asarray(condition_terms_um, dtype=float)
-            per_term = {"coefficient": [None] * len(cts), "coefficient_se": [None] * len(cts), "z": [None] * len(cts)}
             if reg_s.chosen_ != "none":
                 per_term = condition_term_test(reg_s, feats[inp_s][fit_idx], to_frame(r_static_um, R_chk, frame_s)[fit_idx],
                                                to_frame(cts, R_chk, frame_s)[:, fit_idx])
-            if per_term["z"] is None:
-                per_term = {"coefficient": [None] * len(cts), "coefficient_se": [None] * len(cts), "z": [None] * len(cts)}
+            if per_term is None or per_term["z"] is None:
+                per_term = {k: [None] * len(cts) for k in ("coefficient", "coefficient_se", "z")}
             keep_k = [reg_s.chosen_ == "none" or keeps_condition_terms(
                 {"coefficient": g, "coefficient_se": e, "z": z}) for g, e, z in
                 zip(per_term["coefficient"], per_term["coefficient_se"], per_term["z"])]

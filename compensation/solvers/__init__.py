@@ -1,19 +1,12 @@
 """Compensation solvers behind one interface, listed in ONE registry (:data:`SOLVERS`).
 
-``solve(method, field, targets_mm, machine, **options) -> SolveResult`` where ``method`` is a
-name of :data:`SOLVERS` (``traditional``, ``ga``, ``batched-ga``, ``exact``) and ``machine`` a machine
-tool: its chain (a ``kind = "grinder"`` file is read as one).
-Each entry names its function ``"module:function"`` in ``compensation/solvers/`` (the tool tip placed
-with the three axes the chain reads: a mill's linear axes, rotary axes kept; every axis of a three-axis
-machine such as the grinder's X, Z, A or a lathe's X, Z, C). The CLI's ``--method``/``--methods``
-choices, the batch runner, the method comparison, the kernel warm-up of ``compensate``, the benchmark
-and docs/explanation/solvers.md read this table; a name not in it is refused in one place, :func:`solver_spec`.
-
-A field is anything with ``predict(axes) -> (n, 3) μm`` over the machine's axis columns; a field may
-also offer ``jacobian`` / ``predict_and_jacobian`` (μm per mm or deg), a float32 path and
-``predict_columns``; solvers use them where the field declares them (``errormap.field``), and fall
-back to forward differences for the derivative.
-"""
+``solve(method, field, targets_mm, machine, **options) -> SolveResult`` where ``method`` is a name of
+:data:`SOLVERS` (``traditional``, ``ga``, ``batched-ga``, ``exact``) and ``machine`` a machine tool (its
+chain). Each entry names its function ``"module:function"`` in ``compensation/solvers/``; the CLI's
+``--method``/``--methods`` choices, the batch runner, the method comparison, the kernel warm-up, the
+benchmark and docs/explanation/solvers.md read this table; a name not in it is refused in one place,
+:func:`solver_spec`. A field is anything with ``predict(axes) -> (n, 3) μm`` over the machine's axis
+columns; its optional capabilities (``errormap.field``) are used where it declares them."""
 from __future__ import annotations
 
 import importlib

@@ -1,22 +1,12 @@
-"""Helpers shared by the solvers: results, the ball, A folding and continuity, field evaluation in chunks.
+"""Helpers shared by the solvers: results, the ball, rotary folding and continuity, field evaluation in
+chunks.
 
-Conventions (all solvers):
-
-* The field is an :class:`errormap.field.ErrorField`, checked once per solve
-  (:func:`errormap.field.check_field`); its optional methods are used where its
-  ``capabilities`` declare them, never probed.
-
-* Targets ``p_d`` and commands ``p_r`` are WCS points, shape (n, 3), mm.
-* Axes are ``(x_mm, z_mm, a_deg)``, shape (n, 3). The field is always evaluated with A
-  folded into the calibrated turn ``[a_lo, a_lo + 360)`` of the A stroke when that stroke
-  spans a full turn (errors are periodic in A, docs/explanation/kinematics.md), so multi-turn commands never
-  reach a field outside its training range.
-* A continuity: the axis command of ``p_r`` takes the turn of its own target's rotary axis, i.e.
-  ``a_r = a_d + wrap180(a_r - a_d)``, where the targets' axes are unwrapped along the path
-  (the chain's closed-form inverse, ``unwrap=True``) or given by the caller (``target_axes``). A
-  path whose targets are continuous therefore gets continuous compensated A, never a 360° jump.
-* The model residual is ``(p_r - p_d)·1e3 + E(axes(p_r))`` μm (residual 1 of docs/explanation/kinematics.md).
-"""
+Conventions (all solvers): the field is an :class:`errormap.field.ErrorField`, checked once per solve, its
+optional methods used where its ``capabilities`` declare them; targets ``p_d`` and commands ``p_r`` are WCS
+points (n, 3) mm; the field is evaluated with a full-turn rotary axis folded into its calibrated turn; the
+command of ``p_r`` takes the turn of its own target's rotary axis (``a_r = a_d + wrap180(a_r - a_d)``), so a
+continuous path gets continuous rotary commands; the model residual is ``(p_r - p_d)·1e3 + E(axes(p_r))`` μm
+(docs/explanation/kinematics.md)."""
 from __future__ import annotations
 
 import contextlib

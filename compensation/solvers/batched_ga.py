@@ -1,17 +1,11 @@
 """The paper's GA with PyGAD's operators, evolving every point's population at once: the engine of the
 ``batched-ga`` solver (:func:`compensation.solvers.chain_ga.solve_batched_ga_chain`).
 
-The paper's parameters (:mod:`compensation.solvers.ga`); the populations are one float32 array of shape
-(n_points, 40, 3) (genes in μm) and one generation is one compiled pass over all points
-(:func:`._ga_kernels.breed`: steady-state selection of the 28 fittest, elitism 1, PyGAD's single-point
-crossover, additive U(-s, s) μm mutation, projection onto the 250 μm ball, fitness inherited by an
-offspring identical to a parent) plus one field evaluation over all new offspring of all points.
-Fitness: the caller's (``fitness(points (k,) int64, genes (3, k) float32) -> (k,) float32``;
-:func:`compensation.solvers.chain_ga.chain_fitness`), evaluated in blocks of :data:`FITNESS_BLOCK`.
-How each operator matches PyGAD 3.9's, and the documented differences (random streams, tie-breaking,
-the fitness cache's reach): docs/explanation/solvers.md ("The GA: the paper's parameters, PyGAD's and
-batched-ga's").
-"""
+The populations are one float32 array (n_points, 40, 3) (genes in μm); one generation is one compiled pass
+over all points (:func:`._ga_kernels.breed`) plus one evaluation of the caller's fitness (``fitness(points
+(k,) int64, genes (3, k) float32) -> (k,) float32``) over all new offspring, in blocks of
+:data:`FITNESS_BLOCK`. How each operator matches PyGAD 3.9's, and the documented differences:
+docs/explanation/solvers.md ("The GA: the paper's parameters, PyGAD's and batched-ga's")."""
 from __future__ import annotations
 
 import threading

@@ -1,23 +1,13 @@
 """Exact compensation on a machine-tool chain (``kind = "machine-tool"``): Newton in axis space.
 
-For each target ``p_d`` (WCS mm, the nominal tool point of the program's axes ``q_d``) find the axis
-command ``q`` that puts the tool point on ``p_d``::
-
-    F(q) = fwd(q) + 1e-3·E(q) − p_d = 0          (mm)
-    J(q) = dfwd/dq_s + 1e-3·dE/dq_s               (mm per mm or per deg; q_s the three solved axes)
-
-``fwd`` the nominal forward kinematics, ``E`` the field (μm); ``p_r = fwd(q)`` and the model residual
-``(p_r − p_d)·1e3 + E(q) = F(q)·1e3``. The iteration is :func:`compensation.solvers.exact.newton` (Armijo
-line search, Broyden updates, stops at ``xtol_um``, round-off or stagnation). Which axes move:
-:func:`solved_and_kept` (three linear axes, rotary axes kept; else all three axes of a three-axis machine,
-a lathe's X, Z, C). The 250 μm ball is a hard limit (a root outside is projected onto it, ``success``
-False). Rotary continuity guard (:func:`rotary_guard`): a solved rotary command may differ from the
-programmed one by at most ``Δθ_max = min(degrees(asin(min(1, b/r))), rotary_limit_deg)`` (``b`` the ball,
-``r`` the target's distance from the axis, mm); beyond it the point is refused with the programmed axes
+For each target ``p_d`` (WCS mm, the nominal tool point of the program's axes ``q_d``) find the axis command
+``q`` with ``F(q) = fwd(q) + 1e-3·E(q) − p_d = 0`` (mm); ``p_r = fwd(q)`` and the model residual is
+``F(q)·1e3``. The iteration is :func:`compensation.solvers.exact.newton`; which axes move:
+:func:`solved_and_kept`. The 250 μm ball is a hard limit (a root outside is projected onto it, ``success``
+False); a solved rotary command beyond :func:`rotary_guard`'s ``Δθ_max`` is refused with the programmed axes
 kept (``info["rotary_refused"]``, ``info["rotary_reasons"]``). Shapes: targets (n, 3) mm, axes (n, k) in
-``machine.axis_columns`` order. Derivations and measurements: docs/explanation/solvers.md ("The exact
-solver on a chain").
-"""
+``machine.axis_columns`` order. Derivations and measurements: docs/explanation/solvers.md ("The exact solver
+on a chain")."""
 from __future__ import annotations
 
 import time

@@ -1,24 +1,13 @@
 """The GA on a machine-tool chain (``kind = "machine-tool"``): the generic chain fitness.
 
-The GA of :mod:`compensation.solvers.batched_ga` (``batched-ga``) and PyGAD one point at a time
-(``ga``), on three genes in the 250 μm ball that move the axes the exact chain solver moves
-(:func:`compensation.solvers.chain_exact.solved_and_kept`):
-
-* **three linear axes** (:class:`ChainOffsetFitness`): genes the tool-point offsets ``d`` (μm),
-  ``q(d) = q_d`` with ``q_lin = q_d,lin + A⁻¹·(1e-3·d)`` (``A`` the nominal axis Jacobian of the linear
-  axes at the program's axes ``q_d``; rotary axes kept), fitness ``−|d + E(q(d))|²`` (μm²);
-* **a solved rotary axis** (the lathe; :class:`ChainAxisFitness`): genes ``g`` the solved axes' offsets
-  scaled by ``s`` (1e-3 mm/μm linear, ``Δθ_max/b`` deg rotary, ``Δθ_max`` the exact solver's rotary
-  bound), ``r(g) = (fwd(q(g)) − p_d)·1e3 + E(q(g))``, fitness ``−(|r(g)| + max(0, |p(g) − p_d|·1e3 − b))²``;
-* **the network's fused fitness** (:class:`FusedChainFitness`, a field offering ``offset_fitness`` on the
-  grinder's form of chain, no rotary limit): the offsets' fitness as one float32 pipeline; retries, polish
-  and result in float64.
-
-``E`` the field's ``predict`` over ``machine.axis_columns`` (μm). After the generations, points above
-``tol_um`` are retried and Newton-polished (:mod:`._converge`). ``success``: |model residual| ≤ ``tol_um``
-and inside the ball. Shapes: targets (n, 3) mm, axes (n, k). Derivation and measurements:
-docs/explanation/solvers.md ("The GA on a chain").
-"""
+The GA of :mod:`compensation.solvers.batched_ga` (``batched-ga``) and PyGAD one point at a time (``ga``), on
+three genes in the 250 μm ball that move the axes the exact chain solver moves
+(:func:`compensation.solvers.chain_exact.solved_and_kept`): tool-point offsets on three linear axes
+(:class:`ChainOffsetFitness`), scaled axis offsets where a rotary axis is solved
+(:class:`ChainAxisFitness`), or the network's fused float32 fitness (:class:`FusedChainFitness`). After the
+generations, points above ``tol_um`` are retried and Newton-polished (:mod:`._converge`). ``success``:
+|model residual| ≤ ``tol_um`` and inside the ball. Shapes: targets (n, 3) mm, axes (n, k). Derivation and
+measurements: docs/explanation/solvers.md ("The GA on a chain")."""
 from __future__ import annotations
 
 import time
@@ -38,7 +27,8 @@ class ChainOffsetFitness:
     """``fitness(points (k,) int64, offsets_um (3, k) float32) -> (k,) float32`` on a chain.
 
     ``axes_d`` (n, k) the targets' program axes, ``lin`` the linear axes' indices, ``Ainv``
-    (n, 3, 3) the inverse nominal axis Jacobian of the linear axes (mm per mm) at ``axes_d``.
+    (n, 3, 3) the inverse nominal axis Jacobian of the linear axes (mm per mm) at ``axes_d``:
+    ``q_lin(d) = q_d,lin + Ainv·(1e-3·d)``, fitness ``−|d + E(q(d))|²`` (μm²).
     """
 
     def __init__(self, field, axes_d, lin, Ainv, delta0_mm):
@@ -112,7 +102,8 @@ def _fused(field, machine, targets, axes_d, rotary_limit_deg):
 
 class ChainAxisFitness:
     """``fitness(points (k,) int64, genes (3, k) float32) -> (k,) float32`` on a chain whose solved
-    axes include a rotary one (module docstring): genes are the solved axes' scaled offsets.
+    axes include a rotary one: genes ``g`` are the solved axes' offsets scaled by ``scale``, fitness
+    ``−(|r(g)| + max(0, |p(g) − p_d|·1e3 − b))²``, ``r(g) = (fwd(q(g)) − p_d)·1e3 + E(q(g))``.
 
     ``compiled`` the machine's :class:`errormap.chain_kernel.NominalChain`, ``targets`` (n, 3) mm,
     ``axes_d`` (n, k) programmed axes, ``sol`` (3,) solved axes, ``scale`` (n, 3) axis units per gene

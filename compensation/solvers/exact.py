@@ -1,20 +1,13 @@
 """The Newton core of exact compensation: Newton's method with a backtracking line search, in axis space.
 
-The solver itself is :func:`compensation.solvers.chain_exact.solve_exact_chain`. For each target ``p_d``
-it solves for the axis command ``q``::
-
-    F(q) = fwd(q) + 1e-3·E(q) - p_d = 0          (mm)
-    J(q) = dfwd/dq + 1e-3·dE/dq                   (mm per mm, mm, deg)
-
-then ``p_r = fwd(q)``; ``fwd`` and the geometric ``dfwd/dq`` come from the machine's chain
-(:class:`errormap.chain_kernel.NominalChain`), ``dE/dq`` from the field's Jacobian or forward differences,
-once per point, then Broyden updates. Steps are limited to ``max_step`` (1 mm / 90°) and halved (Armijo, up to
-20 times) until ``|F|`` decreases; iteration stops at ``|F| ≤ xtol_um``, within :data:`ROUNDOFF_ULPS` ulps of
-the target's coordinates, or at stagnation. Which axes move: :func:`solved_axes`; the field's evaluation is the
-caller's (``ev`` of :func:`newton`). The per-point arithmetic runs in compiled kernels over the chain's op
-arrays; the field is called once per line-search round on all trial points. Why axis space, and the
-measurements: docs/explanation/solvers.md ("exact").
-"""
+The solver itself is :func:`compensation.solvers.chain_exact.solve_exact_chain`. For each target ``p_d`` it
+solves ``F(q) = fwd(q) + 1e-3·E(q) - p_d = 0`` (mm) for the axis command ``q`` with ``J(q) = dfwd/dq +
+1e-3·dE/dq``, then ``p_r = fwd(q)``: ``fwd`` and ``dfwd/dq`` from the machine's chain
+(:class:`errormap.chain_kernel.NominalChain`), ``dE/dq`` from the field once per point, then Broyden
+updates; steps limited to 1 mm / 90° and halved (Armijo) until ``|F|`` decreases; stops at ``xtol_um``,
+round-off (:data:`ROUNDOFF_ULPS`) or stagnation. Which axes move: :func:`solved_axes`. Compiled kernels over
+the chain's op arrays; the field is called once per line-search round on all trial points. Why axis space,
+and the measurements: docs/explanation/solvers.md ("exact")."""
 from __future__ import annotations
 
 import numpy as np
@@ -32,16 +25,10 @@ MAX_HALVINGS = 20
 SLOW = 0.99
 """An accepted step that leaves more than SLOW·|F| counts as no progress (stagnation)."""
 ROUNDOFF_ULPS = 1024.0
-"""``|F|`` within this many ulps of the target's largest coordinate is round-off: iteration stops
-there (as at ``xtol_um``), about 4.5e-8 μm for a 200 mm coordinate. F is the difference of two
-~100 mm quantities, each through a chain of float64 operations: on the default grinder the
-points whose full step failed at the end sat 22-680 ulps of |p_d| above zero (1e-9-7e-9 μm),
-where 20 halvings, a fresh Jacobian and a retry only spent field evaluations (measured: half
-of the ~10 evaluations per point of a 100,000-point solve). A tighter stop is a setting
-(``solve("exact", …, roundoff_ulps=…)``): 16 ulps with ``xtol_um=1e-10`` costs 3 % more CPU (5.9 % more
-field evaluations) on 100,000 grinder points and brings two exact solvers to agree within 7.9e-10
-μm (``docs/decisions/020-benchmark-notebook.md``); the default stays, as the agreement below 1e-7 μm
-buys no accuracy a machine can show."""
+"""``|F|`` within this many ulps of the target's largest coordinate is round-off: iteration stops there (as
+at ``xtol_um``), about 4.5e-8 μm for a 200 mm coordinate, where more halvings only spent field evaluations.
+A tighter stop is a setting (``solve("exact", …, roundoff_ulps=…)``); its cost and the measurements:
+docs/decisions/020-benchmark-notebook.md."""
 
 
 MAX_ROUNDOFF_ULPS = 1e6
