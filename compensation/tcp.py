@@ -1,50 +1,10 @@
 """5-axis programs in tool-centre-point (TCP) mode, and inverse-time feed (``G93``), on machine-tool chains.
 
-In TCP mode a program's ``X Y Z`` are the **tool tip in the workpiece frame** — the frame that turns with
-the rotary table — and its rotary words the axes' positions; the controller runs the nominal inverse
-kinematics of its machine to find the linear axes. The words that switch it, by controller (each from its
-manual; a word is read only in its dialect, ``--dialect``):
-
-=====================  ==========================================  =====================================
-dialect                on                                          off
-=====================  ==========================================  =====================================
-fanuc, siemens-iso     ``G43.4 Hn`` (type 1), ``G43.5 Hn``         ``G49`` (or a plain ``G43``)
-haas                   ``G234`` with ``Hn`` or an active ``G43 Hn``  ``G49`` (or a plain ``G43``)
-heidenhain-iso         ``M128`` (the tool of the last ``T`` call;  ``M129`` (at the end of its block:
-                       from the start of its block; an ``F``       a move on its line is still TCP)
-                       after it is the feed of the compensating
-                       movements, not the path's)
-siemens-iso            ``TRAORI`` / ``TRAORI(1)`` on a line alone  ``TRAFOOF``
-                       (the tool ``T`` with its edge ``D1``;
-                       ``ORIAXES`` before any feed move that
-                       turns a rotary axis)
-any (the machine's)    the machine file's ``[tcp] switch_on``      ``[tcp] switch_off``
-                       (LinuxCNC switchable kinematics ``M428``,   (``M429``)
-                       tool length: the active ``G43 Hn``, or
-                       under ``G49`` the file's own tool point
-                       where ``[tcp] tool_length_under_g49``)
-=====================  ==========================================  =====================================
-
-Fanuc's ``G43.5`` with a tool-direction vector ``I J K`` leaves the rotary positions to the controller
-(two solutions): refused; so are a TCP word on a machine without a rotary axis, TCP without a tool length,
-a rotary work offset under TCP, and ``TRAORI`` with parameters. Siemens interpolates the tool orientation on
-a large circle unless ``ORIAXES`` is active (``ORIVECT``, its initial setting), while the compensated pieces are
-written with the axes interpolated linearly: under ``TRAORI`` a feed move that turns a rotary axis needs
-``ORIAXES`` (a line of orientation words: ``ORIAXES``, ``ORIVECT`` / ``ORIPLANE``, ``ORIWKS``, ``ORIMKS``; the
-cone, path-relative and second-curve types are refused by name). Heidenhain's ``T`` call and Siemens' ``D1``
-activate the tool's length (the reader records them as a tool length offset, like ``G43 Hn``).
-
-How a TCP point is compensated: its tip ``p = program X Y Z + work offset`` (mm, workpiece frame) and its
-rotary axes as programmed are placed in the machine by the chain's nominal inverse at the tool's length
-(:func:`tcp_axes`; :meth:`errormap.machine_tool.MachineTool.inverse` with the rotary axes kept); the exact
-chain solver compensates there like any other point; the compensated axes are written back in TCP form —
-the nominal tip they reach, minus the work offset, with the rotary words as programmed (:func:`tip_words`):
-the controller's inverse of that tip is the compensated axes. The controller's TCP kinematics are taken to
-be the machine file's nominal chain.
-
-``G93`` (inverse time, every ``G1/G2/G3`` carries ``F`` = 1 / minutes of the block) is accepted on chains:
-a block split into ``m`` pieces at equal steps of its parameter gets ``F·m`` on every piece, so the block
-takes the programmed time (:func:`inverse_time_lines`); a feed move under ``G93`` without ``F`` is refused.
+In TCP mode a program's ``X Y Z`` are the tool tip in the workpiece frame and its rotary words the axes'
+positions. The words read by controller (each only in its dialect), how a TCP point is compensated (placed by
+the chain's nominal inverse, :func:`tcp_axes`; written back in TCP form, :func:`tip_words`), ``G93`` feeds of
+split blocks (:func:`inverse_time_lines`) and what is refused: docs/reference/tool-paths.md, "Five-axis
+programs in tool-centre-point mode".
 """
 from __future__ import annotations
 
@@ -281,13 +241,9 @@ def _line_words(path, i, body, toks, dialect_name, state, machine, rotary, words
             if h is not None:
                 state["tool"] = int(h.value)
             new = _blank(new, w.start, w.num_end, "G43" if h is not None else "")
-        elif code == "G43":
-            state["tool"] = int(next(t for t in toks if t.letter == "H").value) if any(
-                t.letter == "H" for t in toks) else state["tool"]
-            if state["tcp"] is not None and state["tcp"][2] in TCP_G:
-                state["tcp"] = None
-        elif code == "G49":
-            state["tool"] = None
+        elif code in ("G43", "G49"):
+            h = next((t for t in toks if t.letter == "H"), None)
+            state["tool"] = None if code == "G49" else int(h.value) if h is not None else state["tool"]
             if state["tcp"] is not None and state["tcp"][2] in TCP_G:
                 state["tcp"] = None
         elif code in ("G93", "G94", "G95"):
@@ -627,12 +583,10 @@ def orientation_residual_urad(truth, machine, axes, nominal_axes, tool_mm) -> np
         elements = sim.elements
     if elements is None:
         return None
+    from .nc_state import machine_with_tool
     out = np.empty(len(axes))
-    keys = np.where(np.isfinite(tool_mm), tool_mm, -np.inf)
-    for key in np.unique(keys):
-        idx = np.flatnonzero(keys == key)
-        from .nc_state import machine_with_tool
-        mt = machine if not np.isfinite(key) else machine_with_tool(machine, float(key))
+    for length, idx in by_length(tool_mm):
+        mt = machine if length is None else machine_with_tool(machine, length)
         a = tool_axis(mt, axes[idx], elements.values(axes[idx]))
         b = tool_axis(mt, nominal_axes[idx])
         out[idx] = np.arcsin(np.clip(np.linalg.norm(np.cross(a, b), axis=1), 0.0, 1.0)) * 1e6
@@ -711,11 +665,9 @@ def compensate_orientation(field_, machine, tp_axes, tool_mm, res, targets):
     solved = np.zeros(len(axes), bool)
     commands = np.array(res.commands_mm, dtype=float)
     resid = np.array(res.residual_um, dtype=float)
-    keys = np.where(np.isfinite(tool_mm), tool_mm, -np.inf)
-    for key in np.unique(keys):
-        idx = np.flatnonzero(keys == key)
-        mt = machine if not np.isfinite(key) else machine_with_tool(machine, float(key))
-        f = field_ if not np.isfinite(key) else field_with_tool(field_, mt)
+    for length, idx in by_length(tool_mm):
+        mt = machine if length is None else machine_with_tool(machine, length)
+        f = field_ if length is None else field_with_tool(field_, mt)
         q, ok = solve_orientation(f, mt, axes[idx], targets[idx], tool_axis(mt, tp_axes[idx]))
         axes[idx], solved[idx] = q, ok
         commands[idx] = mt.nominal(q)
