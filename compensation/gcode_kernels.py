@@ -1,25 +1,14 @@
 """Compiled kernels of the block-wise G-code reader and writer.
 
-:func:`scan_lines` reads the whole file's bytes in one pass and puts each line in one of
-four kinds, exactly as the block-wise reader's two strict patterns (``gcode._bulk_move``,
-``gcode._BULK_PASS``) would, without a Python call per line:
-
-``KIND_MOVE``   a plain move line (``_bulk_move`` with one of the three axis words): spans and values out;
-``KIND_PASS``   a blank or comment-only line (``_BULK_PASS``);
-``KIND_OTHER``  neither pattern matches: the per-line classifier reads it;
-``KIND_ASK``    the kernel does not decide (a number with more than 17 digits, or whose
-                value needs more than the exact ``mantissa / 10**k`` division): the patterns
-                themselves are asked, line by line.
-
-A number's value is ``mantissa / 10**decimals`` in float64 when the mantissa is below 2**53
-and there are at most 22 decimals: both operands are exact, so the one division is the
-correctly rounded decimal value — what Python's ``float(text)`` returns, bit for bit.
-Anything else is ``KIND_ASK``. tests/test_gcode_blockwise.py checks the kernel against the
-patterns line by line on generated lines.
-
-:func:`format_fixed` and :func:`render_lines` are the writer's side: numbers formatted with a
-fixed number of decimals exactly as ``format(v, ".6f")`` (ties and huge values through Python's
-own formatting), and the output bytes assembled line by line.
+:func:`scan_lines` reads the whole file's bytes in one pass and puts each line in one of four kinds exactly as
+the block-wise reader's two strict patterns (``gcode_table._bulk_move``, ``_BULK_PASS``) would: ``KIND_MOVE``
+(a plain move line: spans and values out), ``KIND_PASS`` (blank or comment-only), ``KIND_OTHER`` (neither: the
+per-line classifier reads it), ``KIND_ASK`` (the kernel does not decide: the patterns are asked). A number's
+value is ``mantissa / 10**decimals`` in float64 when the mantissa is below 2**53 and there are at most 22
+decimals: both operands are exact, so the one division is the correctly rounded value, what ``float(text)``
+returns bit for bit; anything else is ``KIND_ASK`` (tests/test_gcode_blockwise.py checks the kernel against
+the patterns). :func:`format_fixed` and :func:`render_lines` are the writer's side (numbers exactly as
+``format(v, ".6f")``, the output bytes assembled line by line).
 """
 from __future__ import annotations
 
@@ -257,9 +246,11 @@ def _num_len(mag, neg, dec, pow10i):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _put_num(out, o, mag, neg, dec, pow10i):
-    n = _num_len(mag, neg, dec, pow10i)
-    end = o + n
+def _put_num(out, o, mag, neg, dec, pow10i, write):
+    """One number's digits at ``out[o:]`` (only its length counted where not ``write``); returns its end."""
+    end = o + _num_len(mag, neg, dec, pow10i)
+    if not write:
+        return end
     q = end - 1
     m = mag
     for _ in range(dec):
@@ -280,7 +271,10 @@ def _put_num(out, o, mag, neg, dec, pow10i):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _copy(out, o, buf, a, b):
+def _copy(out, o, buf, a, b, write):
+    """``buf[a:b]`` at ``out[o:]`` (only counted where not ``write``); returns the end."""
+    if not write:
+        return o + (b - a)
     for q in range(a, b):
         out[o] = buf[q]
         o += 1
@@ -301,15 +295,9 @@ def _render(buf, starts, stops, mode, row_of_line, vert_of_row, spans, mags, neg
             out_off[i] = o
         m = mode[i]
         if m == 0:
-            if write:
-                o = _copy(out, o, buf, starts[i], stops[i])
-            else:
-                o += stops[i] - starts[i]
+            o = _copy(out, o, buf, starts[i], stops[i], write)
         elif m == 2:
-            if write:
-                o = _copy(out, o, blob, blob_off[i], blob_off[i + 1])
-            else:
-                o += blob_off[i + 1] - blob_off[i]
+            o = _copy(out, o, blob, blob_off[i], blob_off[i + 1], write)
         else:
             r = row_of_line[i]
             v = vert_of_row[r]
@@ -318,16 +306,10 @@ def _render(buf, starts, stops, mode, row_of_line, vert_of_row, spans, mags, neg
                 a = starts[i] + spans[r, j + 1, 0]
                 b = starts[i] + spans[r, j + 1, 1]
                 dec = decs[j, 1] if inch[v] else decs[j, 0]
-                if write:
-                    o = _copy(out, o, buf, pos, a)
-                    o = _put_num(out, o, mags[v, j], negs[v, j], dec, pow10i)
-                else:
-                    o += a - pos + _num_len(mags[v, j], negs[v, j], dec, pow10i)
+                o = _copy(out, o, buf, pos, a, write)
+                o = _put_num(out, o, mags[v, j], negs[v, j], dec, pow10i, write)
                 pos = b
-            if write:
-                o = _copy(out, o, buf, pos, stops[i])
-            else:
-                o += stops[i] - pos
+            o = _copy(out, o, buf, pos, stops[i], write)
     if not write:
         out_off[starts.size] = o
 
@@ -396,9 +378,7 @@ def _polyline_lengths(start, end, samples, prog, out):  # pragma: no cover - com
     sd = np.empty(m)
     shift = np.zeros(BR.shape[0], dtype=np.bool_)  # blocks without rotation: a shift only
     for bi in range(BR.shape[0]):
-        shift[bi] = (BR[bi, 0, 0] == 1.0 and BR[bi, 1, 1] == 1.0 and BR[bi, 2, 2] == 1.0 and BR[bi, 0, 1] == 0.0
-                     and BR[bi, 0, 2] == 0.0 and BR[bi, 1, 0] == 0.0 and BR[bi, 1, 2] == 0.0 and BR[bi, 2, 0] == 0.0
-                     and BR[bi, 2, 1] == 0.0)
+        shift[bi] = np.all(BR[bi] == np.eye(3))
     for j in range(start.shape[0]):
         first = m      # the first op that changes in this move
         for o in range(m):

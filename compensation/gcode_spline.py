@@ -1,17 +1,7 @@
-"""LinuxCNC's splines in the XY plane, read exactly (LinuxCNC G-code reference, "G5 Cubic spline",
-"G5.1 Quadratic spline"):
-
-* ``G5 X Y I J P Q``: a cubic Bézier from the current point P0 to the end P3 = (X, Y), with the control
-  points P1 = P0 + (I, J) and P2 = P3 + (P, Q). ``P`` and ``Q`` are required; ``I`` and ``J`` both or
-  neither; without them (only right after a ``G5`` move) P1 = P0 − (P, Q) of that move, so the new
-  cubic starts in the direction the last one ended.
-* ``G5.1 X Y I J``: a quadratic Bézier from P0 to P2 = (X, Y), control point P1 = P0 + (I, J) (a missing
-  one of ``I``/``J`` is 0; both missing or zero is an error).
-
-``X``/``Y`` follow ``G90``/``G91`` as any axis word; ``I J P Q`` are offsets (mm or inch as the line's
-units). Only under ``G17`` and only with ``X``/``Y`` axis words (other axes keep their values). A spline
-is compensated by sampling the exact curve with chords whose deviation from it stays within the
-tolerance (:func:`spline_segments`) and written as compensated ``G1`` moves, as arcs are.
+"""LinuxCNC's splines in the XY plane, read exactly: ``G5`` cubic and ``G5.1`` quadratic Béziers and ``G5.2`` …
+``G5.3`` NURBS blocks (LinuxCNC G-code reference; what is read and refused: docs/reference/tool-paths.md).
+A spline is compensated as chords whose deviation from the exact curve stays within the tolerance
+(:func:`spline_segments`), written as compensated ``G1`` moves, as arcs are.
 """
 from __future__ import annotations
 
