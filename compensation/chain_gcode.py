@@ -324,22 +324,15 @@ def _table_vertices(start, end, counts, known, arcs) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- writing
-def render_chain_program(program: GProgram, vertices: list, header=()) -> str:
-    """The program with each compensated move's (compensated) vertices ``vertices[i]`` (m_i, k);
-    every other line byte for byte (:func:`compensation.gcode.render_program`); kept canned cycles
-    written back as cycles (:func:`compensation.nc_cycles.render_kept`)."""
-    counts = np.array([len(v) for v in vertices], dtype=int)
-    axes = np.concatenate(vertices) if vertices else np.zeros((0, len(program.axis_words.words)))
-    return render_chain_axes(program, axes, counts, header=header)
-
-
 def render_chain_axes(program: GProgram, axes, counts, header=()) -> str:
-    """:func:`render_chain_program` of the vertices given as ``axes`` (n, k), ``counts`` (c,) of them per
-    compensated move: a program read in bulk written in bulk, without splitting them."""
+    """The program with its compensated vertices ``axes`` (n, k), ``counts`` (c,) of them per compensated move;
+    every other line byte for byte (:func:`compensation.gcode.render_program`; a program read in bulk written
+    in bulk, :func:`compensation.gcode.render_table`; kept canned cycles written back as cycles,
+    :func:`compensation.nc_cycles.render_kept`)."""
     t = program.table
-    if program.tcp is None and t is not None and not t.incremental.any() and program.expanded is None and len(program.axis_words.words) == 3 \
-            and not program.axis_words.kept:  # a program read in bulk: written in bulk, the same text
-        from .gcode import render_table
+    from .gcode import _bulk_words, render_table
+    if (program.tcp is None and t is not None and not t.incremental.any() and program.expanded is None
+            and _bulk_words(program.axis_words)):  # a program read in bulk: written in bulk, the same text
         return render_table(program, np.asarray(axes), list(counts), header=header)[0]
     vertices = np.split(np.asarray(axes), np.cumsum(counts)[:-1]) if len(counts) else []
     if program.tcp is not None:
