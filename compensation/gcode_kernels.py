@@ -23,7 +23,7 @@ _MANT_MAX = 2 ** 53
 _SP, _TAB, _CR = 32, 9, 13
 _ZERO, _NINE, _DOT, _PLUS, _MINUS = 48, 57, 46, 43, 45
 _LP, _RP, _SEMI = 40, 41, 59
-_N, _G, _F = 78, 71, 70
+_N, _G = 78, 71
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -91,8 +91,8 @@ def _is_pass(buf, p, e):
 
 @njit(cache=True, nogil=True, inline="always")
 def _scan_one(buf, s, e, pow10, letters, sp, v):
-    """Kind of line buf[s:e] (body, no line ending); ``letters`` (3,) the axis words' bytes, in
-    the order a plain line writes them; a move's spans (relative to s) go to ``sp`` (4, 2) and
+    """Kind of line buf[s:e] (body, no line ending); ``letters`` (4,) the axis words' bytes, in
+    the order a plain line writes them, and F's; a move's spans (relative to s) go to ``sp`` (4, 2) and
     its values to ``v`` (3,) (scratch: copied out for moves only)."""
     if _is_pass(buf, s, e):
         return KIND_PASS
@@ -119,25 +119,19 @@ def _scan_one(buf, s, e, pow10, letters, sp, v):
         sp[0, 1] = q - s
         p = _blanks(buf, q, e)
     axes = 0
-    for j in range(3):
+    for j in range(4):  # the three axis words, then F
         if p < e and buf[p] == letters[j]:
             st, q, x = _number(buf, p + 1, e, pow10)
             if st == 0:
                 return KIND_OTHER
             if st == 2:
                 return KIND_ASK
-            sp[j + 1, 0] = p + 1 - s
-            sp[j + 1, 1] = q - s
-            v[j] = x
-            axes += 1
+            if j < 3:
+                sp[j + 1, 0] = p + 1 - s
+                sp[j + 1, 1] = q - s
+                v[j] = x
+                axes += 1
             p = _blanks(buf, q, e)
-    if p < e and buf[p] == _F:
-        st, q, x = _number(buf, p + 1, e, pow10)
-        if st == 0:
-            return KIND_OTHER
-        if st == 2:
-            return KIND_ASK
-        p = _blanks(buf, q, e)
     if p < e and buf[p] == _LP:
         q = p + 1
         while q < e and buf[q] != _RP:
@@ -193,7 +187,7 @@ def scan_lines(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, words):
     absent) and the three axis values (n, 3) (NaN where absent) of every line."""
     if len(words) != 3 or not all(isinstance(w, str) and len(w) == 1 for w in words):
         raise ValueError(f"Expected three one-letter axis words, got {list(words)}")
-    letters = np.frombuffer("".join(words).encode("ascii"), np.uint8).copy()
+    letters = np.frombuffer(("".join(words) + "F").encode("ascii"), np.uint8).copy()
     n = starts.size
     kind = np.empty(n, np.int8)
     spans = np.full((n, 4, 2), -1, np.int32)
