@@ -15,6 +15,9 @@ import numpy as np
 
 from errormap.io import InputError
 
+from .gcode_state import _Refuse
+from .gcode_words import AXIS_LETTERS, tokenize
+
 TCP_G = {"G43.4": ("fanuc", "siemens-iso"), "G43.5": ("fanuc", "siemens-iso"), "G234": ("haas",)}
 """TCP-on G codes and the dialects that read them (off: ``G49`` or a plain ``G43``)."""
 TCP_M = {128: ("heidenhain-iso", "on"), 129: ("heidenhain-iso", "off")}
@@ -121,18 +124,15 @@ def tcp_prepass(path, data: bytes, dialect_name: str, machine):
     each TCP / G93 word blanked in place (columns kept; the plain ``G43`` of a ``G43.4 Hn`` kept for the
     tool length), or ``(data, None)`` where the program has none. Refuses (InputError, file, line,
     column) what has no exact meaning."""
-    from .gcode import _Refuse, split_lines, tokenize
+    from .gcode import split_lines
     codes = "|".join(f"M0*{c}" for c in sorted(set((machine.tcp or {}).get("switch_on", ()))
                                                  | set((machine.tcp or {}).get("switch_off", ()))))
     if dialect_name != "heidenhain-iso" and _triggered(data, codes) is None:
         return data, None  # the common case: no word of this module (the reader keeps its bulk speed)
-    text = data.decode("latin-1")
-    lines = split_lines(text)
+    lines = split_lines(data.decode("latin-1"))
     rotary = [a for a in machine.axes if a.kind != "linear"]
     n = len(lines)
-    on = np.zeros(n, bool)
-    g93 = np.zeros(n, bool)
-    switch = [None] * n
+    on, g93, switch = np.zeros(n, bool), np.zeros(n, bool), [None] * n
     words, tool_events, out = [], [], []
     state = {"tcp": None, "g93": False, "tool": None, "t": None, "edge": False, "incremental": False,
              "ori": ORI_DEFAULT, "rot": {}}
@@ -144,57 +144,56 @@ def tcp_prepass(path, data: bytes, dialect_name: str, machine):
             framed = _heidenhain_block(body)
             found |= framed != body
             body = framed
-        ori = SIEMENS_ORI_LINE.fullmatch(body)
-        if ori is not None:
-            found = True
-            out.append(_orientation_words(path, i, body, ori, dialect_name, state) + ending)
-            _mark(i, state, on, g93, switch)
-            continue
-        m = SIEMENS_LINE.fullmatch(body)
-        if m is None and SIEMENS_OTHER.match(body):
-            raise _refuse(path, i, body.upper().index("TRAORI") + 1, "'TRAORI' with parameters (orientation offsets, "
-                          "another transformation number): not interpretable exactly; write TRAORI or TRAORI(1)")
-        if m is not None:
-            word = m.group(1).upper()
-            found = True
-            _need_dialect(path, i, m.start(1) + 1, word, ("siemens-iso",), dialect_name)
-            if word.startswith("TRAORI"):
-                _switch_on(path, i, m.start(1) + 1, "TRAORI", rotary, machine, state)
-                if state["t"] is None or not state["edge"]:
-                    raise _refuse(path, i, m.start(1) + 1, "'TRAORI' with no tool length: call the tool with T n "
-                                  "and its edge D1 before it (the length comes from --tool-table)")
-                words.append("TRAORI")
-            else:
-                state["tcp"] = None
-            out.append(_blank(body, m.start(1), m.end(1)) + ending)
-            _mark(i, state, on, g93, switch)
-            continue
-        vec = SIEMENS_VECTOR.search(body.split(";")[0])
-        if vec is not None:
-            raise _refuse(path, i, vec.start(1) + 1, f"'{vec.group(1)}=' (Siemens tool orientation: a direction vector "
-                          "or angle under TRAORI): the rotary positions are the controller's choice (two solutions); "
-                          "post rotary words (A, C) instead")
-        try:
-            _, toks, _ = tokenize(body)
-        except _Refuse:
-            out.append(line)  # the reader refuses it with its own words
-            _mark(i, state, on, g93, switch)
-            continue
-        new, hit, codes = _line_words(path, i, body, toks, dialect_name, state, machine, rotary, words)
+        new, hit = _prepass_line(path, i, body, dialect_name, machine, rotary, state, words, tool_events)
         found |= hit
-        new = _tool_calls(path, i, toks, new, dialect_name, state, tool_events)
-        if state["g93"]:
-            _check_inverse_time(path, i, toks, codes, state)
-        if dialect_name == "siemens-iso":
-            _check_orientation_interpolation(path, i, toks, codes, state, rotary)
-        out.append(new + ending)
-        _mark(i, state, on, g93, switch)
+        out.append(line if new is None else new + ending)  # None: the reader refuses it with its own words
+        on[i], g93[i], switch[i] = state["tcp"] is not None, state["g93"], state["tcp"]
         if state.pop("off_at_end", False):  # Heidenhain's M129 acts at the end of its block
             state["tcp"] = None
     if not found:
         return data, None
     return "".join(out).encode("latin-1"), TcpProgram(on, g93, switch, words, tool_events, lines,
                                                      off_at_end=state.get("off_lines", []))
+
+
+def _prepass_line(path, i, body, dialect_name, machine, rotary, state, words, tool_events):
+    """One line of :func:`tcp_prepass`: ``(its text for the reader, None where it does not tokenise; whether it
+    holds a word of this module)``, the state updated."""
+    ori = SIEMENS_ORI_LINE.fullmatch(body)
+    if ori is not None:
+        return _orientation_words(path, i, body, ori, dialect_name, state), True
+    m = SIEMENS_LINE.fullmatch(body)
+    if m is None and SIEMENS_OTHER.match(body):
+        raise _refuse(path, i, body.upper().index("TRAORI") + 1, "'TRAORI' with parameters (orientation offsets, "
+                      "another transformation number): not interpretable exactly; write TRAORI or TRAORI(1)")
+    if m is not None:
+        word = m.group(1).upper()
+        _need_dialect(path, i, m.start(1) + 1, word, ("siemens-iso",), dialect_name)
+        if word.startswith("TRAORI"):
+            _switch_on(path, i, m.start(1) + 1, "TRAORI", rotary, machine, state)
+            if state["t"] is None or not state["edge"]:
+                raise _refuse(path, i, m.start(1) + 1, "'TRAORI' with no tool length: call the tool with T n "
+                              "and its edge D1 before it (the length comes from --tool-table)")
+            words.append("TRAORI")
+        else:
+            state["tcp"] = None
+        return _blank(body, m.start(1), m.end(1)), True
+    vec = SIEMENS_VECTOR.search(body.split(";")[0])
+    if vec is not None:
+        raise _refuse(path, i, vec.start(1) + 1, f"'{vec.group(1)}=' (Siemens tool orientation: a direction vector "
+                      "or angle under TRAORI): the rotary positions are the controller's choice (two solutions); "
+                      "post rotary words (A, C) instead")
+    try:
+        _, toks, _ = tokenize(body)
+    except _Refuse:
+        return None, False
+    new, hit, codes = _line_words(path, i, body, toks, dialect_name, state, machine, rotary, words)
+    new = _tool_calls(path, i, toks, new, dialect_name, state, tool_events)
+    if state["g93"]:
+        _check_inverse_time(path, i, toks, codes, state)
+    if dialect_name == "siemens-iso":
+        _check_orientation_interpolation(path, i, toks, codes, state, rotary)
+    return new, hit
 
 
 HEIDENHAIN_FRAME = re.compile(r"([ \t]*(?:N\d+[ \t]*)?)%[ \t]*\w+[ \t]+G7([01])[ \t]*\*[ \t]*\r?")
@@ -314,12 +313,6 @@ def _check_orientation_interpolation(path, i, toks, codes, state, rotary):
                           "compensated pieces are written; write ORIAXES after TRAORI")
 
 
-def _mark(i, state, on, g93, switch):
-    on[i] = state["tcp"] is not None
-    g93[i] = state["g93"]
-    switch[i] = state["tcp"]
-
-
 def _need_dialect(path, i, col, word, dialects, dialect_name):
     if dialect_name not in dialects:
         raise _refuse(path, i, col, f"'{word}' (tool-centre-point control) is a word of {', '.join(dialects)}; the "
@@ -369,7 +362,6 @@ def _tool_calls(path, i, toks, body, dialect_name, state, tool_events):
 
 def _check_inverse_time(path, i, toks, codes, state):
     """Under G93 every feed move carries F (its time); a G0 needs none."""
-    from .gcode import AXIS_LETTERS
     motion = [c for c in codes if c in ("G0", "G1", "G2", "G3")]
     if motion:
         state["motion"] = motion[-1]
@@ -502,7 +494,6 @@ _F_WORD = re.compile(r"F[ \t]*([+-]?(?:\d+(?:\.\d*)?|\.\d+))", re.IGNORECASE)
 def inverse_time_lines(program, groups) -> list:
     """Output line groups with every split G93 feed move's F multiplied by its piece count (and written on
     every piece): ``groups[i]`` the output lines of source line ``i`` (:func:`compensation.gcode.render_program`)."""
-    from .gcode import tokenize
     pre = program.tcp
     out = list(groups)
     for m in program.moves:
