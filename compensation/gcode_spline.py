@@ -40,11 +40,7 @@ def spline_move(idx, st, by: dict, axis_words: dict, motion_word, ax) -> GMove:
         if a in axis_words:
             v = axis_words[a].value * scale
             end[j] = start[j] + v if st.incremental else v
-    known = np.isfinite(end)
-    if not known.all():
-        missing = ", ".join(a for a, k in zip(ax.words, known) if not k)
-        raise _Refuse(first.start + 1, f"'{code}': motion before {ax.joined('and')} are all known (no value yet "
-                                       f"for {missing})")
+    known = _known(end, ax, first, f"'{code}': motion")
     p0, p_end = start[[jx, jy]], end[[jx, jy]]
     off = {a: by[a].value * scale for a in "IJPQ" if a in by}
     if code == "G5":
@@ -61,6 +57,15 @@ def spline_move(idx, st, by: dict, axis_words: dict, motion_word, ax) -> GMove:
     st.pos = end
     st.spline_pq = None if pq is None else (pq, end.copy())
     return move
+
+
+def _known(end, ax, word, what: str) -> np.ndarray:
+    """Which axes of a curve's ``end`` are known (k,); refused at ``word`` unless all are."""
+    known = np.isfinite(end)
+    if not known.all():
+        missing = ", ".join(a for a, k in zip(ax.words, known) if not k)
+        raise _Refuse(word.start + 1, f"{what} before {ax.joined('and')} are all known (no value yet for {missing})")
+    return known
 
 
 def _cubic(by, off, p0, p3, st, first):
@@ -204,11 +209,7 @@ def nurbs_end(idx, st, by: dict, axis_words: dict, motion_word, ax) -> GMove:
     jx, jy = ax.words.index("X"), ax.words.index("Y")
     start, end = nb["start"], nb["start"].copy()
     end[jx], end[jy] = nb["ctrl"][-1]
-    known = np.isfinite(end)
-    if not known.all():
-        missing = ", ".join(a for a, k in zip(ax.words, known) if not k)
-        raise _Refuse(motion_word.start + 1, f"'G5.3': a NURBS before {ax.joined('and')} are all known (no value yet "
-                                             f"for {missing})")
+    known = _known(end, ax, motion_word, "'G5.3': a NURBS")
     move = GMove(idx, "spline", start, end, "inch" if st.inch else "mm", False, {}, motion_word, True, known=known)
     move.arc = {"ju": jx, "jv": jy, "ctrl": tuple(nb["ctrl"]), "w": tuple(nb["w"]), "order": nb["order"],
                 "block": tuple(nb["lines"])}
