@@ -41,9 +41,8 @@ _END_CODES = re.compile(r"(?<![a-z])m\s*0*(?:2|30)(?![\d.])", re.I)
 _O_STMT = re.compile(r"\s*o\s*(<[^>]*>|\d+|\[(?:[^\[\]]|\[[^\[\]]*\])*\])\s*([a-z]+)?", re.I)
 _PROG = re.compile(r"\s*(?:[oO]|:)\s*(\d+)\s*$")
 _N_LABEL = re.compile(r"\s*[nN]\s*(\d+)")
+_COMMENT = re.compile(r"\([^)]*\)|;.*", re.S)
 _NUM = re.compile(r"[ \t]*((?:\d[\d \t]*)?\.?[\d \t]*)")
-_LCNC_KEYS = {"sub", "endsub", "call", "return", "if", "elseif", "else", "endif", "while", "endwhile",
-              "do", "repeat", "endrepeat", "break", "continue"}
 _LCNC_KEY_ORDER = ("sub", "endsub", "call", "do", "while", "repeat", "if", "elseif", "else", "endif", "break",
                    "continue", "endwhile", "endrepeat", "return")
 """LinuxCNC reads an O-word's keyword from the line with its spaces and tabs removed (``close_and_downcase``),
@@ -148,23 +147,11 @@ def expand_program(text: str, path, dialect: str | None = None, state=None) -> E
 
 # ---------------------------------------------------------------------------- parsing one line
 def _code_of(body: str) -> str:
-    """``body`` with comments blanked (same length, so columns stay)."""
-    out, i, n = [], 0, len(body)
-    while i < n:
-        c = body[i]
-        if c == "(":
-            j = body.find(")", i + 1)
-            if j < 0:
-                raise _Refuse(i + 1, "unclosed '(' comment")
-            out.append(" " * (j + 1 - i))
-            i = j + 1
-        elif c == ";":
-            out.append(" " * (n - i))
-            break
-        else:
-            out.append(c)
-            i += 1
-    return "".join(out)
+    """``body`` with comments blanked (same length, so columns stay); a '(' left is an unclosed comment."""
+    code = _COMMENT.sub(lambda m: " " * len(m.group()), body)
+    if "(" in code:
+        raise _Refuse(code.index("(") + 1, "unclosed '(' comment")
+    return code
 
 
 class _Parser:
@@ -329,7 +316,7 @@ def _parse_line(body: str):
         return _parse_o(p, o, label, *key)
     if o and o.group(2) and (len(o.group(2)) > 1 or o.group(1)[0] in "<["):
         raise _Refuse(o.start(2) + 1, f"'o{o.group(1)} {o.group(2)}': '{o.group(2)}' is not an O-word keyword "
-                                      f"({', '.join(sorted(_LCNC_KEYS))})")
+                                      f"({', '.join(sorted(_LCNC_KEY_ORDER))})")
     key, j = p.alpha(p.ws(i))
     if key == "IF":
         cond, k = p.value(j)
