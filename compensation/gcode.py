@@ -52,10 +52,8 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     ``axis_words``: the machine's (:meth:`AxisWords.of`); ``None``: the built-in default machine's
     (:func:`default_axis_words`, read from its file now).
 
-    ``fast`` (default): the block-wise reader (:func:`_parse_blockwise`) where the machine has three
-    axis words, none kept (:func:`_bulk_words`): the common move and comment lines in bulk, every other line through the exact
-    per-line classifier; same classes, moves and refusals as ``fast=False`` (the per-line
-    reader, kept as the reference, and the reader of every other machine's words).
+    ``fast`` (default): the block-wise reader (:func:`_parse_blockwise`) where the machine has three axis words,
+    none kept; same classes, moves and refusals as ``fast=False`` (the per-line reader, the reference).
 
     ``rapids``: ``"keep"`` (G0 lines written as they are) or ``"compensate"``.
     ``block_delete``: ``None`` refuses a ``/`` line that moves or changes modal state;

@@ -21,22 +21,13 @@ def fmt(v: float, decimals: int) -> str:
 
 
 def render_program(program: GProgram, vertices: list, header=(), track: dict | None = None) -> tuple[str, list]:
-    """Write the program with each compensated move's vertices.
-
-    ``vertices[k]``: shape (m_k, k_axes) absolute axes (mm, deg; the reader's axis order) for
-    the k-th *compensated* move, in order, the last row the move's end. Returns ``(text,
-    groups)`` where ``groups[i]`` is the list of output lines that source line ``i`` became (the
-    header lines are not in ``groups``). Lines of class ``pass``/``state``/``skipped`` and kept
-    rapids come back byte for byte; on a compensated line only the axis numbers change (missing
-    axes are appended after the last axis word, since a correction moves every compensated
-    axis; a kept word, :class:`AxisWords`, keeps its text where its value is unchanged and is
-    appended only where it moves); an arc line becomes ``G1`` (its ``I J K R P`` words removed)
-    and each extra vertex is an added line of the axis words (``X.. Z.. A..``) after it. ``header`` lines become
-    ``(...)`` comments after a leading ``%`` line and a program-number line, if any. Numbers are
-    written in the line's own units and distance mode; incremental numbers are differences of
-    what was actually written, so rounding never accumulates. ``track`` (a dict): filled with
-    ``{line index: (k,) position of the controller running the output after that move}``.
-    """
+    """Write the program with each compensated move's vertices ``vertices[k]`` (m_k, k_axes) absolute axes (mm,
+    deg; the last row the move's end): ``(text, groups)``, ``groups[i]`` the output lines source line ``i``
+    became (header lines aside). Every other line comes back byte for byte; on a compensated line only the axis
+    numbers change, in the line's own units and distance mode (an arc becomes ``G1``, extra vertices added
+    lines; docs/reference/tool-paths.md). ``header`` lines become ``(...)`` comments after a leading ``%`` and
+    program-number line. ``track`` (a dict): filled with ``{line index: (k,) position of the controller running
+    the output after that move}``."""
     comp = [m for m in program.moves if m.compensate]
     if len(vertices) != len(comp):
         raise ValueError(f"Expected vertices for {len(comp)} compensated moves, got {len(vertices)}")
@@ -228,16 +219,10 @@ def _fixed_str(mag: int, neg: bool, decimals: int) -> str:
 
 
 def render_table(program: GProgram, axes, counts, header=()) -> tuple:
-    """:func:`render_program` of a block-wise read program in absolute mode, in bulk: same text.
-
-    ``axes`` (n, 3): every compensated vertex in order; ``counts`` vertices per compensated
-    move. Untouched lines are copied as they are; the three axis numbers of every compensated
-    bulk line are formatted column-wise (:func:`gcode_kernels.format_fixed`) and put in place of
-    the old ones by a compiled pass over the file's bytes (:func:`gcode_kernels.render_lines`);
-    lines with missing axes (appended after the last axis word) or extra vertices (added
-    lines), and moves read line by line (arcs, through the per-line writer), are written here
-    and copied in. A program with incremental moves needs the controller's position line by
-    line: :func:`render_program`.
+    """:func:`render_program` of a block-wise read program in absolute mode, in bulk: same text. ``axes`` (n, 3):
+    every compensated vertex in order; ``counts`` vertices per compensated move. The bulk lines' numbers are
+    formatted column-wise (:func:`gcode_kernels.format_fixed`) and put in place by a compiled pass
+    (:func:`gcode_kernels.render_lines`); other compensated lines are written here and copied in.
     """
     t = program.table
     if t is None or t.incremental.any():
