@@ -170,11 +170,10 @@ def _prepass_line(path, i, body, dialect_name, machine, rotary, state, words, to
         word = m.group(1).upper()
         _need_dialect(path, i, m.start(1) + 1, word, ("siemens-iso",), dialect_name)
         if word.startswith("TRAORI"):
-            _switch_on(path, i, m.start(1) + 1, "TRAORI", rotary, machine, state)
+            _switch_on(path, i, m.start(1) + 1, "TRAORI", rotary, machine, state, words)
             if state["t"] is None or not state["edge"]:
                 raise _refuse(path, i, m.start(1) + 1, "'TRAORI' with no tool length: call the tool with T n "
                               "and its edge D1 before it (the length comes from --tool-table)")
-            words.append("TRAORI")
         else:
             state["tcp"] = None
         return _blank(body, m.start(1), m.end(1)), True
@@ -218,10 +217,7 @@ def _line_words(path, i, body, toks, dialect_name, state, machine, rotary, words
     switch_on = set((machine.tcp or {}).get("switch_on", ()))
     switch_off = set((machine.tcp or {}).get("switch_off", ()))
     new = body
-    codes = {}
-    for w in toks:
-        if w.letter in "GM":
-            codes[w.code] = w
+    codes = {w.code: w for w in toks if w.letter in "GM"}
     for code, w in codes.items():
         if code in ("G90", "G91"):
             state["incremental"] = code == "G91"
@@ -235,8 +231,7 @@ def _line_words(path, i, body, toks, dialect_name, state, machine, rotary, words
             if code == "G43.5" and any(t.letter in "IJK" for t in toks):
                 raise _refuse(path, i, w.start + 1, "'G43.5' with a tool-direction vector I J K: the rotary "
                               "positions are the controller's choice (two solutions); post rotary words (G43.4)")
-            _switch_on(path, i, w.start + 1, code, rotary, machine, state)
-            words.append(code)
+            _switch_on(path, i, w.start + 1, code, rotary, machine, state, words)
             if h is not None:
                 state["tool"] = int(h.value)
             new = _blank(new, w.start, w.num_end, "G43" if h is not None else "")
@@ -255,8 +250,7 @@ def _line_words(path, i, body, toks, dialect_name, state, machine, rotary, words
             if mv in switch_on or mv in switch_off:
                 found = True
                 if mv in switch_on:
-                    _switch_on(path, i, w.start + 1, code, rotary, machine, state)
-                    words.append(code)
+                    _switch_on(path, i, w.start + 1, code, rotary, machine, state, words)
                 else:
                     state["tcp"] = None
                 new = _blank(new, w.start, w.num_end)
@@ -267,8 +261,7 @@ def _line_words(path, i, body, toks, dialect_name, state, machine, rotary, words
                     if state["t"] is None:
                         raise _refuse(path, i, w.start + 1, "'M128' with no tool length: call the tool with "
                                       "T n before it (the length comes from --tool-table)")
-                    _switch_on(path, i, w.start + 1, code, rotary, machine, state)
-                    words.append(code)
+                    _switch_on(path, i, w.start + 1, code, rotary, machine, state, words)
                     f = next((t for t in toks if t.letter == "F" and t.start > w.start), None)
                     if f is not None:  # the feed of M128's compensating movements, not the path's
                         new = _blank(new, f.start, f.num_end)
@@ -320,11 +313,12 @@ def _need_dialect(path, i, col, word, dialects, dialect_name):
                       f"{dialects[0]}")
 
 
-def _switch_on(path, i, col, word, rotary, machine, state):
+def _switch_on(path, i, col, word, rotary, machine, state, words):
     if not rotary:
         raise _refuse(path, i, col, f"'{word}': tool-centre-point control on the machine {machine.name!r}, which has "
                       "no rotary axis (TCP needs a rotary chain; use a 5-axis machine file)")
     state["tcp"] = (i, col, word)
+    words.append(word)
 
 
 def _tool_calls(path, i, toks, body, dialect_name, state, tool_events):
