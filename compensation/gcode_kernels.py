@@ -206,12 +206,10 @@ FIXED_MAX = 1e9
 
 
 def format_fixed(values, decimals):
-    """Every value as ``compensation.gcode.fmt`` writes it (``format(v, f".{decimals}f")``;
-    ``decimals`` an int or one per value), a
-    negative zero written without its sign), as (magnitude in units of 10**-decimals (n,) int64,
-    negative (n,) bool). ``v * 10**decimals`` rounded is the exact rounding except within a few
-    ulps of a tie, and the product is exact enough only below 2**50: those values (and any
-    non-finite one) go through Python's formatting, one by one."""
+    """Every value as ``compensation.gcode.fmt`` writes it (``format(v, f".{decimals}f")``, ``decimals`` an int
+    or one per value; a negative zero without its sign): (magnitude in units of 10**-decimals (n,) int64,
+    negative (n,) bool). Values within a few ulps of a tie, or above 2**50 scaled, go through Python's
+    formatting one by one (``v * 10**decimals`` rounded is exact elsewhere)."""
     v = np.asarray(values, dtype=float)
     if not np.all(np.abs(v) < FIXED_MAX):
         raise ValueError(f"Expected finite values below {FIXED_MAX:g} in magnitude, got {v[~(np.abs(v) < FIXED_MAX)][0]}")

@@ -461,8 +461,7 @@ def _parse_words(p: _Parser, body: str, code: str, i: int, label):
 
 def _call_of(words: list, p: _Parser):
     """``(kind, {letter: word})`` for a line with M98 / M97 / M99 / G65, else None."""
-    kinds = [("M98" if w[4] == 98 else "M97" if w[4] == 97 else "M99") for w in words
-             if w[0] == "M" and w[4] in (97, 98, 99)]
+    kinds = [f"M{w[4]:g}" for w in words if w[0] == "M" and w[4] in (97, 98, 99)]
     kinds += ["G65" for w in words if w[0] == "G" and w[4] == 65]
     kinds += [f"{w[0]}#" for w in words if w[0] in "GM" and w[3] is not None]
     if not kinds:

@@ -7,6 +7,7 @@ Every function takes the running interpreter (``nc_expand._Machine``) ``m``, the
 from __future__ import annotations
 
 import math
+import operator
 import re
 
 MAX_CALL_DEPTH = 32
@@ -186,14 +187,15 @@ def _function(m, name, v, pc, col, in_word) -> float:
         raise m._err(pc, col, f"{name}[{v:g}] overflows") from None
 
 
+_PLAIN_OPS = {"+": operator.add, "-": operator.sub, "*": operator.mul, "GT": lambda a, b: float(a > b),
+              "GE": lambda a, b: float(a >= b), "LT": lambda a, b: float(a < b), "LE": lambda a, b: float(a <= b)}
+"""The operators both controllers compute alike."""
+
+
 def _binary(m, op, a, b, pc, col) -> float:
     d = m.dialect
-    if op == "+":
-        return a + b
-    if op == "-":
-        return a - b
-    if op == "*":
-        return a * b
+    if op in _PLAIN_OPS:
+        return _PLAIN_OPS[op](a, b)
     if op in ("/", "MOD") and b == 0:
         raise m._err(pc, col, f"{op} by zero")
     if op == "/":
@@ -225,8 +227,6 @@ def _binary(m, op, a, b, pc, col) -> float:
         else:
             eq = diff == 0
         return float(eq if op == "EQ" else not eq)
-    if op in ("GT", "GE", "LT", "LE"):
-        return float({"GT": a > b, "GE": a >= b, "LT": a < b, "LE": a <= b}[op])
     # AND OR XOR
     if d != "linuxcnc" and not (a in (0.0, 1.0) and b in (0.0, 1.0)):
         if a != int(a) or b != int(b):
