@@ -203,6 +203,8 @@ def _binary(m, op, a, b, pc, col) -> float:
     if op == "**":
         if a < 0 and b != int(b):
             raise m._err(pc, col, f"{a:g} ** {b:g}: a negative number to a fractional power")
+        if a == 0 and b < 0:
+            raise m._err(pc, col, f"{a:g} ** {b:g}: zero to a negative power (a division by zero)")
         try:
             return float(a ** b)
         except OverflowError:
