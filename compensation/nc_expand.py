@@ -516,17 +516,15 @@ class _Machine:
                 self.stmts.append(_parse_line(ln.rstrip("\r")))
             except _Refuse as r:
                 raise InputError(f"{path}: line {i + 1}, column {r.col}: {r.msg}") from None
-        given = dialect
+        self.given = dialect  # as named; the rules below are Fanuc's or LinuxCNC's
         dialect = {"haas": "fanuc", "siemens-iso": "fanuc", "mach3": "linuxcnc"}.get(dialect, dialect)
-        self.given = given
         polar = has_polar(text)
         self.dialect = dialect or _detect(self.stmts) or ("linuxcnc" if polar else None)
         self.glob, self.gnamed = {}, {}
         self.out, self.origin = [], []
-        self.executed = 0
-        self.calls = ()
+        self.executed, self.calls = 0, ()
         self.modal = ModalTracker() if _M7X_BYTES.search(text.lower().encode("latin-1")) else None
-        self.state = state(given, text) if state is not None and (PREDEFINED_READ.search(text) or polar) else None
+        self.state = state(self.given, text) if state is not None and (PREDEFINED_READ.search(text) or polar) else None
         self._index()
 
     # -- structure
