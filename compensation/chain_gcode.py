@@ -132,18 +132,21 @@ def _polyline_pieces(nominal, q, m: int, max_segment_mm: float) -> np.ndarray:
 
 
 def _by_length(max_segment_mm, nominal) -> bool:
-    """Whether ``max_segment_mm`` splits by tool-path length (a length in mm; ``"auto"``: by the field, None: not)."""
+    """Whether ``max_segment_mm`` splits by tool-path length (a length in mm; ``"auto"``: by the field;
+    None: not at all)."""
     if isinstance(max_segment_mm, str) and max_segment_mm != "auto":
         raise ValueError(f"Expected max_segment_mm 'auto', None or a length in mm, got {max_segment_mm!r}")
     by_length = max_segment_mm is not None and not isinstance(max_segment_mm, str)
     if by_length and not (np.isfinite(max_segment_mm) and max_segment_mm > 0 and nominal is not None):
-        raise ValueError(f"Expected a positive max_segment_mm with the machine's nominal, got {max_segment_mm!r}")
+        raise ValueError("Expected a positive max_segment_mm with the machine's nominal, "
+                         f"got {max_segment_mm!r}")
     return by_length
 
 
 def _too_many(program, line0: int, count: int, arc_tolerance_um: float) -> InputError:
     return InputError(f"{program.path}: line {line0 + 1}: the move needs {count} pieces for "
-                      f"{arc_tolerance_um:g} μm (more than {MAX_SEGMENTS_PER_MOVE}); raise --arc-tolerance-um")
+                      f"{arc_tolerance_um:g} μm (more than {MAX_SEGMENTS_PER_MOVE}); "
+                      "raise --arc-tolerance-um")
 
 
 @dataclass
@@ -325,9 +328,9 @@ def _table_vertices(start, end, counts, known, arcs) -> np.ndarray:
 
 # ---------------------------------------------------------------------------- writing
 def render_chain_axes(program: GProgram, axes, counts, header=()) -> str:
-    """The program with its compensated vertices ``axes`` (n, k), ``counts`` (c,) of them per compensated move;
-    every other line byte for byte (:func:`compensation.gcode.render_program`; a program read in bulk written
-    in bulk, :func:`compensation.gcode.render_table`; kept canned cycles written back as cycles,
+    """The program with its compensated vertices ``axes`` (n, k), ``counts`` (c,) of them per compensated
+    move; every other line byte for byte (:func:`compensation.gcode.render_program`; a program read in bulk
+    written in bulk, :func:`compensation.gcode.render_table`; kept canned cycles written back as cycles,
     :func:`compensation.nc_cycles.render_kept`)."""
     t = program.table
     from .gcode import _bulk_words, render_table

@@ -1,8 +1,8 @@
 """G-code reading and rewriting with an explicit allow-list (RS274/NGC semantics).
 
-Every line is put in one class by :func:`classify_line` (``pass``, ``state``, ``move``, ``skipped``); the
-first three and skipped lines are written back byte for byte, moves compensated; anything else that can move or
-reinterpret an axis is refused naming file, line, column and word. The contract, the number syntax, the
+Every line is put in one class by :func:`classify_line` (``pass``, ``state``, ``move``, ``skipped``): moves
+compensated, every other line written back byte for byte; anything else that can move or reinterpret an axis
+is refused naming file, line, column and word. The contract, the number syntax, the
 machine's axis words and arc planes: docs/reference/tool-paths.md ("Files", "G-code over a chain"); the tables
 :data:`ALLOWED_G`, :data:`REFUSED_G`, :data:`ALLOWED_M` and :data:`LETTER_RULES`.
 
@@ -52,8 +52,8 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     ``axis_words``: the machine's (:meth:`AxisWords.of`); ``None``: the built-in default machine's
     (:func:`default_axis_words`, read from its file now).
 
-    ``fast`` (default): the block-wise reader (:func:`_parse_blockwise`) where the machine has three axis words,
-    none kept; same classes, moves and refusals as ``fast=False`` (the per-line reader, the reference).
+    ``fast`` (default): the block-wise reader (:func:`_parse_blockwise`) where the machine has three axis
+    words, none kept; same classes, moves and refusals as ``fast=False`` (the per-line reader, the reference).
 
     ``rapids``: ``"keep"`` (G0 lines written as they are) or ``"compensate"``.
     ``block_delete``: ``None`` refuses a ``/`` line that moves or changes modal state;

@@ -206,8 +206,8 @@ FIXED_MAX = 1e9
 
 
 def format_fixed(values, decimals):
-    """Every value as ``compensation.gcode.fmt`` writes it (``format(v, f".{decimals}f")``, ``decimals`` an int
-    or one per value; a negative zero without its sign): (magnitude in units of 10**-decimals (n,) int64,
+    """Every value as ``compensation.gcode.fmt`` writes it (``format(v, f".{decimals}f")``, ``decimals`` an
+    int or one per value; a negative zero without its sign): (magnitude in units of 10**-decimals (n,) int64,
     negative (n,) bool). Values within a few ulps of a tie, or above 2**50 scaled, go through Python's
     formatting one by one (``v * 10**decimals`` rounded is exact elsewhere)."""
     v = np.asarray(values, dtype=float)

@@ -1,5 +1,6 @@
-"""LinuxCNC's splines in the XY plane, read exactly: ``G5`` cubic and ``G5.1`` quadratic Béziers and ``G5.2`` …
-``G5.3`` NURBS blocks (LinuxCNC G-code reference; what is read and refused: docs/reference/tool-paths.md).
+"""LinuxCNC's splines in the XY plane, read exactly: ``G5`` cubic and ``G5.1`` quadratic Béziers and
+``G5.2`` … ``G5.3`` NURBS blocks (LinuxCNC G-code reference; what is read and refused:
+docs/reference/tool-paths.md).
 A spline is compensated as chords whose deviation from the exact curve stays within the tolerance
 (:func:`spline_segments`), written as compensated ``G1`` moves, as arcs are.
 """
@@ -64,7 +65,8 @@ def _known(end, ax, word, what: str) -> np.ndarray:
     known = np.isfinite(end)
     if not known.all():
         missing = ", ".join(a for a, k in zip(ax.words, known) if not k)
-        raise _Refuse(word.start + 1, f"{what} before {ax.joined('and')} are all known (no value yet for {missing})")
+        raise _Refuse(word.start + 1, f"{what} before {ax.joined('and')} are all known (no value yet "
+                                      f"for {missing})")
     return known
 
 

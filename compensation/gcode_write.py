@@ -21,13 +21,13 @@ def fmt(v: float, decimals: int) -> str:
 
 
 def render_program(program: GProgram, vertices: list, header=(), track: dict | None = None) -> tuple[str, list]:
-    """Write the program with each compensated move's vertices ``vertices[k]`` (m_k, k_axes) absolute axes (mm,
-    deg; the last row the move's end): ``(text, groups)``, ``groups[i]`` the output lines source line ``i``
-    became (header lines aside). Every other line comes back byte for byte; on a compensated line only the axis
-    numbers change, in the line's own units and distance mode (an arc becomes ``G1``, extra vertices added
-    lines; docs/reference/tool-paths.md). ``header`` lines become ``(...)`` comments after a leading ``%`` and
-    program-number line. ``track`` (a dict): filled with ``{line index: (k,) position of the controller running
-    the output after that move}``."""
+    """Write the program with each compensated move's vertices ``vertices[k]`` (m_k, k_axes) absolute axes
+    (mm, deg; the last row the move's end): ``(text, groups)``, ``groups[i]`` the output lines source line
+    ``i`` became (header lines aside). Every other line comes back byte for byte; on a compensated line only
+    the axis numbers change, in the line's own units and distance mode (an arc becomes ``G1``, extra vertices
+    added lines; docs/reference/tool-paths.md). ``header`` lines become ``(...)`` comments after a leading
+    ``%`` and program-number line. ``track`` (a dict): filled with ``{line index: (k,) position of the
+    controller running the output after that move}``."""
     comp = [m for m in program.moves if m.compensate]
     if len(vertices) != len(comp):
         raise ValueError(f"Expected vertices for {len(comp)} compensated moves, got {len(vertices)}")
@@ -219,11 +219,11 @@ def _fixed_str(mag: int, neg: bool, decimals: int) -> str:
 
 
 def render_table(program: GProgram, axes, counts, header=()) -> tuple:
-    """:func:`render_program` of a block-wise read program in absolute mode, in bulk: same text. ``axes`` (n, 3):
-    every compensated vertex in order; ``counts`` vertices per compensated move. The bulk lines' numbers are
-    formatted column-wise (:func:`gcode_kernels.format_fixed`) and put in place by a compiled pass
-    (:func:`gcode_kernels.render_lines`); other compensated lines are written here and copied in.
-    """
+    """:func:`render_program` of a block-wise read program in absolute mode, in bulk: same text.
+    ``axes`` (n, 3): every compensated vertex in order; ``counts`` vertices per compensated move. The bulk
+    lines' numbers are formatted column-wise (:func:`gcode_kernels.format_fixed`) and put in place by a
+    compiled pass (:func:`gcode_kernels.render_lines`); other compensated lines are written here and copied
+    in."""
     t = program.table
     if t is None or t.incremental.any():
         raise ValueError("Expected a block-wise read program without incremental moves")

@@ -2,8 +2,8 @@
 
 :func:`expand_program` runs a program's control language (Fanuc / Haas Custom Macro B, LinuxCNC O-codes) the
 way the controller does and writes out every line it executes, in order, so each call's moves are compensated
-where they are cut. What is read, how the dialects differ, what is refused and how the flat program is written:
-docs/reference/tool-paths.md, "Subprograms, macros and parameters". Execution is bounded
+where they are cut. What is read, how the dialects differ, what is refused and how the flat program is
+written: docs/reference/tool-paths.md, "Subprograms, macros and parameters". Execution is bounded
 (:data:`MAX_EXECUTED_LINES`, :data:`MAX_CALL_DEPTH`); :attr:`Expanded.origin` maps every output line back to
 its source line and call sites, so every refusal names the source. The reader
 (:func:`compensation.gcode.parse_program`) expands only a program its allow-list refuses and that holds a mark
@@ -524,7 +524,8 @@ class _Machine:
         self.out, self.origin = [], []
         self.executed, self.calls = 0, ()
         self.modal = ModalTracker() if _M7X_BYTES.search(text.lower().encode("latin-1")) else None
-        self.state = state(self.given, text) if state is not None and (PREDEFINED_READ.search(text) or polar) else None
+        follow = state is not None and (PREDEFINED_READ.search(text) or polar)
+        self.state = state(self.given, text) if follow else None
         self._index()
 
     # -- structure

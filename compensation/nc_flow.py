@@ -187,8 +187,9 @@ def _function(m, name, v, pc, col, in_word) -> float:
         raise m._err(pc, col, f"{name}[{v:g}] overflows") from None
 
 
-_PLAIN_OPS = {"+": operator.add, "-": operator.sub, "*": operator.mul, "GT": lambda a, b: float(a > b),
-              "GE": lambda a, b: float(a >= b), "LT": lambda a, b: float(a < b), "LE": lambda a, b: float(a <= b)}
+_PLAIN_OPS = {"+": operator.add, "-": operator.sub, "*": operator.mul,
+              "GT": lambda a, b: float(a > b), "GE": lambda a, b: float(a >= b),
+              "LT": lambda a, b: float(a < b), "LE": lambda a, b: float(a <= b)}
 """The operators both controllers compute alike."""
 
 
@@ -282,7 +283,8 @@ def call_statement(m, pc, call, words, vals, fr):
         why = ("grbl has no subprogram calls" if m.given == "grbl" else
                f"M97 is Haas's local subprogram call, not a call on {m.given} (name --dialect haas)")
         raise m._err(pc, w[1] + 1, f"{kind}: {why}")
-    times = _whole(m, pc, by["L"], vals, kind + " repeat count L{:g} is not a whole number ≥ 0") if "L" in by else 1
+    times = 1 if "L" not in by else _whole(m, pc, by["L"], vals,
+                                           kind + " repeat count L{:g} is not a whole number ≥ 0")
     if "P" not in by:
         raise m._err(pc, None, f"{kind} without P (the program to call)")
     p = _whole(m, pc, by["P"], vals, kind + " P{:g} is not a program number")

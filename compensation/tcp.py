@@ -157,15 +157,16 @@ def tcp_prepass(path, data: bytes, dialect_name: str, machine):
 
 
 def _prepass_line(path, i, body, dialect_name, machine, rotary, state, words, tool_events):
-    """One line of :func:`tcp_prepass`: ``(its text for the reader, None where it does not tokenise; whether it
-    holds a word of this module)``, the state updated."""
+    """One line of :func:`tcp_prepass`: ``(its text for the reader, None where it does not tokenise;
+    whether it holds a word of this module)``, the state updated."""
     ori = SIEMENS_ORI_LINE.fullmatch(body)
     if ori is not None:
         return _orientation_words(path, i, body, ori, dialect_name, state), True
     m = SIEMENS_LINE.fullmatch(body)
     if m is None and SIEMENS_OTHER.match(body):
-        raise _refuse(path, i, body.upper().index("TRAORI") + 1, "'TRAORI' with parameters (orientation offsets, "
-                      "another transformation number): not interpretable exactly; write TRAORI or TRAORI(1)")
+        raise _refuse(path, i, body.upper().index("TRAORI") + 1, "'TRAORI' with parameters (orientation "
+                      "offsets, another transformation number): not interpretable exactly; write TRAORI or "
+                      "TRAORI(1)")
     if m is not None:
         word = m.group(1).upper()
         _need_dialect(path, i, m.start(1) + 1, word, ("siemens-iso",), dialect_name)
@@ -179,9 +180,9 @@ def _prepass_line(path, i, body, dialect_name, machine, rotary, state, words, to
         return _blank(body, m.start(1), m.end(1)), True
     vec = SIEMENS_VECTOR.search(body.split(";")[0])
     if vec is not None:
-        raise _refuse(path, i, vec.start(1) + 1, f"'{vec.group(1)}=' (Siemens tool orientation: a direction vector "
-                      "or angle under TRAORI): the rotary positions are the controller's choice (two solutions); "
-                      "post rotary words (A, C) instead")
+        raise _refuse(path, i, vec.start(1) + 1, f"'{vec.group(1)}=' (Siemens tool orientation: a direction "
+                      "vector or angle under TRAORI): the rotary positions are the controller's choice (two "
+                      "solutions); post rotary words (A, C) instead")
     try:
         _, toks, _ = tokenize(body)
     except _Refuse:
