@@ -1,19 +1,7 @@
-"""G-code over a machine-tool chain (``kind = "machine-tool"``): the one reader with the machine's words.
-
-A program for a chain machine is read and written by :mod:`compensation.gcode` — the same contract
-line by line as every machine's (allow-lists, RS274 number syntax, pass-through, refusals naming file,
-line and column) — with the machine's axis words (:meth:`compensation.gcode.AxisWords.of`: ``X Y Z``
-on ``mill-xyz``, ``X Y Z A C`` on ``five-axis-ac``, ``X Z C`` on ``lathe-xzc``), its arc planes
-(``G17``/``G18``/``G19`` where it has both axes) and one difference in writing: the **tool tip** is
-compensated, so the axes the exact solver moves (:func:`compensation.solvers.chain_exact.solved_and_kept`)
-get the corrected numbers on every compensated line — a lathe's X, Z and C — and the rotary axes it
-keeps (the tool's orientation on a five-axis machine) stay as the program commands them (an
-unchanged kept word keeps its text, and is written on an added line only where it moves).
-
-This module adds what the chain path plans on top of the reader: the vertices of every compensated
-move (arcs in chords, every move split so the compensation between vertices stays within the
-tolerance of the field, :func:`plan_chain_gcode`).
-"""
+"""G-code over a machine-tool chain: :mod:`compensation.gcode` read with the machine's axis words, and the
+vertices of every compensated move planned (arcs in chords, moves split so the compensation between vertices
+stays within the field's tolerance, :func:`plan_chain_gcode`). The contract: docs/reference/tool-paths.md,
+"G-code over a chain"."""
 from __future__ import annotations
 
 import dataclasses
@@ -75,11 +63,6 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
     return prog
 
 
-def arc_chords(move, tol_mm: float) -> int:
-    """Chords so the sagitta of an arc stays within ``tol_mm`` (≥ 1): the reader's rule (:func:`compensation.gcode.arc_segments`)."""
-    return arc_segments(move, tol_mm)
-
-
 CURVATURE_FRACTIONS = (0.25, 0.5, 0.75)
 """Where along a move the field's second difference is taken (its largest counts)."""
 CURVATURE_STEP = 0.25
@@ -97,12 +80,15 @@ def field_pieces(moves, field, tol_um: float, shift=None, place=None) -> np.ndar
     if not moves:
         return np.zeros(0, dtype=int)
     f, pick = curvature_parameters()
+    return curvature_pieces(field.predict(_move_samples(moves, f, shift, place)), len(moves), pick, tol_um)
+
+
+def _move_samples(moves, f, shift, place) -> np.ndarray:
+    """Machine axes (m·len(f), k) at parameters ``f`` of every move, placed by ``place`` or ``shift``."""
     q = np.concatenate([move_points(m, f) for m in moves])
     if place is not None:
-        q = place(np.repeat([m.index for m in moves], len(f)), q)
-    elif shift is not None:
-        q = q + np.repeat(np.asarray(shift, dtype=float), len(f), axis=0)
-    return curvature_pieces(field.predict(q), len(moves), pick, tol_um)
+        return place(np.repeat([m.index for m in moves], len(f)), q)
+    return q if shift is None else q + np.repeat(np.asarray(shift, dtype=float), len(f), axis=0)
 
 
 def curvature_parameters():
@@ -136,14 +122,33 @@ def length_pieces(moves, nominal, max_segment_mm: float, shift=None, place=None)
     if not moves:
         return np.zeros(0, dtype=int)
     t = np.linspace(0.0, 1.0, LENGTH_SAMPLES + 1)
-    q = np.concatenate([move_points(m, t) for m in moves])
-    if place is not None:
-        q = place(np.repeat([m.index for m in moves], len(t)), q)
-    elif shift is not None:
-        q = q + np.repeat(np.asarray(shift, dtype=float), len(t), axis=0)
-    p = np.asarray(nominal(q), dtype=float).reshape(len(moves), len(t), 3)
+    return _polyline_pieces(nominal, _move_samples(moves, t, shift, place), len(moves), max_segment_mm)
+
+
+def _polyline_pieces(nominal, q, m: int, max_segment_mm: float) -> np.ndarray:
+    """``⌈L / max_segment_mm⌉`` (m,) int ≥ 1, ``L`` the length of each move's tool-point polyline through its
+    samples ``q`` (m·u, k) placed by ``nominal``."""
+    p = np.asarray(nominal(q), dtype=float).reshape(m, -1, 3)
     length = np.linalg.norm(np.diff(p, axis=1), axis=2).sum(axis=1)
     return np.maximum(1, np.ceil(length / float(max_segment_mm) - 1e-9)).astype(int)
+
+
+def _by_length(max_segment_mm, nominal) -> bool:
+    """Whether ``max_segment_mm`` splits by tool-path length (a length in mm; ``"auto"``: by the field;
+    None: not at all)."""
+    if isinstance(max_segment_mm, str) and max_segment_mm != "auto":
+        raise ValueError(f"Expected max_segment_mm 'auto', None or a length in mm, got {max_segment_mm!r}")
+    by_length = max_segment_mm is not None and not isinstance(max_segment_mm, str)
+    if by_length and not (np.isfinite(max_segment_mm) and max_segment_mm > 0 and nominal is not None):
+        raise ValueError("Expected a positive max_segment_mm with the machine's nominal, "
+                         f"got {max_segment_mm!r}")
+    return by_length
+
+
+def _too_many(program, line0: int, count: int, arc_tolerance_um: float) -> InputError:
+    return InputError(f"{program.path}: line {line0 + 1}: the move needs {count} pieces for "
+                      f"{arc_tolerance_um:g} μm (more than {MAX_SEGMENTS_PER_MOVE}); "
+                      "raise --arc-tolerance-um")
 
 
 @dataclass
@@ -202,21 +207,15 @@ def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, fr
     machine's tool point of (m, k) program-column axes); None: no splitting. A program in TCP mode is
     placed through ``machine``'s nominal inverse (:mod:`compensation.tcp`). A program read in bulk
     (:class:`compensation.gcode.MoveTable`) is planned column-wise (:func:`plan_table`): the same vertices."""
-    if isinstance(max_segment_mm, str) and max_segment_mm != "auto":
-        raise ValueError(f"Expected max_segment_mm 'auto', None or a length in mm, got {max_segment_mm!r}")
+    by_length = _by_length(max_segment_mm, nominal)
     rotated = frames is not None and frames.rotated
     if program.table is not None and program.tcp is None and program.expanded is None and not rotated:
         return plan_table(program, arc_tolerance_um, field_, frames, max_segment_mm, nominal)
     comp = [m for m in program.moves if m.compensate]
     tol_mm = arc_tolerance_um * 1e-3
-    n_arc = np.array([arc_chords(m, tol_mm) if m.arc is not None else 1 for m in comp], dtype=int)
+    n_arc = np.array([arc_segments(m, tol_mm) if m.arc is not None else 1 for m in comp], dtype=int)
     with_start = [m for m in comp if np.all(np.isfinite(m.start))]
     n_fld = np.ones(len(comp), dtype=int)
-    if isinstance(max_segment_mm, str) and max_segment_mm != "auto":
-        raise ValueError(f"Expected max_segment_mm 'auto', None or a length in mm, got {max_segment_mm!r}")
-    by_length = max_segment_mm is not None and not isinstance(max_segment_mm, str)
-    if by_length and not (np.isfinite(max_segment_mm) and max_segment_mm > 0 and nominal is not None):
-        raise ValueError(f"Expected a positive max_segment_mm with the machine's nominal, got {max_segment_mm!r}")
     if with_start and (by_length or (max_segment_mm == "auto" and field_ is not None)):
         shift = frames.shift([m.index for m in with_start], program.axis_words.words) if frames is not None else None
         place = partial(frames.place, words=program.axis_words.words) if rotated else None
@@ -230,9 +229,7 @@ def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, fr
     counts[[i for i, m in enumerate(comp) if m.synced]] = 1  # a spindle-synchronised line stays one line
     big = np.flatnonzero(counts > MAX_SEGMENTS_PER_MOVE)
     if big.size:
-        m = comp[big[0]]
-        raise InputError(f"{program.path}: line {m.index + 1}: the move needs {counts[big[0]]} pieces for "
-                         f"{arc_tolerance_um:g} μm (more than {MAX_SEGMENTS_PER_MOVE}); raise --arc-tolerance-um")
+        raise _too_many(program, comp[big[0]].index, counts[big[0]], arc_tolerance_um)
     verts = []
     for m, c in zip(comp, counts):
         if not np.all(np.isfinite(m.start)):
@@ -260,11 +257,9 @@ def plan_table(program: GProgram, arc_tolerance_um: float, field_=None, frames=N
     tol_mm = arc_tolerance_um * 1e-3
     counts = np.ones(len(rows), dtype=int)
     for i, m in moves.items():
-        counts[i] = arc_chords(m, tol_mm)
+        counts[i] = arc_segments(m, tol_mm)
     known = np.isfinite(start).all(axis=1)
-    by_length = max_segment_mm is not None and not isinstance(max_segment_mm, str)
-    if by_length and not (np.isfinite(max_segment_mm) and max_segment_mm > 0 and nominal is not None):
-        raise ValueError(f"Expected a positive max_segment_mm with the machine's nominal, got {max_segment_mm!r}")
+    by_length = _by_length(max_segment_mm, nominal)
     if known.any() and (by_length or (max_segment_mm == "auto" and field_ is not None)):
         idx = np.flatnonzero(known)
         shift = frames.shift(t.line[rows[idx]], program.axis_words.words) if frames is not None else None
@@ -276,17 +271,14 @@ def plan_table(program: GProgram, arc_tolerance_um: float, field_=None, frames=N
         if shift is not None:
             q = q + np.repeat(np.asarray(shift, dtype=float), len(f), axis=0)
         if by_length:
-            p = np.asarray(nominal(q), dtype=float).reshape(len(idx), len(f), 3)
-            length = np.linalg.norm(np.diff(p, axis=1), axis=2).sum(axis=1)
-            pieces = np.maximum(1, np.ceil(length / float(max_segment_mm) - 1e-9)).astype(int)
+            pieces = _polyline_pieces(nominal, q, len(idx), max_segment_mm)
         else:
             pieces = curvature_pieces(_field_chained(field_, q.reshape(len(idx), len(f), -1)), len(idx), pick,
                                       arc_tolerance_um)
         counts[idx] = np.maximum(counts[idx], pieces)
     big = np.flatnonzero(counts > MAX_SEGMENTS_PER_MOVE)
     if big.size:
-        raise InputError(f"{program.path}: line {t.line[rows[big[0]]] + 1}: the move needs {counts[big[0]]} pieces for "
-                         f"{arc_tolerance_um:g} μm (more than {MAX_SEGMENTS_PER_MOVE}); raise --arc-tolerance-um")
+        raise _too_many(program, t.line[rows[big[0]]], counts[big[0]], arc_tolerance_um)
     counts[~known] = 1  # a move whose start is unknown: its end alone
     objs = np.flatnonzero(t.obj[rows] >= 0)
     counts[[i for i in objs if t.objects[t.obj[rows[i]]].synced]] = 1  # spindle-synchronised: one line
@@ -340,22 +332,15 @@ def _table_vertices(start, end, counts, known, arcs) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- writing
-def render_chain_program(program: GProgram, vertices: list, header=()) -> str:
-    """The program with each compensated move's (compensated) vertices ``vertices[i]`` (m_i, k);
-    every other line byte for byte (:func:`compensation.gcode.render_program`); kept canned cycles
-    written back as cycles (:func:`compensation.nc_cycles.render_kept`)."""
-    counts = np.array([len(v) for v in vertices], dtype=int)
-    axes = np.concatenate(vertices) if vertices else np.zeros((0, len(program.axis_words.words)))
-    return render_chain_axes(program, axes, counts, header=header)
-
-
 def render_chain_axes(program: GProgram, axes, counts, header=()) -> str:
-    """:func:`render_chain_program` of the vertices given as ``axes`` (n, k), ``counts`` (c,) of them per
-    compensated move: a program read in bulk written in bulk, without splitting them."""
+    """The program with its compensated vertices ``axes`` (n, k), ``counts`` (c,) of them per compensated
+    move; every other line byte for byte (:func:`compensation.gcode.render_program`; a program read in bulk
+    written in bulk, :func:`compensation.gcode.render_table`; kept canned cycles written back as cycles,
+    :func:`compensation.nc_cycles.render_kept`)."""
     t = program.table
-    if program.tcp is None and t is not None and not t.incremental.any() and program.expanded is None and len(program.axis_words.words) == 3 \
-            and not program.axis_words.kept:  # a program read in bulk: written in bulk, the same text
-        from .gcode import render_table
+    from .gcode import _bulk_words, render_table
+    if (program.tcp is None and t is not None and not t.incremental.any() and program.expanded is None
+            and _bulk_words(program.axis_words)):  # a program read in bulk: written in bulk, the same text
         return render_table(program, np.asarray(axes), list(counts), header=header)[0]
     vertices = np.split(np.asarray(axes), np.cumsum(counts)[:-1]) if len(counts) else []
     if program.tcp is not None:

@@ -1,57 +1,15 @@
 """G-code reading and rewriting with an explicit allow-list (RS274/NGC semantics).
 
-The contract, line by line
---------------------------
-Every line of a program is put in exactly one class by :func:`classify_line`:
+Every line is put in one class by :func:`classify_line` (``pass``, ``state``, ``move``, ``skipped``): moves
+compensated, every other line written back byte for byte; anything else that can move or reinterpret an axis
+is refused naming file, line, column and word. The contract, the number syntax, the
+machine's axis words and arc planes: docs/reference/tool-paths.md ("Files", "G-code over a chain"); the tables
+:data:`ALLOWED_G`, :data:`REFUSED_G`, :data:`ALLOWED_M` and :data:`LETTER_RULES`.
 
-``pass``     nothing on it moves or reinterprets an axis (comments, ``N F S T``, allowed
-             ``M`` codes, modal codes that change no axis meaning). Written back **byte for
-             byte**.
-``state``    modal codes the reader follows and that do not move by themselves: ``G90/G91``
-             (distance), ``G90.1/G91.1`` (arc centres), ``G20/G21`` (units), ``G17/G18/G19``
-             (plane), a motion code with no axis words (``G1`` alone), ``G4 P``; and
-             ``G28``/``G30`` (a return to a machine reference, after which the axes it
-             moved are unknown). Written back byte for byte.
-``move``     a ``G0``/``G1``/``G2``/``G3`` line with axis words. Compensated (its axis numbers
-             replaced; split or linearised into several lines where needed) — or, for a
-             rapid under ``rapids="keep"``, written back byte for byte.
-``skipped``  a block-delete line (``/``) when block delete is ``on``: the controller skips
-             it, so the reader does too. Written back byte for byte.
-
-Anything else that can move or reinterpret an axis is **refused** with
-:class:`~errormap.io.InputError` naming the file, the 1-based line, the 1-based column and
-the word (``prog.nc: line 7, column 4: 'G65' ...``). The full tables of what is allowed and
-why each refused code is refused are :data:`ALLOWED_G`, :data:`REFUSED_G`,
-:data:`ALLOWED_M` and :data:`LETTER_RULES` (docs/reference/tool-paths.md prints them).
-
-Work systems (``G54`` … ``G59.3``, ``G54.1 P``), tool length offsets (``G43 H`` / ``G49``), cutter
-radius compensation (``G41``/``G42 D`` / ``G40``) and the program's own tables (``G10 L2`` / ``L1``) are
-read as events (:attr:`GProgram.events`), resolved against the controller's tables by
-:func:`compensation.nc_state.program_frames`; the moves stay in program coordinates. A controller
-dialect (:mod:`compensation.dialects`) widens the M codes and mode codes accepted.
-
-Numbers are read as RS274 reads them: spaces and tabs inside a number are ignored (``X1 0``
-is X10), an optional sign and decimal point, no exponent (``X1e2`` is refused), no
-parameters or expressions (``#1``, ``[1+2]``).
-
-Axis words are the machine's (:class:`AxisWords`, from the machine file by
-:meth:`AxisWords.of`; where a caller names no machine, the built-in default machine's file,
-read when called: :func:`default_axis_words`): ``X Z A`` on an X-Z-A machine, ``X Y Z`` on a
-3-axis mill, ``X Y Z A C`` on a five-axis machine, ``X Z C`` on a lathe; linear words in mm or
-inch, rotary ones in degrees. A word of an axis the machine lacks (``Y`` on an X-Z-A machine, ``B`` on a mill;
-``U V W``, incremental axes on lathe dialects) is refused naming the machine, and so is an arc
-centre word along such an axis (``J`` without a Y axis). Arcs ``G2/G3`` run in the planes of the
-machine's linear axes: ``G17`` (XY, centre ``I J``), ``G18`` (XZ, ``I K``), ``G19`` (YZ,
-``J K``), or by ``R``; an arc in a plane whose axes the machine lacks (the plane code alone is a
-state line), or with a centre word of another plane, is refused; the other axes of an arc line
-move linearly along it.
-
-Moves are kept as :class:`GMove` records (start and end in absolute mm / deg in the machine's
-axis order, whatever the program's mode and units were), so a caller can place vertices along
-each move (:func:`move_points`) and :func:`render_program` writes them back in the program's
-own distance mode and units. Long programs of a machine with three axis words, each written on
-every compensated line, go through a block-wise reader and writer (:func:`_parse_blockwise`,
-:func:`render_table`; same result, in bulk).
+Moves are kept as :class:`GMove` records (absolute mm / deg in the machine's axis order), so a caller places
+vertices along them (:func:`move_points`) and :func:`render_program` writes them back in the program's own
+distance mode and units. Long programs of a machine with three axis words go through a block-wise reader and
+writer (:func:`_parse_blockwise`, :func:`render_table`; same result, in bulk).
 """
 from __future__ import annotations
 
@@ -96,10 +54,8 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     ``axis_words``: the machine's (:meth:`AxisWords.of`); ``None``: the built-in default machine's
     (:func:`default_axis_words`, read from its file now).
 
-    ``fast`` (default): the block-wise reader (:func:`_parse_blockwise`) where the machine has three
-    axis words, none kept (:func:`_bulk_words`): the common move and comment lines in bulk, every other line through the exact
-    per-line classifier; same classes, moves and refusals as ``fast=False`` (the per-line
-    reader, kept as the reference, and the reader of every other machine's words).
+    ``fast`` (default): the block-wise reader (:func:`_parse_blockwise`) where the machine has three axis
+    words, none kept; same classes, moves and refusals as ``fast=False`` (the per-line reader, the reference).
 
     ``rapids``: ``"keep"`` (G0 lines written as they are) or ``"compensate"``.
     ``block_delete``: ``None`` refuses a ``/`` line that moves or changes modal state;
@@ -225,8 +181,6 @@ def _bulk_words(ax: AxisWords) -> bool:
 
 def _no_motion(path, ax: AxisWords) -> InputError:
     return InputError(f"{path}: no G0/G1/G2/G3 motion with {ax.joined('or')} words to compensate found")
-
-
 
 
 def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: AxisWords, dia=None,

@@ -1,25 +1,14 @@
 """Compiled kernels of the block-wise G-code reader and writer.
 
-:func:`scan_lines` reads the whole file's bytes in one pass and puts each line in one of
-four kinds, exactly as the block-wise reader's two strict patterns (``gcode._bulk_move``,
-``gcode._BULK_PASS``) would, without a Python call per line:
-
-``KIND_MOVE``   a plain move line (``_bulk_move`` with one of the three axis words): spans and values out;
-``KIND_PASS``   a blank or comment-only line (``_BULK_PASS``);
-``KIND_OTHER``  neither pattern matches: the per-line classifier reads it;
-``KIND_ASK``    the kernel does not decide (a number with more than 17 digits, or whose
-                value needs more than the exact ``mantissa / 10**k`` division): the patterns
-                themselves are asked, line by line.
-
-A number's value is ``mantissa / 10**decimals`` in float64 when the mantissa is below 2**53
-and there are at most 22 decimals: both operands are exact, so the one division is the
-correctly rounded decimal value — what Python's ``float(text)`` returns, bit for bit.
-Anything else is ``KIND_ASK``. tests/test_gcode_blockwise.py checks the kernel against the
-patterns line by line on generated lines.
-
-:func:`format_fixed` and :func:`render_lines` are the writer's side: numbers formatted with a
-fixed number of decimals exactly as ``format(v, ".6f")`` (ties and huge values through Python's
-own formatting), and the output bytes assembled line by line.
+:func:`scan_lines` reads the whole file's bytes in one pass and puts each line in one of four kinds exactly as
+the block-wise reader's two strict patterns (``gcode_table._bulk_move``, ``_BULK_PASS``) would: ``KIND_MOVE``
+(a plain move line: spans and values out), ``KIND_PASS`` (blank or comment-only), ``KIND_OTHER`` (neither: the
+per-line classifier reads it), ``KIND_ASK`` (the kernel does not decide: the patterns are asked). A number's
+value is ``mantissa / 10**decimals`` in float64 when the mantissa is below 2**53 and there are at most 22
+decimals: both operands are exact, so the one division is the correctly rounded value, what ``float(text)``
+returns bit for bit; anything else is ``KIND_ASK`` (tests/test_gcode_blockwise.py checks the kernel against
+the patterns). :func:`format_fixed` and :func:`render_lines` are the writer's side (numbers exactly as
+``format(v, ".6f")``, the output bytes assembled line by line).
 """
 from __future__ import annotations
 
@@ -34,7 +23,7 @@ _MANT_MAX = 2 ** 53
 _SP, _TAB, _CR = 32, 9, 13
 _ZERO, _NINE, _DOT, _PLUS, _MINUS = 48, 57, 46, 43, 45
 _LP, _RP, _SEMI = 40, 41, 59
-_N, _G, _F = 78, 71, 70
+_N, _G = 78, 71
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -102,8 +91,8 @@ def _is_pass(buf, p, e):
 
 @njit(cache=True, nogil=True, inline="always")
 def _scan_one(buf, s, e, pow10, letters, sp, v):
-    """Kind of line buf[s:e] (body, no line ending); ``letters`` (3,) the axis words' bytes, in
-    the order a plain line writes them; a move's spans (relative to s) go to ``sp`` (4, 2) and
+    """Kind of line buf[s:e] (body, no line ending); ``letters`` (4,) the axis words' bytes, in
+    the order a plain line writes them, and F's; a move's spans (relative to s) go to ``sp`` (4, 2) and
     its values to ``v`` (3,) (scratch: copied out for moves only)."""
     if _is_pass(buf, s, e):
         return KIND_PASS
@@ -130,25 +119,19 @@ def _scan_one(buf, s, e, pow10, letters, sp, v):
         sp[0, 1] = q - s
         p = _blanks(buf, q, e)
     axes = 0
-    for j in range(3):
+    for j in range(4):  # the three axis words, then F
         if p < e and buf[p] == letters[j]:
             st, q, x = _number(buf, p + 1, e, pow10)
             if st == 0:
                 return KIND_OTHER
             if st == 2:
                 return KIND_ASK
-            sp[j + 1, 0] = p + 1 - s
-            sp[j + 1, 1] = q - s
-            v[j] = x
-            axes += 1
+            if j < 3:
+                sp[j + 1, 0] = p + 1 - s
+                sp[j + 1, 1] = q - s
+                v[j] = x
+                axes += 1
             p = _blanks(buf, q, e)
-    if p < e and buf[p] == _F:
-        st, q, x = _number(buf, p + 1, e, pow10)
-        if st == 0:
-            return KIND_OTHER
-        if st == 2:
-            return KIND_ASK
-        p = _blanks(buf, q, e)
     if p < e and buf[p] == _LP:
         q = p + 1
         while q < e and buf[q] != _RP:
@@ -204,7 +187,7 @@ def scan_lines(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, words):
     absent) and the three axis values (n, 3) (NaN where absent) of every line."""
     if len(words) != 3 or not all(isinstance(w, str) and len(w) == 1 for w in words):
         raise ValueError(f"Expected three one-letter axis words, got {list(words)}")
-    letters = np.frombuffer("".join(words).encode("ascii"), np.uint8).copy()
+    letters = np.frombuffer(("".join(words) + "F").encode("ascii"), np.uint8).copy()
     n = starts.size
     kind = np.empty(n, np.int8)
     spans = np.full((n, 4, 2), -1, np.int32)
@@ -223,12 +206,10 @@ FIXED_MAX = 1e9
 
 
 def format_fixed(values, decimals):
-    """Every value as ``compensation.gcode.fmt`` writes it (``format(v, f".{decimals}f")``;
-    ``decimals`` an int or one per value), a
-    negative zero written without its sign), as (magnitude in units of 10**-decimals (n,) int64,
-    negative (n,) bool). ``v * 10**decimals`` rounded is the exact rounding except within a few
-    ulps of a tie, and the product is exact enough only below 2**50: those values (and any
-    non-finite one) go through Python's formatting, one by one."""
+    """Every value as ``compensation.gcode.fmt`` writes it (``format(v, f".{decimals}f")``, ``decimals`` an
+    int or one per value; a negative zero without its sign): (magnitude in units of 10**-decimals (n,) int64,
+    negative (n,) bool). Values within a few ulps of a tie, or above 2**50 scaled, go through Python's
+    formatting one by one (``v * 10**decimals`` rounded is exact elsewhere)."""
     v = np.asarray(values, dtype=float)
     if not np.all(np.abs(v) < FIXED_MAX):
         raise ValueError(f"Expected finite values below {FIXED_MAX:g} in magnitude, got {v[~(np.abs(v) < FIXED_MAX)][0]}")
@@ -257,9 +238,11 @@ def _num_len(mag, neg, dec, pow10i):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _put_num(out, o, mag, neg, dec, pow10i):
-    n = _num_len(mag, neg, dec, pow10i)
-    end = o + n
+def _put_num(out, o, mag, neg, dec, pow10i, write):
+    """One number's digits at ``out[o:]`` (only its length counted where not ``write``); returns its end."""
+    end = o + _num_len(mag, neg, dec, pow10i)
+    if not write:
+        return end
     q = end - 1
     m = mag
     for _ in range(dec):
@@ -280,7 +263,10 @@ def _put_num(out, o, mag, neg, dec, pow10i):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _copy(out, o, buf, a, b):
+def _copy(out, o, buf, a, b, write):
+    """``buf[a:b]`` at ``out[o:]`` (only counted where not ``write``); returns the end."""
+    if not write:
+        return o + (b - a)
     for q in range(a, b):
         out[o] = buf[q]
         o += 1
@@ -301,15 +287,9 @@ def _render(buf, starts, stops, mode, row_of_line, vert_of_row, spans, mags, neg
             out_off[i] = o
         m = mode[i]
         if m == 0:
-            if write:
-                o = _copy(out, o, buf, starts[i], stops[i])
-            else:
-                o += stops[i] - starts[i]
+            o = _copy(out, o, buf, starts[i], stops[i], write)
         elif m == 2:
-            if write:
-                o = _copy(out, o, blob, blob_off[i], blob_off[i + 1])
-            else:
-                o += blob_off[i + 1] - blob_off[i]
+            o = _copy(out, o, blob, blob_off[i], blob_off[i + 1], write)
         else:
             r = row_of_line[i]
             v = vert_of_row[r]
@@ -318,16 +298,10 @@ def _render(buf, starts, stops, mode, row_of_line, vert_of_row, spans, mags, neg
                 a = starts[i] + spans[r, j + 1, 0]
                 b = starts[i] + spans[r, j + 1, 1]
                 dec = decs[j, 1] if inch[v] else decs[j, 0]
-                if write:
-                    o = _copy(out, o, buf, pos, a)
-                    o = _put_num(out, o, mags[v, j], negs[v, j], dec, pow10i)
-                else:
-                    o += a - pos + _num_len(mags[v, j], negs[v, j], dec, pow10i)
+                o = _copy(out, o, buf, pos, a, write)
+                o = _put_num(out, o, mags[v, j], negs[v, j], dec, pow10i, write)
                 pos = b
-            if write:
-                o = _copy(out, o, buf, pos, stops[i])
-            else:
-                o += stops[i] - pos
+            o = _copy(out, o, buf, pos, stops[i], write)
     if not write:
         out_off[starts.size] = o
 
@@ -396,9 +370,7 @@ def _polyline_lengths(start, end, samples, prog, out):  # pragma: no cover - com
     sd = np.empty(m)
     shift = np.zeros(BR.shape[0], dtype=np.bool_)  # blocks without rotation: a shift only
     for bi in range(BR.shape[0]):
-        shift[bi] = (BR[bi, 0, 0] == 1.0 and BR[bi, 1, 1] == 1.0 and BR[bi, 2, 2] == 1.0 and BR[bi, 0, 1] == 0.0
-                     and BR[bi, 0, 2] == 0.0 and BR[bi, 1, 0] == 0.0 and BR[bi, 1, 2] == 0.0 and BR[bi, 2, 0] == 0.0
-                     and BR[bi, 2, 1] == 0.0)
+        shift[bi] = np.all(BR[bi] == np.eye(3))
     for j in range(start.shape[0]):
         first = m      # the first op that changes in this move
         for o in range(m):

@@ -1,17 +1,8 @@
-"""LinuxCNC's splines in the XY plane, read exactly (LinuxCNC G-code reference, "G5 Cubic spline",
-"G5.1 Quadratic spline"):
-
-* ``G5 X Y I J P Q``: a cubic Bézier from the current point P0 to the end P3 = (X, Y), with the control
-  points P1 = P0 + (I, J) and P2 = P3 + (P, Q). ``P`` and ``Q`` are required; ``I`` and ``J`` both or
-  neither; without them (only right after a ``G5`` move) P1 = P0 − (P, Q) of that move, so the new
-  cubic starts in the direction the last one ended.
-* ``G5.1 X Y I J``: a quadratic Bézier from P0 to P2 = (X, Y), control point P1 = P0 + (I, J) (a missing
-  one of ``I``/``J`` is 0; both missing or zero is an error).
-
-``X``/``Y`` follow ``G90``/``G91`` as any axis word; ``I J P Q`` are offsets (mm or inch as the line's
-units). Only under ``G17`` and only with ``X``/``Y`` axis words (other axes keep their values). A spline
-is compensated by sampling the exact curve with chords whose deviation from it stays within the
-tolerance (:func:`spline_segments`) and written as compensated ``G1`` moves, as arcs are.
+"""LinuxCNC's splines in the XY plane, read exactly: ``G5`` cubic and ``G5.1`` quadratic Béziers and
+``G5.2`` … ``G5.3`` NURBS blocks (LinuxCNC G-code reference; what is read and refused:
+docs/reference/tool-paths.md).
+A spline is compensated as chords whose deviation from the exact curve stays within the tolerance
+(:func:`spline_segments`), written as compensated ``G1`` moves, as arcs are.
 """
 from __future__ import annotations
 
@@ -50,11 +41,7 @@ def spline_move(idx, st, by: dict, axis_words: dict, motion_word, ax) -> GMove:
         if a in axis_words:
             v = axis_words[a].value * scale
             end[j] = start[j] + v if st.incremental else v
-    known = np.isfinite(end)
-    if not known.all():
-        missing = ", ".join(a for a, k in zip(ax.words, known) if not k)
-        raise _Refuse(first.start + 1, f"'{code}': motion before {ax.joined('and')} are all known (no value yet "
-                                       f"for {missing})")
+    known = _known(end, ax, first, f"'{code}': motion")
     p0, p_end = start[[jx, jy]], end[[jx, jy]]
     off = {a: by[a].value * scale for a in "IJPQ" if a in by}
     if code == "G5":
@@ -71,6 +58,16 @@ def spline_move(idx, st, by: dict, axis_words: dict, motion_word, ax) -> GMove:
     st.pos = end
     st.spline_pq = None if pq is None else (pq, end.copy())
     return move
+
+
+def _known(end, ax, word, what: str) -> np.ndarray:
+    """Which axes of a curve's ``end`` are known (k,); refused at ``word`` unless all are."""
+    known = np.isfinite(end)
+    if not known.all():
+        missing = ", ".join(a for a, k in zip(ax.words, known) if not k)
+        raise _Refuse(word.start + 1, f"{what} before {ax.joined('and')} are all known (no value yet "
+                                      f"for {missing})")
+    return known
 
 
 def _cubic(by, off, p0, p3, st, first):
@@ -214,11 +211,7 @@ def nurbs_end(idx, st, by: dict, axis_words: dict, motion_word, ax) -> GMove:
     jx, jy = ax.words.index("X"), ax.words.index("Y")
     start, end = nb["start"], nb["start"].copy()
     end[jx], end[jy] = nb["ctrl"][-1]
-    known = np.isfinite(end)
-    if not known.all():
-        missing = ", ".join(a for a, k in zip(ax.words, known) if not k)
-        raise _Refuse(motion_word.start + 1, f"'G5.3': a NURBS before {ax.joined('and')} are all known (no value yet "
-                                             f"for {missing})")
+    known = _known(end, ax, motion_word, "'G5.3': a NURBS")
     move = GMove(idx, "spline", start, end, "inch" if st.inch else "mm", False, {}, motion_word, True, known=known)
     move.arc = {"ju": jx, "jv": jy, "ctrl": tuple(nb["ctrl"]), "w": tuple(nb["w"]), "order": nb["order"],
                 "block": tuple(nb["lines"])}

@@ -13,16 +13,9 @@ from .gcode_words import GMove, Word
 
 
 # ---------------------------------------------------------------------------- block-wise
-#
-# The per-line reader (compensation.gcode_classify) classifies one line at a time (about 0.25 ms a line). A long program is
-# nearly all plain move lines ('N120 G1 X.. Z.. A.. F..', or modal 'X.. Z..') and comments.
-# The block-wise reader recognises exactly those lines with two strict patterns, reads their
-# numbers in bulk and follows the modal state (motion mode, positions) with vectorised
-# forward fills and sums; every other line — and any plain line the bulk step would not read
-# exactly as the per-line reader does (no motion mode yet, an arc mode, an axis not yet known)
-# — goes through the per-line classifier, in order, with the state it would have had. The
-# result (classes, moves, refusals) is the per-line reader's; tests/test_gcode_blockwise.py
-# checks that on the corpus and on generated programs.
+# Plain move and comment lines are recognised by two strict patterns and read in bulk; every other line, and
+# any the bulk step would not read exactly as the per-line reader (compensation.gcode_classify) does, goes
+# through the per-line classifier in order: the per-line reader's result (tests/test_gcode_blockwise.py).
 
 _BULK_NUM = r"[+-]?(?:\d{1,300}(?:\.\d*)?|\.\d+)"
 """A plain RS274 number, no blanks inside; at most 300 digits before the point, so it is finite."""

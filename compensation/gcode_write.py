@@ -21,22 +21,13 @@ def fmt(v: float, decimals: int) -> str:
 
 
 def render_program(program: GProgram, vertices: list, header=(), track: dict | None = None) -> tuple[str, list]:
-    """Write the program with each compensated move's vertices.
-
-    ``vertices[k]``: shape (m_k, k_axes) absolute axes (mm, deg; the reader's axis order) for
-    the k-th *compensated* move, in order, the last row the move's end. Returns ``(text,
-    groups)`` where ``groups[i]`` is the list of output lines that source line ``i`` became (the
-    header lines are not in ``groups``). Lines of class ``pass``/``state``/``skipped`` and kept
-    rapids come back byte for byte; on a compensated line only the axis numbers change (missing
-    axes are appended after the last axis word, since a correction moves every compensated
-    axis; a kept word, :class:`AxisWords`, keeps its text where its value is unchanged and is
-    appended only where it moves); an arc line becomes ``G1`` (its ``I J K R P`` words removed)
-    and each extra vertex is an added line of the axis words (``X.. Z.. A..``) after it. ``header`` lines become
-    ``(...)`` comments after a leading ``%`` line and a program-number line, if any. Numbers are
-    written in the line's own units and distance mode; incremental numbers are differences of
-    what was actually written, so rounding never accumulates. ``track`` (a dict): filled with
-    ``{line index: (k,) position of the controller running the output after that move}``.
-    """
+    """Write the program with each compensated move's vertices ``vertices[k]`` (m_k, k_axes) absolute axes
+    (mm, deg; the last row the move's end): ``(text, groups)``, ``groups[i]`` the output lines source line
+    ``i`` became (header lines aside). Every other line comes back byte for byte; on a compensated line only
+    the axis numbers change, in the line's own units and distance mode (an arc becomes ``G1``, extra vertices
+    added lines; docs/reference/tool-paths.md). ``header`` lines become ``(...)`` comments after a leading
+    ``%`` and program-number line. ``track`` (a dict): filled with ``{line index: (k,) position of the
+    controller running the output after that move}``."""
     comp = [m for m in program.moves if m.compensate]
     if len(vertices) != len(comp):
         raise ValueError(f"Expected vertices for {len(comp)} compensated moves, got {len(vertices)}")
@@ -81,9 +72,16 @@ def _render_move(line: str, m: GMove, q, ctrl, ax: AxisWords):
                  + ending for vals, c0 in zip(written[1:], before[1:])]
     else:  # every word on every added line
         extra = [slash + " ".join(f"{a}{v}" for a, v in zip(ax.words, vals)) + ending for vals in written[1:]]
+    return _pieces(line, body, first, extra), ctrl
+
+
+def _pieces(line: str, body: str, first: str, extra: list) -> list:
+    """Output lines of a move: its rewritten ``first`` line and the ``extra`` added lines, the source line's
+    ending kept on the last (none on a last line without one)."""
     if extra and not line.endswith("\n"):
-        return [first + ending] + extra[:-1] + [extra[-1][:-len(ending)]], ctrl
-    return [first + line[len(body):]] + extra, ctrl
+        ending = line[len(body):] or "\n"
+        return [first + ending] + extra[:-1] + [extra[-1][:-len(ending)]]
+    return [first + line[len(body):]] + extra
 
 
 def nurbs_block_lines(m: GMove, lines) -> dict:
@@ -101,12 +99,19 @@ def _with_header(out: list, header) -> str:
     """``out`` (output lines) joined, with ``header`` lines as ``(...)`` comments after a
     leading ``%`` line and a program-number line, if any."""
     head = "".join(f"({_comment_safe(h)})\n" for h in header)
-    at = 0  # after a leading '%' line and a program-number line ('O1000 (NAME)')
-    if at < len(out) and out[at].strip() == "%":
-        at += 1
-    if at < len(out) and re.match(r"[ \t]*[Oo][ \t]*\d", out[at]):
-        at += 1
+    at = _header_at(out[:2])
     return "".join(out[:at]) + head + "".join(out[at:])
+
+
+def _header_at(first_two: list) -> int:
+    """Where header lines go among the first two output lines: after a leading ``%`` line and a
+    program-number line (``O1000 (NAME)``), if any."""
+    at = 0
+    if at < len(first_two) and first_two[at].strip() == "%":
+        at += 1
+    if at < len(first_two) and re.match(r"[ \t]*[Oo][ \t]*\d", first_two[at]):
+        at += 1
+    return at
 
 
 def _comment_safe(text: str) -> str:
@@ -215,16 +220,10 @@ def _fixed_str(mag: int, neg: bool, decimals: int) -> str:
 
 def render_table(program: GProgram, axes, counts, header=()) -> tuple:
     """:func:`render_program` of a block-wise read program in absolute mode, in bulk: same text.
-
-    ``axes`` (n, 3): every compensated vertex in order; ``counts`` vertices per compensated
-    move. Untouched lines are copied as they are; the three axis numbers of every compensated
-    bulk line are formatted column-wise (:func:`gcode_kernels.format_fixed`) and put in place of
-    the old ones by a compiled pass over the file's bytes (:func:`gcode_kernels.render_lines`);
-    lines with missing axes (appended after the last axis word) or extra vertices (added
-    lines), and moves read line by line (arcs, through the per-line writer), are written here
-    and copied in. A program with incremental moves needs the controller's position line by
-    line: :func:`render_program`.
-    """
+    ``axes`` (n, 3): every compensated vertex in order; ``counts`` vertices per compensated move. The bulk
+    lines' numbers are formatted column-wise (:func:`gcode_kernels.format_fixed`) and put in place by a
+    compiled pass (:func:`gcode_kernels.render_lines`); other compensated lines are written here and copied
+    in."""
     t = program.table
     if t is None or t.incremental.any():
         raise ValueError("Expected a block-wise read program without incremental moves")
@@ -298,17 +297,9 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
                 pos = ej
         parts += [f" {w}{v}" for w, v, (sj, _) in zip(words, vals, spans3) if sj < 0]  # the missing ones appended
         parts.append(body[pos:])
-        first_line = "".join(parts)
-        if c == 1:
-            changed[i] = [first_line + line[len(body):]]
-            continue
         ending = line[len(body):] or "\n"
         extra = [" ".join(f"{w}{word(v, j)}" for j, w in enumerate(words)) + ending for v in range(f + 1, f + c)]
-        if not line.endswith("\n"):
-            g = [first_line + ending] + extra[:-1] + [extra[-1][:-len(ending)]]
-        else:
-            g = [first_line + line[len(body):]] + extra
-        changed[i] = g
+        changed[i] = _pieces(line, body, "".join(parts), extra)
     blob_off = np.zeros(n + 1, np.int64)
     blob = np.zeros(0, np.uint8)
     if changed:
@@ -322,11 +313,7 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
     out, off = gscan.render_lines(buf, starts, stops, mode, row_of_line, vert_of_row, t.spans, mags, negs, inch_v,
                                   decs, blob, blob_off)
     text = out.tobytes().decode("latin-1")
-    at = 0  # the header goes after a leading '%' line and a program-number line (as _with_header)
-    if at < n and text[off[at]:off[at + 1]].strip() == "%":
-        at += 1
-    if at < n and re.match(r"[ \t]*[Oo][ \t]*\d", text[off[at]:off[at + 1]]):
-        at += 1
+    at = _header_at([text[off[j]:off[j + 1]] for j in range(min(n, 2))])
     head = "".join(f"({_comment_safe(h)})\n" for h in program.notes() + tuple(header))
     full_text = text[:off[at]] + head + text[off[at]:] if head else text
     return full_text, _Groups(lines, text, off, mode == 1, changed)

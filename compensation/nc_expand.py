@@ -1,42 +1,13 @@
 """Subprograms, macros and parameters expanded into the flat program the G-code reader reads.
 
-:func:`expand_program` runs a program's control language the way the controller does and writes
-out every line it executes, in order, so that each call of a subprogram becomes the moves it makes
-*where it is called* (a work offset or an incremental start set by the caller moves them), and each
-of those moves is compensated where it is cut:
-
-* **Fanuc / Haas** (Custom Macro B): ``O`` program blocks in the same file, ``M98 P… L…`` calls
-  (``M99`` returns; ``M98 Pccccnnnn``, the repeat count in front of a four-digit program number,
-  on ``dialect="fanuc"``), ``M97 P… L…`` (Haas: a local subprogram starting at block ``N…``),
-  ``G65 P… L…`` macro calls with arguments (``A``→``#1``, ``B``→``#2`` … ``Z``→``#26``, argument
-  specification I), ``#i = expression``, ``IF [..] GOTO n``, ``IF [..] THEN #i = ..``,
-  ``GOTO n``, ``WHILE [..] DOm`` / ``ENDm``.
-* **LinuxCNC** (O-codes): ``o<name> sub / endsub / call [a] [b] … / return``, numbered ``o100``
-  forms, ``if / elseif / else / endif``, ``while / endwhile``, ``do / while``, ``repeat /
-  endrepeat``, ``break``, ``continue``, numbered ``#1``, named ``#<local>`` and ``#<_global>``
-  parameters, ``EXISTS[#<name>]``, a subroutine's returned value in ``#<_value>``.
-
-Expressions: ``[ ]`` brackets, ``+ - * / MOD **``, ``EQ NE GT GE LT LE``, ``AND OR XOR``, the
-functions ``ABS ACOS ASIN ATAN[y]/[x] COS EXP FIX FUP ROUND LN SIN SQRT TAN`` (angles in degrees),
-with the controllers' precedence (``**`` > ``* / MOD`` > ``+ -`` > comparisons > logic). Where the
-two controllers differ the dialect decides (``FIX``/``FUP`` of a negative number, ``MOD``, the range
-of ``ATAN``, ``EQ``'s tolerance, which parameters are local, which may be set); a difference that
-the program's content cannot settle is refused.
-
-A value is used only where the program determines it: reading a parameter the program has not set
-(a probe result ``#5061``, the current tool ``#4120`` or ``#<_current_tool>``, a position ``#5420``,
-a work offset, a persistent common variable) is refused **by name**, with line and column, and so is
-setting a controller parameter (a work offset, an alarm ``#3000``). Execution is bounded
-(:data:`MAX_EXECUTED_LINES`, :data:`MAX_CALL_DEPTH`): an endless loop or recursion is refused, not
-followed. The reader (:func:`compensation.gcode.parse_program`) expands only a program its allow-list
-refuses and that holds a mark of these constructs (:func:`needs_expansion`); every other program is
-read as it is, at the same speed.
-
-The flat program holds the executed lines: a line without parameters is copied byte for byte, a
-line with parameters has their values written in place (``X[#1+2]`` → ``X12.5``) and its parameter
-settings removed; pure control lines (calls, returns, assignments, loop and branch lines, the
-program-number lines of subprograms) are not written. :attr:`Expanded.origin` maps every output
-line back to its source line and the chain of call sites, so that every refusal names the source.
+:func:`expand_program` runs a program's control language (Fanuc / Haas Custom Macro B, LinuxCNC O-codes) the
+way the controller does and writes out every line it executes, in order, so each call's moves are compensated
+where they are cut. What is read, how the dialects differ, what is refused and how the flat program is
+written: docs/reference/tool-paths.md, "Subprograms, macros and parameters". Execution is bounded
+(:data:`MAX_EXECUTED_LINES`, :data:`MAX_CALL_DEPTH`); :attr:`Expanded.origin` maps every output line back to
+its source line and call sites, so every refusal names the source. The reader
+(:func:`compensation.gcode.parse_program`) expands only a program its allow-list refuses and that holds a mark
+of these constructs (:func:`needs_expansion`).
 """
 from __future__ import annotations
 
@@ -70,9 +41,8 @@ _END_CODES = re.compile(r"(?<![a-z])m\s*0*(?:2|30)(?![\d.])", re.I)
 _O_STMT = re.compile(r"\s*o\s*(<[^>]*>|\d+|\[(?:[^\[\]]|\[[^\[\]]*\])*\])\s*([a-z]+)?", re.I)
 _PROG = re.compile(r"\s*(?:[oO]|:)\s*(\d+)\s*$")
 _N_LABEL = re.compile(r"\s*[nN]\s*(\d+)")
+_COMMENT = re.compile(r"\([^)]*\)|;.*", re.S)
 _NUM = re.compile(r"[ \t]*((?:\d[\d \t]*)?\.?[\d \t]*)")
-_LCNC_KEYS = {"sub", "endsub", "call", "return", "if", "elseif", "else", "endif", "while", "endwhile",
-              "do", "repeat", "endrepeat", "break", "continue"}
 _LCNC_KEY_ORDER = ("sub", "endsub", "call", "do", "while", "repeat", "if", "elseif", "else", "endif", "break",
                    "continue", "endwhile", "endrepeat", "return")
 """LinuxCNC reads an O-word's keyword from the line with its spaces and tabs removed (``close_and_downcase``),
@@ -177,23 +147,11 @@ def expand_program(text: str, path, dialect: str | None = None, state=None) -> E
 
 # ---------------------------------------------------------------------------- parsing one line
 def _code_of(body: str) -> str:
-    """``body`` with comments blanked (same length, so columns stay)."""
-    out, i, n = [], 0, len(body)
-    while i < n:
-        c = body[i]
-        if c == "(":
-            j = body.find(")", i + 1)
-            if j < 0:
-                raise _Refuse(i + 1, "unclosed '(' comment")
-            out.append(" " * (j + 1 - i))
-            i = j + 1
-        elif c == ";":
-            out.append(" " * (n - i))
-            break
-        else:
-            out.append(c)
-            i += 1
-    return "".join(out)
+    """``body`` with comments blanked (same length, so columns stay); a '(' left is an unclosed comment."""
+    code = _COMMENT.sub(lambda m: " " * len(m.group()), body)
+    if "(" in code:
+        raise _Refuse(code.index("(") + 1, "unclosed '(' comment")
+    return code
 
 
 class _Parser:
@@ -358,7 +316,7 @@ def _parse_line(body: str):
         return _parse_o(p, o, label, *key)
     if o and o.group(2) and (len(o.group(2)) > 1 or o.group(1)[0] in "<["):
         raise _Refuse(o.start(2) + 1, f"'o{o.group(1)} {o.group(2)}': '{o.group(2)}' is not an O-word keyword "
-                                      f"({', '.join(sorted(_LCNC_KEYS))})")
+                                      f"({', '.join(sorted(_LCNC_KEY_ORDER))})")
     key, j = p.alpha(p.ws(i))
     if key == "IF":
         cond, k = p.value(j)
@@ -503,8 +461,7 @@ def _parse_words(p: _Parser, body: str, code: str, i: int, label):
 
 def _call_of(words: list, p: _Parser):
     """``(kind, {letter: word})`` for a line with M98 / M97 / M99 / G65, else None."""
-    kinds = [("M98" if w[4] == 98 else "M97" if w[4] == 97 else "M99") for w in words
-             if w[0] == "M" and w[4] in (97, 98, 99)]
+    kinds = [f"M{w[4]:g}" for w in words if w[0] == "M" and w[4] in (97, 98, 99)]
     kinds += ["G65" for w in words if w[0] == "G" and w[4] == 65]
     kinds += [f"{w[0]}#" for w in words if w[0] in "GM" and w[3] is not None]
     if not kinds:
@@ -559,17 +516,16 @@ class _Machine:
                 self.stmts.append(_parse_line(ln.rstrip("\r")))
             except _Refuse as r:
                 raise InputError(f"{path}: line {i + 1}, column {r.col}: {r.msg}") from None
-        given = dialect
+        self.given = dialect  # as named; the rules below are Fanuc's or LinuxCNC's
         dialect = {"haas": "fanuc", "siemens-iso": "fanuc", "mach3": "linuxcnc"}.get(dialect, dialect)
-        self.given = given
         polar = has_polar(text)
         self.dialect = dialect or _detect(self.stmts) or ("linuxcnc" if polar else None)
         self.glob, self.gnamed = {}, {}
         self.out, self.origin = [], []
-        self.executed = 0
-        self.calls = ()
+        self.executed, self.calls = 0, ()
         self.modal = ModalTracker() if _M7X_BYTES.search(text.lower().encode("latin-1")) else None
-        self.state = state(given, text) if state is not None and (PREDEFINED_READ.search(text) or polar) else None
+        follow = state is not None and (PREDEFINED_READ.search(text) or polar)
+        self.state = state(self.given, text) if follow else None
         self._index()
 
     # -- structure
@@ -577,13 +533,10 @@ class _Machine:
         self.subs, self.progs, self.labels = {}, {}, {}
         first_code = next((i for i, ln in enumerate(self.lines) if ln.strip() and ln.strip() != "%"), 0)
         prog_lines = [i for i, s in enumerate(self.stmts) if s[0] == "prog"]
-        for k, i in enumerate(prog_lines):
-            end = prog_lines[k + 1] if k + 1 < len(prog_lines) else len(self.lines)
+        for i, end in zip(prog_lines, prog_lines[1:] + [len(self.lines)]):
             self.progs.setdefault(self.stmts[i][1], (i + 1, end))
-        if prog_lines and prog_lines[0] == first_code:
-            self.main = (0, prog_lines[1] if len(prog_lines) > 1 else len(self.lines))
-        else:
-            self.main = (0, prog_lines[0] if prog_lines else len(self.lines))
+        skip = 1 if prog_lines and prog_lines[0] == first_code else 0  # the main program's own number
+        self.main = (0, (prog_lines[skip:] + [len(self.lines)])[0])
         for i, s in enumerate(self.stmts):
             if s[0] == "o" and s[3] == "sub":
                 end = self._find(i, s[2], ("endsub",))
@@ -619,19 +572,15 @@ class _Machine:
                 text = new
         if self.state is not None:
             self.state.line(i, self.lines[i] if text is None else text)
-        if text is None:
-            self.out.append(self.lines[i] + self.endings[i])
-            self.origin.append((i + 1, True, tuple(c + 1 for c in self.calls)))
-        else:
-            self.out.append(text + ("\r" if self.lines[i].endswith("\r") else "") + self.endings[i])
-            self.origin.append((i + 1, False, tuple(c + 1 for c in self.calls)))
+        verbatim = text is None
+        self.out.append(self.lines[i] + self.endings[i] if verbatim else
+                        text + ("\r" if self.lines[i].endswith("\r") else "") + self.endings[i])
+        self.origin.append((i + 1, verbatim, tuple(c + 1 for c in self.calls)))
 
     def run(self) -> Expanded:
         try:
             self._unit(self.main, _Frame("main"), main=True)
-        except _Stop:
-            pass
-        except _Return:
+        except (_Stop, _Return):
             pass
         last = max((i for i, ln in enumerate(self.lines) if ln.strip()), default=None)
         if last is not None and self.lines[last].strip() == "%" and (not self.origin or self.origin[-1][0] != last + 1):
@@ -651,8 +600,7 @@ class _Machine:
         while pc < end:
             self._tick(pc)
             s = self.stmts[pc]
-            kind = s[0]
-            if kind == "plain":
+            if s[0] == "plain":
                 if main and self.lines[pc].strip() == "%":
                     if seen_percent or self.origin:
                         self._emit(pc)
@@ -663,8 +611,7 @@ class _Machine:
                     raise _Stop
                 pc += 1
             else:
-                pc = getattr(self, "_do_" + kind)(pc, s, fr)
-        return None
+                pc = getattr(self, "_do_" + s[0])(pc, s, fr)  # the statement's kind names its method
 
     # -- statements
     def _do_prog(self, pc, s, fr):
@@ -673,12 +620,10 @@ class _Machine:
 
     def _do_words(self, pc, s, fr):
         _, label, words, assigns, call, ends = s
-        vals = {id(w): self._eval(w[3], pc, fr, in_word=True) for w in words if w[3] is not None}
-        new = [(t, self._eval(rhs, pc, fr), a) for t, rhs, a, _ in assigns]
-        for t, v, a in new:
-            self._set(t, v, pc, fr, a + 1)
+        vals = {id(w): evaluate(self, w[3], pc, fr, True) for w in words if w[3] is not None}
+        self._assign_all(assigns, pc, fr)
         if call is not None:
-            return self._call(pc, call, words, vals, fr)
+            return call_statement(self, pc, call, words, vals, fr)
         if words:
             body = self.lines[pc].rstrip("\r")
             cuts = [(a, b, "") for _, _, a, b in assigns]
@@ -705,10 +650,14 @@ class _Machine:
 
     def _do_then(self, pc, s, fr):
         if self._truth(s[2], pc, fr):
-            new = [(t, self._eval(rhs, pc, fr), a) for t, rhs, a, _ in s[3]]
-            for t, v, a in new:
-                self._set(t, v, pc, fr, a + 1)
+            self._assign_all(s[3], pc, fr)
         return pc + 1
+
+    def _assign_all(self, assigns, pc, fr):
+        """A line's parameter settings: every value computed first, then set."""
+        new = [(t, evaluate(self, rhs, pc, fr), a) for t, rhs, a, _ in assigns]
+        for t, v, a in new:
+            assign(self, t, v, pc, fr, a + 1)
 
     def _do_goto(self, pc, s, fr, target=None):
         n = self._int(s[2] if target is None else target, pc, fr, "GOTO's block number")
@@ -741,7 +690,7 @@ class _Machine:
                 if depth == 0:
                     return j
                 depth -= 1
-        raise self._err(pc, s_col(self.stmts[pc]), f"WHILE .. DO{ident} without its END{ident}")
+        raise self._err(pc, self.stmts[pc][-1], f"WHILE .. DO{ident} without its END{ident}")
 
     def _do_endm(self, pc, s, fr):
         for j in range(pc - 1, -1, -1):
@@ -750,32 +699,17 @@ class _Machine:
                 return j
         raise self._err(pc, None, f"END{s[2]} without its WHILE .. DO{s[2]}")
 
-    def _do_o(self, pc, s, fr):
-        return o_statement(self, pc, s, fr)
-
-    # -- calls
-    def _call(self, pc, call, words, vals, fr):
-        return call_statement(self, pc, call, words, vals, fr)
+    _do_o = o_statement  # LinuxCNC O-words (compensation.nc_flow)
 
     # -- values
-    def _eval(self, node, pc, fr, in_word=False):
-        return evaluate(self, node, pc, fr, in_word)
-
     def _truth(self, node, pc, fr) -> bool:
-        return self._eval(node, pc, fr) != 0.0
+        return evaluate(self, node, pc, fr) != 0.0
 
     def _int(self, node, pc, fr, what) -> int:
-        v = self._eval(node, pc, fr)
+        v = evaluate(self, node, pc, fr)
         if v != round(v):
             raise self._err(pc, None, f"{what} {v:g} is not a whole number")
         return int(round(v))
-
-    def _set(self, target, v, pc, fr, col):
-        assign(self, target, v, pc, fr, col)
-
-
-def s_col(s):
-    return s[-1] if isinstance(s[-1], int) else None
 
 
 def _fmt(v: float, pc: int, col: int, m: _Machine) -> str:

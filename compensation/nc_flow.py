@@ -7,6 +7,7 @@ Every function takes the running interpreter (``nc_expand._Machine``) ``m``, the
 from __future__ import annotations
 
 import math
+import operator
 import re
 
 MAX_CALL_DEPTH = 32
@@ -186,14 +187,16 @@ def _function(m, name, v, pc, col, in_word) -> float:
         raise m._err(pc, col, f"{name}[{v:g}] overflows") from None
 
 
+_PLAIN_OPS = {"+": operator.add, "-": operator.sub, "*": operator.mul,
+              "GT": lambda a, b: float(a > b), "GE": lambda a, b: float(a >= b),
+              "LT": lambda a, b: float(a < b), "LE": lambda a, b: float(a <= b)}
+"""The operators both controllers compute alike."""
+
+
 def _binary(m, op, a, b, pc, col) -> float:
     d = m.dialect
-    if op == "+":
-        return a + b
-    if op == "-":
-        return a - b
-    if op == "*":
-        return a * b
+    if op in _PLAIN_OPS:
+        return _PLAIN_OPS[op](a, b)
     if op in ("/", "MOD") and b == 0:
         raise m._err(pc, col, f"{op} by zero")
     if op == "/":
@@ -201,6 +204,8 @@ def _binary(m, op, a, b, pc, col) -> float:
     if op == "**":
         if a < 0 and b != int(b):
             raise m._err(pc, col, f"{a:g} ** {b:g}: a negative number to a fractional power")
+        if a == 0 and b < 0:
+            raise m._err(pc, col, f"{a:g} ** {b:g}: zero to a negative power (a division by zero)")
         try:
             return float(a ** b)
         except OverflowError:
@@ -225,8 +230,6 @@ def _binary(m, op, a, b, pc, col) -> float:
         else:
             eq = diff == 0
         return float(eq if op == "EQ" else not eq)
-    if op in ("GT", "GE", "LT", "LE"):
-        return float({"GT": a > b, "GE": a >= b, "LT": a < b, "LE": a <= b}[op])
     # AND OR XOR
     if d != "linuxcnc" and not (a in (0.0, 1.0) and b in (0.0, 1.0)):
         if a != int(a) or b != int(b):
@@ -257,26 +260,16 @@ def _enter(m, pc, span, frame, times=1):
         m.calls = m.calls[:-1]
 
 
-def _word_value(m, w, vals) -> float:
+def _word_value(w, vals) -> float:
     return w[4] if w[3] is None else vals[id(w)]
 
 
-def _count(m, pc, by, vals, what) -> int:
-    if "L" not in by:
-        return 1
-    v = _word_value(m, by["L"], vals)
+def _whole(m, pc, w, vals, what: str) -> int:
+    """A call word's value as a whole number ≥ 0; refused (``what`` names it) otherwise."""
+    v = _word_value(w, vals)
     if v != int(v) or v < 0:
-        raise m._err(pc, by["L"][1] + 1, f"{what} repeat count L{v:g} is not a whole number ≥ 0")
+        raise m._err(pc, w[1] + 1, what.format(v))
     return int(v)
-
-
-def _program(m, pc, by, vals, kind):
-    if "P" not in by:
-        raise m._err(pc, None, f"{kind} without P (the program to call)")
-    p = _word_value(m, by["P"], vals)
-    if p != int(p) or p < 0:
-        raise m._err(pc, by["P"][1] + 1, f"{kind} P{p:g} is not a program number")
-    return int(p)
 
 
 def call_statement(m, pc, call, words, vals, fr):
@@ -290,8 +283,11 @@ def call_statement(m, pc, call, words, vals, fr):
         why = ("grbl has no subprogram calls" if m.given == "grbl" else
                f"M97 is Haas's local subprogram call, not a call on {m.given} (name --dialect haas)")
         raise m._err(pc, w[1] + 1, f"{kind}: {why}")
-    times = _count(m, pc, by, vals, kind)
-    p = _program(m, pc, by, vals, kind)
+    times = 1 if "L" not in by else _whole(m, pc, by["L"], vals,
+                                           kind + " repeat count L{:g} is not a whole number ≥ 0")
+    if "P" not in by:
+        raise m._err(pc, None, f"{kind} without P (the program to call)")
+    p = _whole(m, pc, by["P"], vals, kind + " P{:g} is not a program number")
     col = by["P"][1] + 1
     if kind == "M97":
         lo, hi = fr.unit_span
@@ -312,7 +308,7 @@ def call_statement(m, pc, call, words, vals, fr):
     if kind == "M98":
         frame = _Frame(f"O{p}", named=fr.named, local=fr.local)  # a subprogram shares its caller's locals
     else:  # G65: a new level of locals from the arguments
-        local = {G65_ARGS[w[0]]: _word_value(m, w, vals) for w in words if w[0] in G65_ARGS}
+        local = {G65_ARGS[w[0]]: _word_value(w, vals) for w in words if w[0] in G65_ARGS}
         frame = _Frame(f"O{p}", named={}, local=local)
     _enter(m, pc, m.progs[p], frame, times)
     return pc + 1
@@ -322,7 +318,9 @@ def call_statement(m, pc, call, words, vals, fr):
 def o_statement(m, pc, s, fr):
     _, label, name, kw, args, col = s
     if kw == "sub":
-        return m.subs[name][1] if m.subs.get(name, (None,))[0] == pc + 1 else _dup(m, pc, name, col)
+        if m.subs.get(name, (None,))[0] != pc + 1:
+            raise m._err(pc, col, f"o{name} sub defined twice")
+        return m.subs[name][1]
     if kw in ("endsub", "return"):
         if not m.calls:
             raise m._err(pc, col, f"o{name} {kw} outside a call")
@@ -344,7 +342,7 @@ def o_statement(m, pc, s, fr):
             raise m._err(pc, col, f"o{name} call with {len(values)} arguments (at most 30)")
         _enter(m, pc, m.subs[name], _Frame(f"o{name}", local={k + 1: v for k, v in enumerate(values)}))
         return pc + 1
-    if kw in ("if", "elseif") and kw == "if":
+    if kw == "if":
         return pc + 1 if evaluate(m, args[0], pc, fr) != 0 else _next_branch(m, pc, name, col, fr)
     if kw in ("elseif", "else"):
         return _need(m, pc, name, ("endif",), col, kw) + 1
@@ -381,10 +379,6 @@ def o_statement(m, pc, s, fr):
             fr.repeats.pop(_back(m, end, name, "repeat", col), None)
         return end + 1
     return end if end_kw in ("endrepeat", "while") else _back(m, end, name, "while", col)
-
-
-def _dup(m, pc, name, col):
-    raise m._err(pc, col, f"o{name} sub defined twice")
 
 
 def _next_branch(m, pc, name, col, fr):

@@ -1,50 +1,10 @@
 """5-axis programs in tool-centre-point (TCP) mode, and inverse-time feed (``G93``), on machine-tool chains.
 
-In TCP mode a program's ``X Y Z`` are the **tool tip in the workpiece frame** — the frame that turns with
-the rotary table — and its rotary words the axes' positions; the controller runs the nominal inverse
-kinematics of its machine to find the linear axes. The words that switch it, by controller (each from its
-manual; a word is read only in its dialect, ``--dialect``):
-
-=====================  ==========================================  =====================================
-dialect                on                                          off
-=====================  ==========================================  =====================================
-fanuc, siemens-iso     ``G43.4 Hn`` (type 1), ``G43.5 Hn``         ``G49`` (or a plain ``G43``)
-haas                   ``G234`` with ``Hn`` or an active ``G43 Hn``  ``G49`` (or a plain ``G43``)
-heidenhain-iso         ``M128`` (the tool of the last ``T`` call;  ``M129`` (at the end of its block:
-                       from the start of its block; an ``F``       a move on its line is still TCP)
-                       after it is the feed of the compensating
-                       movements, not the path's)
-siemens-iso            ``TRAORI`` / ``TRAORI(1)`` on a line alone  ``TRAFOOF``
-                       (the tool ``T`` with its edge ``D1``;
-                       ``ORIAXES`` before any feed move that
-                       turns a rotary axis)
-any (the machine's)    the machine file's ``[tcp] switch_on``      ``[tcp] switch_off``
-                       (LinuxCNC switchable kinematics ``M428``,   (``M429``)
-                       tool length: the active ``G43 Hn``, or
-                       under ``G49`` the file's own tool point
-                       where ``[tcp] tool_length_under_g49``)
-=====================  ==========================================  =====================================
-
-Fanuc's ``G43.5`` with a tool-direction vector ``I J K`` leaves the rotary positions to the controller
-(two solutions): refused; so are a TCP word on a machine without a rotary axis, TCP without a tool length,
-a rotary work offset under TCP, and ``TRAORI`` with parameters. Siemens interpolates the tool orientation on
-a large circle unless ``ORIAXES`` is active (``ORIVECT``, its initial setting), while the compensated pieces are
-written with the axes interpolated linearly: under ``TRAORI`` a feed move that turns a rotary axis needs
-``ORIAXES`` (a line of orientation words: ``ORIAXES``, ``ORIVECT`` / ``ORIPLANE``, ``ORIWKS``, ``ORIMKS``; the
-cone, path-relative and second-curve types are refused by name). Heidenhain's ``T`` call and Siemens' ``D1``
-activate the tool's length (the reader records them as a tool length offset, like ``G43 Hn``).
-
-How a TCP point is compensated: its tip ``p = program X Y Z + work offset`` (mm, workpiece frame) and its
-rotary axes as programmed are placed in the machine by the chain's nominal inverse at the tool's length
-(:func:`tcp_axes`; :meth:`errormap.machine_tool.MachineTool.inverse` with the rotary axes kept); the exact
-chain solver compensates there like any other point; the compensated axes are written back in TCP form —
-the nominal tip they reach, minus the work offset, with the rotary words as programmed (:func:`tip_words`):
-the controller's inverse of that tip is the compensated axes. The controller's TCP kinematics are taken to
-be the machine file's nominal chain.
-
-``G93`` (inverse time, every ``G1/G2/G3`` carries ``F`` = 1 / minutes of the block) is accepted on chains:
-a block split into ``m`` pieces at equal steps of its parameter gets ``F·m`` on every piece, so the block
-takes the programmed time (:func:`inverse_time_lines`); a feed move under ``G93`` without ``F`` is refused.
+In TCP mode a program's ``X Y Z`` are the tool tip in the workpiece frame and its rotary words the axes'
+positions. The words read by controller (each only in its dialect), how a TCP point is compensated (placed by
+the chain's nominal inverse, :func:`tcp_axes`; written back in TCP form, :func:`tip_words`), ``G93`` feeds of
+split blocks (:func:`inverse_time_lines`) and what is refused: docs/reference/tool-paths.md, "Five-axis
+programs in tool-centre-point mode".
 """
 from __future__ import annotations
 
@@ -54,6 +14,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from errormap.io import InputError
+
+from .gcode_state import _Refuse
+from .gcode_words import AXIS_LETTERS, tokenize
 
 TCP_G = {"G43.4": ("fanuc", "siemens-iso"), "G43.5": ("fanuc", "siemens-iso"), "G234": ("haas",)}
 """TCP-on G codes and the dialects that read them (off: ``G49`` or a plain ``G43``)."""
@@ -161,18 +124,15 @@ def tcp_prepass(path, data: bytes, dialect_name: str, machine):
     each TCP / G93 word blanked in place (columns kept; the plain ``G43`` of a ``G43.4 Hn`` kept for the
     tool length), or ``(data, None)`` where the program has none. Refuses (InputError, file, line,
     column) what has no exact meaning."""
-    from .gcode import _Refuse, split_lines, tokenize
+    from .gcode import split_lines
     codes = "|".join(f"M0*{c}" for c in sorted(set((machine.tcp or {}).get("switch_on", ()))
                                                  | set((machine.tcp or {}).get("switch_off", ()))))
     if dialect_name != "heidenhain-iso" and _triggered(data, codes) is None:
         return data, None  # the common case: no word of this module (the reader keeps its bulk speed)
-    text = data.decode("latin-1")
-    lines = split_lines(text)
+    lines = split_lines(data.decode("latin-1"))
     rotary = [a for a in machine.axes if a.kind != "linear"]
     n = len(lines)
-    on = np.zeros(n, bool)
-    g93 = np.zeros(n, bool)
-    switch = [None] * n
+    on, g93, switch = np.zeros(n, bool), np.zeros(n, bool), [None] * n
     words, tool_events, out = [], [], []
     state = {"tcp": None, "g93": False, "tool": None, "t": None, "edge": False, "incremental": False,
              "ori": ORI_DEFAULT, "rot": {}}
@@ -184,57 +144,56 @@ def tcp_prepass(path, data: bytes, dialect_name: str, machine):
             framed = _heidenhain_block(body)
             found |= framed != body
             body = framed
-        ori = SIEMENS_ORI_LINE.fullmatch(body)
-        if ori is not None:
-            found = True
-            out.append(_orientation_words(path, i, body, ori, dialect_name, state) + ending)
-            _mark(i, state, on, g93, switch)
-            continue
-        m = SIEMENS_LINE.fullmatch(body)
-        if m is None and SIEMENS_OTHER.match(body):
-            raise _refuse(path, i, body.upper().index("TRAORI") + 1, "'TRAORI' with parameters (orientation offsets, "
-                          "another transformation number): not interpretable exactly; write TRAORI or TRAORI(1)")
-        if m is not None:
-            word = m.group(1).upper()
-            found = True
-            _need_dialect(path, i, m.start(1) + 1, word, ("siemens-iso",), dialect_name)
-            if word.startswith("TRAORI"):
-                _switch_on(path, i, m.start(1) + 1, "TRAORI", rotary, machine, state)
-                if state["t"] is None or not state["edge"]:
-                    raise _refuse(path, i, m.start(1) + 1, "'TRAORI' with no tool length: call the tool with T n "
-                                  "and its edge D1 before it (the length comes from --tool-table)")
-                words.append("TRAORI")
-            else:
-                state["tcp"] = None
-            out.append(_blank(body, m.start(1), m.end(1)) + ending)
-            _mark(i, state, on, g93, switch)
-            continue
-        vec = SIEMENS_VECTOR.search(body.split(";")[0])
-        if vec is not None:
-            raise _refuse(path, i, vec.start(1) + 1, f"'{vec.group(1)}=' (Siemens tool orientation: a direction vector "
-                          "or angle under TRAORI): the rotary positions are the controller's choice (two solutions); "
-                          "post rotary words (A, C) instead")
-        try:
-            _, toks, _ = tokenize(body)
-        except _Refuse:
-            out.append(line)  # the reader refuses it with its own words
-            _mark(i, state, on, g93, switch)
-            continue
-        new, hit, codes = _line_words(path, i, body, toks, dialect_name, state, machine, rotary, words)
+        new, hit = _prepass_line(path, i, body, dialect_name, machine, rotary, state, words, tool_events)
         found |= hit
-        new = _tool_calls(path, i, toks, new, dialect_name, state, tool_events)
-        if state["g93"]:
-            _check_inverse_time(path, i, toks, codes, state)
-        if dialect_name == "siemens-iso":
-            _check_orientation_interpolation(path, i, toks, codes, state, rotary)
-        out.append(new + ending)
-        _mark(i, state, on, g93, switch)
+        out.append(line if new is None else new + ending)  # None: the reader refuses it with its own words
+        on[i], g93[i], switch[i] = state["tcp"] is not None, state["g93"], state["tcp"]
         if state.pop("off_at_end", False):  # Heidenhain's M129 acts at the end of its block
             state["tcp"] = None
     if not found:
         return data, None
     return "".join(out).encode("latin-1"), TcpProgram(on, g93, switch, words, tool_events, lines,
                                                      off_at_end=state.get("off_lines", []))
+
+
+def _prepass_line(path, i, body, dialect_name, machine, rotary, state, words, tool_events):
+    """One line of :func:`tcp_prepass`: ``(its text for the reader, None where it does not tokenise;
+    whether it holds a word of this module)``, the state updated."""
+    ori = SIEMENS_ORI_LINE.fullmatch(body)
+    if ori is not None:
+        return _orientation_words(path, i, body, ori, dialect_name, state), True
+    m = SIEMENS_LINE.fullmatch(body)
+    if m is None and SIEMENS_OTHER.match(body):
+        raise _refuse(path, i, body.upper().index("TRAORI") + 1, "'TRAORI' with parameters (orientation "
+                      "offsets, another transformation number): not interpretable exactly; write TRAORI or "
+                      "TRAORI(1)")
+    if m is not None:
+        word = m.group(1).upper()
+        _need_dialect(path, i, m.start(1) + 1, word, ("siemens-iso",), dialect_name)
+        if word.startswith("TRAORI"):
+            _switch_on(path, i, m.start(1) + 1, "TRAORI", rotary, machine, state, words)
+            if state["t"] is None or not state["edge"]:
+                raise _refuse(path, i, m.start(1) + 1, "'TRAORI' with no tool length: call the tool with T n "
+                              "and its edge D1 before it (the length comes from --tool-table)")
+        else:
+            state["tcp"] = None
+        return _blank(body, m.start(1), m.end(1)), True
+    vec = SIEMENS_VECTOR.search(body.split(";")[0])
+    if vec is not None:
+        raise _refuse(path, i, vec.start(1) + 1, f"'{vec.group(1)}=' (Siemens tool orientation: a direction "
+                      "vector or angle under TRAORI): the rotary positions are the controller's choice (two "
+                      "solutions); post rotary words (A, C) instead")
+    try:
+        _, toks, _ = tokenize(body)
+    except _Refuse:
+        return None, False
+    new, hit, codes = _line_words(path, i, body, toks, dialect_name, state, machine, rotary, words)
+    new = _tool_calls(path, i, toks, new, dialect_name, state, tool_events)
+    if state["g93"]:
+        _check_inverse_time(path, i, toks, codes, state)
+    if dialect_name == "siemens-iso":
+        _check_orientation_interpolation(path, i, toks, codes, state, rotary)
+    return new, hit
 
 
 HEIDENHAIN_FRAME = re.compile(r"([ \t]*(?:N\d+[ \t]*)?)%[ \t]*\w+[ \t]+G7([01])[ \t]*\*[ \t]*\r?")
@@ -259,10 +218,7 @@ def _line_words(path, i, body, toks, dialect_name, state, machine, rotary, words
     switch_on = set((machine.tcp or {}).get("switch_on", ()))
     switch_off = set((machine.tcp or {}).get("switch_off", ()))
     new = body
-    codes = {}
-    for w in toks:
-        if w.letter in "GM":
-            codes[w.code] = w
+    codes = {w.code: w for w in toks if w.letter in "GM"}
     for code, w in codes.items():
         if code in ("G90", "G91"):
             state["incremental"] = code == "G91"
@@ -276,18 +232,13 @@ def _line_words(path, i, body, toks, dialect_name, state, machine, rotary, words
             if code == "G43.5" and any(t.letter in "IJK" for t in toks):
                 raise _refuse(path, i, w.start + 1, "'G43.5' with a tool-direction vector I J K: the rotary "
                               "positions are the controller's choice (two solutions); post rotary words (G43.4)")
-            _switch_on(path, i, w.start + 1, code, rotary, machine, state)
-            words.append(code)
+            _switch_on(path, i, w.start + 1, code, rotary, machine, state, words)
             if h is not None:
                 state["tool"] = int(h.value)
             new = _blank(new, w.start, w.num_end, "G43" if h is not None else "")
-        elif code == "G43":
-            state["tool"] = int(next(t for t in toks if t.letter == "H").value) if any(
-                t.letter == "H" for t in toks) else state["tool"]
-            if state["tcp"] is not None and state["tcp"][2] in TCP_G:
-                state["tcp"] = None
-        elif code == "G49":
-            state["tool"] = None
+        elif code in ("G43", "G49"):
+            h = next((t for t in toks if t.letter == "H"), None)
+            state["tool"] = None if code == "G49" else int(h.value) if h is not None else state["tool"]
             if state["tcp"] is not None and state["tcp"][2] in TCP_G:
                 state["tcp"] = None
         elif code in ("G93", "G94", "G95"):
@@ -300,8 +251,7 @@ def _line_words(path, i, body, toks, dialect_name, state, machine, rotary, words
             if mv in switch_on or mv in switch_off:
                 found = True
                 if mv in switch_on:
-                    _switch_on(path, i, w.start + 1, code, rotary, machine, state)
-                    words.append(code)
+                    _switch_on(path, i, w.start + 1, code, rotary, machine, state, words)
                 else:
                     state["tcp"] = None
                 new = _blank(new, w.start, w.num_end)
@@ -312,8 +262,7 @@ def _line_words(path, i, body, toks, dialect_name, state, machine, rotary, words
                     if state["t"] is None:
                         raise _refuse(path, i, w.start + 1, "'M128' with no tool length: call the tool with "
                                       "T n before it (the length comes from --tool-table)")
-                    _switch_on(path, i, w.start + 1, code, rotary, machine, state)
-                    words.append(code)
+                    _switch_on(path, i, w.start + 1, code, rotary, machine, state, words)
                     f = next((t for t in toks if t.letter == "F" and t.start > w.start), None)
                     if f is not None:  # the feed of M128's compensating movements, not the path's
                         new = _blank(new, f.start, f.num_end)
@@ -358,12 +307,6 @@ def _check_orientation_interpolation(path, i, toks, codes, state, rotary):
                           "compensated pieces are written; write ORIAXES after TRAORI")
 
 
-def _mark(i, state, on, g93, switch):
-    on[i] = state["tcp"] is not None
-    g93[i] = state["g93"]
-    switch[i] = state["tcp"]
-
-
 def _need_dialect(path, i, col, word, dialects, dialect_name):
     if dialect_name not in dialects:
         raise _refuse(path, i, col, f"'{word}' (tool-centre-point control) is a word of {', '.join(dialects)}; the "
@@ -371,11 +314,12 @@ def _need_dialect(path, i, col, word, dialects, dialect_name):
                       f"{dialects[0]}")
 
 
-def _switch_on(path, i, col, word, rotary, machine, state):
+def _switch_on(path, i, col, word, rotary, machine, state, words):
     if not rotary:
         raise _refuse(path, i, col, f"'{word}': tool-centre-point control on the machine {machine.name!r}, which has "
                       "no rotary axis (TCP needs a rotary chain; use a 5-axis machine file)")
     state["tcp"] = (i, col, word)
+    words.append(word)
 
 
 def _tool_calls(path, i, toks, body, dialect_name, state, tool_events):
@@ -413,7 +357,6 @@ def _tool_calls(path, i, toks, body, dialect_name, state, tool_events):
 
 def _check_inverse_time(path, i, toks, codes, state):
     """Under G93 every feed move carries F (its time); a G0 needs none."""
-    from .gcode import AXIS_LETTERS
     motion = [c for c in codes if c in ("G0", "G1", "G2", "G3")]
     if motion:
         state["motion"] = motion[-1]
@@ -546,7 +489,6 @@ _F_WORD = re.compile(r"F[ \t]*([+-]?(?:\d+(?:\.\d*)?|\.\d+))", re.IGNORECASE)
 def inverse_time_lines(program, groups) -> list:
     """Output line groups with every split G93 feed move's F multiplied by its piece count (and written on
     every piece): ``groups[i]`` the output lines of source line ``i`` (:func:`compensation.gcode.render_program`)."""
-    from .gcode import tokenize
     pre = program.tcp
     out = list(groups)
     for m in program.moves:
@@ -627,12 +569,10 @@ def orientation_residual_urad(truth, machine, axes, nominal_axes, tool_mm) -> np
         elements = sim.elements
     if elements is None:
         return None
+    from .nc_state import machine_with_tool
     out = np.empty(len(axes))
-    keys = np.where(np.isfinite(tool_mm), tool_mm, -np.inf)
-    for key in np.unique(keys):
-        idx = np.flatnonzero(keys == key)
-        from .nc_state import machine_with_tool
-        mt = machine if not np.isfinite(key) else machine_with_tool(machine, float(key))
+    for length, idx in by_length(tool_mm):
+        mt = machine if length is None else machine_with_tool(machine, length)
         a = tool_axis(mt, axes[idx], elements.values(axes[idx]))
         b = tool_axis(mt, nominal_axes[idx])
         out[idx] = np.arcsin(np.clip(np.linalg.norm(np.cross(a, b), axis=1), 0.0, 1.0)) * 1e6
@@ -711,11 +651,9 @@ def compensate_orientation(field_, machine, tp_axes, tool_mm, res, targets):
     solved = np.zeros(len(axes), bool)
     commands = np.array(res.commands_mm, dtype=float)
     resid = np.array(res.residual_um, dtype=float)
-    keys = np.where(np.isfinite(tool_mm), tool_mm, -np.inf)
-    for key in np.unique(keys):
-        idx = np.flatnonzero(keys == key)
-        mt = machine if not np.isfinite(key) else machine_with_tool(machine, float(key))
-        f = field_ if not np.isfinite(key) else field_with_tool(field_, mt)
+    for length, idx in by_length(tool_mm):
+        mt = machine if length is None else machine_with_tool(machine, length)
+        f = field_ if length is None else field_with_tool(field_, mt)
         q, ok = solve_orientation(f, mt, axes[idx], targets[idx], tool_axis(mt, tp_axes[idx]))
         axes[idx], solved[idx] = q, ok
         commands[idx] = mt.nominal(q)

@@ -12,7 +12,7 @@ import pytest
 import compensation.gcode as gcode
 from compensation.gcode import (AxisWords, default_axis_words, move_points, parse_program, render_program,
                                render_table)
-from compensation.chain_gcode import parse_chain_program, plan_chain_gcode, render_chain_program
+from compensation.chain_gcode import parse_chain_program, plan_chain_gcode, render_chain_axes
 from errormap.io import InputError
 from errormap.machine import load_machine
 
@@ -172,7 +172,7 @@ def test_lathe_program_written_back_writes_c_and_keeps_every_other_line(tmp_path
     path = _write(tmp_path, "lathe.nc", LATHE_PROGRAM)
     prog = parse_chain_program(path, mt)
     job = plan_chain_gcode(prog, 0.5)
-    text = render_chain_program(prog, _shifted(job, mt), header=["test"])
+    text = render_chain_axes(prog, np.concatenate(_shifted(job, mt)), job.counts, header=["test"])
     src = LATHE_PROGRAM.splitlines(keepends=True)
     moved = {m.index for m in prog.moves if m.compensate}
     out = text.splitlines(keepends=True)
@@ -231,7 +231,7 @@ def test_five_axis_keeps_a_and_c_as_programmed(tmp_path):
     assert [m.arc["ju"] for m in prog.moves if m.arc] == [0, 2, 1]  # G17 X→Y, G18 Z→X, G19 Y→Z
     assert [m.arc["jv"] for m in prog.moves if m.arc] == [1, 0, 2]
     job = plan_chain_gcode(prog, 0.5)
-    text = render_chain_program(prog, _shifted(job, mt))
+    text = render_chain_axes(prog, np.concatenate(_shifted(job, mt)), job.counts)
     out = text.splitlines(keepends=True)
     assert "G1 X60.012300 C90. Y20.012300 Z-249.987700\n" in out  # A not appended: it does not move
     assert "G1 Y30.012300 A-30.000 C90. X60.012300 Z-249.987700\n" in out  # A, C texts as written

@@ -77,6 +77,7 @@ REFUSED = [
     ("G21\n#5221 = 10\nG0 X0 Y0 Z0\n", "line 2, column 1: #5221 = ...: #5221 (work offset"),
     ("G21\n#3000 = 1 (TOOL BROKEN)\n", "line 2, column 1: #3000 = ...: the program raises an alarm"),
     ("G21\nG0 X[1/0] Y0 Z0\n", "line 2, column 7: / by zero"),
+    ("G21\nG0 X[0 ** -1] Y0 Z0\n", "line 2, column 8: 0 ** -1: zero to a negative power"),
     ("G21\nG0 X[SQRT[-1]] Y0 Z0\n", "line 2, column 6: SQRT of a negative number"),
     ("O1\nG0 X0 Y0 Z0\nM98 P2000\nM30\n", "line 3, column 5: M98 P2000: program O2000 is not in this file"),
     ("O1\nG0 X0 Y0 Z0\nM98 P20010\nM30\nO10\nG1 X1\nM99\n", "line 3, column 5: M98 P20010: on Fanuc the digits"),
