@@ -349,12 +349,13 @@ def render_chain_program(program: GProgram, vertices: list, header=()) -> str:
     return render_chain_axes(program, axes, counts, header=header)
 
 
-def render_chain_axes(program: GProgram, axes, counts, header=()) -> str:
+def render_chain_axes(program: GProgram, axes, counts, header=(), held=None) -> str:
     """:func:`render_chain_program` of the vertices given as ``axes`` (n, k), ``counts`` (c,) of them per
-    compensated move: a program read in bulk written in bulk, without splitting them."""
+    compensated move: a program read in bulk written in bulk, without splitting them. ``held`` (c, k) bool:
+    the axes each move holds at a ``G53`` value (:func:`compensation.gcode_write.render_program`)."""
     t = program.table
     if program.tcp is None and t is not None and not t.incremental.any() and program.expanded is None and len(program.axis_words.words) == 3 \
-            and not program.axis_words.kept:  # a program read in bulk: written in bulk, the same text
+            and not program.axis_words.kept and held is None:  # a program read in bulk: written in bulk, the same text
         from .gcode import render_table
         return render_table(program, np.asarray(axes), list(counts), header=header)[0]
     vertices = np.split(np.asarray(axes), np.cumsum(counts)[:-1]) if len(counts) else []
@@ -364,4 +365,4 @@ def render_chain_axes(program: GProgram, axes, counts, header=()) -> str:
     if getattr(program.expanded, "mode", None) == "keep":
         from .nc_cycles import render_kept
         return render_kept(program, vertices, header=header)
-    return render_program(program, vertices, header=header)[0]
+    return render_program(program, vertices, header=header, held=held)[0]
