@@ -113,3 +113,18 @@ def merge_held(parts) -> dict:
     return dict(parts[0], points=sum(p["points"] for p in parts),
                 axes=sorted({a for p in parts for a in p["axes"]}),
                 along_held_max_um=max(p["along_held_max_um"] for p in parts))
+
+
+def held_to_write(tp, axes) -> np.ndarray | None:
+    """Per compensated move of the G-code path ``tp`` (bool (c, k_program)): the axes to leave unwritten, those held at
+    a ``G53`` value on every point of the move and still there in the solved ``axes`` (n, k) (a later pass that moved
+    them, e.g. the tool orientation's, gets them written); None where none is."""
+    held = held_points(tp, axes.shape[1])
+    if held is None:
+        return None
+    kept = held & (np.asarray(axes) == tp.axes)
+    counts = np.asarray(tp.source.counts, dtype=int)
+    per_move = np.repeat(counts[:, None] > 0, kept.shape[1], axis=1)
+    np.logical_and.at(per_move, np.repeat(np.arange(len(counts)), counts), kept)
+    out = per_move[:, list(tp.columns)]
+    return out if out.any() else None

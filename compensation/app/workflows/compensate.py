@@ -36,7 +36,7 @@ from ...conditions import ConditionedField, path_conditions, solve_with_conditio
 from ...fields import FAILED_VERDICT, check_verdict, resolve_model, verdict_notes
 from ...gcode import DEFAULT_RAPIDS
 from ...gcode_spline import spline_lines
-from ...held_axes import held_moves, held_points, merge_held, solve_held
+from ...held_axes import held_points, held_to_write, merge_held, solve_held
 from ...nc_state import MACHINE, field_with_tool, machine_with_tool
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, compensated_sidecar
 from ...solvers import METHODS, solver_spec
@@ -437,7 +437,7 @@ def compensate_one(p, dst, tp: ToolPath, res, targets, true_r, true_base, field_
     if tp.kind == "gcode" and s.work_offsets is not None and s.work_offsets.source == MACHINE:
         comments = [WORK_OFFSETS_MACHINE_NOTE] + comments
     comments = verdict_notes(verdict) + comments   # a failed verdict used on request: said in the program
-    held = held_moves(tp.source.program) if res.info.get("held", {}).get("points") else None
+    held = held_to_write(tp, res.axes) if res.info.get("held", {}).get("points") else None
     o.text = render(tp, res.axes, res.commands_mm, machine, comments, held)
     if tp.kind != "gcode":
         o.meta = compensated_sidecar(tp.source, dst, comments)
