@@ -246,3 +246,18 @@ def test_a_move_before_z_is_known_after_g40_or_g49_is_refused_not_crashed(tmp_pa
     plasmatest.ngc writes 'G90 G40' and never gives Z)."""
     with pytest.raises(InputError, match="no value yet for Z"):
         _read(tmp_path, text, None, "linuxcnc")
+
+
+def test_x_y_held_by_g53_leave_a_plunge_compensated_in_z_alone(tmp_path, tables):
+    """'G53 G0 X300 Y150' then 'G1 Z-10': X and Y held at their machine values (no X Y words on the plunge's
+    lines), Z solved alone and the end point within 1 μm along Z by the TRUE machine (independent check); the
+    summary says both axes were held."""
+    text = "G21 G90 G54\nG0 X10 Y10 Z20\nG53 G0 X300 Y150\nG1 Z-10 F300\nG1 X20 Y20\nM2\n"
+    prog, written, truth = _compensated(tmp_path, text, tables, "auto")
+    plunge = written.read_text().splitlines()[3:6]
+    assert all("Z" in ln and not any(w[0] in "XY" for w in ln.split()) for ln in plunge), plunge
+    verdict = independent_check(prog, written, "auto", truth, OFFSETS, TOOLS)
+    assert verdict.startswith("ok: ") and float(verdict.split()[2]) <= TOL_POINT_UM, verdict
+    assert "held at a G53 value" in verdict, verdict
+    e = json.loads((tmp_path / "o" / "compensate_summary.json").read_text())["files"][0]
+    assert e["held"]["axes"] == ["X", "Y"] and e["held"]["points"] == 3, e["held"]

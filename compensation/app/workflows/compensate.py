@@ -609,7 +609,8 @@ def print_gcode_notes(entry) -> None:
     if "held" in entry:
         h = entry["held"]
         print(f"  {h['points']} point(s) of the moves after them hold {', '.join(h['axes'])} at the G53 value (no word "
-              f"written; the other axes compensated): error left along it max {h['along_held_max_um']:.4g} um (model)")
+              f"written; the other axes compensated): error left along {'it' if len(h['axes']) == 1 else 'them'} max "
+              f"{h['along_held_max_um']:.4g} um (model)")
     if "spline_lines" in entry:
         print(f"  splines (G5/G5.1, NURBS G5.2-G5.3) on line(s) {', '.join(map(str, entry['spline_lines'][:10]))}: chords of the "
               f"exact curve within {entry['arc_tolerance_um'] / 2:g} um of it (half --arc-tolerance-um), written as "
