@@ -20,14 +20,16 @@ def fmt(v: float, decimals: int) -> str:
     return s
 
 
-def render_program(program: GProgram, vertices: list, header=(), track: dict | None = None) -> tuple[str, list]:
+def render_program(program: GProgram, vertices: list, header=(), track: dict | None = None,
+                   held=None) -> tuple[str, list]:
     """Write the program with each compensated move's vertices ``vertices[k]`` (m_k, k_axes) absolute axes
     (mm, deg; the last row the move's end): ``(text, groups)``, ``groups[i]`` the output lines source line
     ``i`` became (header lines aside). Every other line comes back byte for byte; on a compensated line only
     the axis numbers change, in the line's own units and distance mode (an arc becomes ``G1``, extra vertices
     added lines; docs/reference/tool-paths.md). ``header`` lines become ``(...)`` comments after a leading
     ``%`` and program-number line. ``track`` (a dict): filled with ``{line index: (k,) position of the
-    controller running the output after that move}``."""
+    controller running the output after that move}``. ``held`` (c, k) bool per compensated move: axes held at
+    a ``G53`` value (:mod:`compensation.held_axes`), never written where the line has no word for them."""
     comp = [m for m in program.moves if m.compensate]
     if len(vertices) != len(comp):
         raise ValueError(f"Expected vertices for {len(comp)} compensated moves, got {len(vertices)}")
@@ -42,7 +44,8 @@ def render_program(program: GProgram, vertices: list, header=(), track: dict | N
         else:
             q = np.asarray(vertices[k], dtype=float).reshape(-1, k_axes)
             k += 1
-            groups[m.index], ctrl = _render_move(program.lines[m.index], m, q, ctrl, ax)
+            skip = () if held is None else tuple(a for a, h in zip(ax.words, held[k - 1]) if h and a not in m.words)
+            groups[m.index], ctrl = _render_move(program.lines[m.index], m, q, ctrl, ax, skip)
             for j, g in nurbs_block_lines(m, program.lines).items():
                 groups[j] = g
         if track is not None:
@@ -51,9 +54,9 @@ def render_program(program: GProgram, vertices: list, header=(), track: dict | N
     return _with_header(out, program.notes() + tuple(header)), groups
 
 
-def _render_move(line: str, m: GMove, q, ctrl, ax: AxisWords):
+def _render_move(line: str, m: GMove, q, ctrl, ax: AxisWords, skip=()):
     """Output lines of one compensated move with vertices ``q`` (m, k), and the controller
-    position after them (see :func:`render_program`)."""
+    position after them (see :func:`render_program`; ``skip``: axis words never written, held)."""
     if not np.all(np.isfinite(q)):
         raise ValueError(f"Expected finite vertices, got NaN/inf for line {m.index + 1}")
     body = line.rstrip("\r\n")
@@ -63,7 +66,7 @@ def _render_move(line: str, m: GMove, q, ctrl, ax: AxisWords):
         before.append(ctrl)
         vals, ctrl = _written_values(row, ctrl, m, ax)
         written.append(vals)
-    first = _rewrite_line(body, m, written[0], before[0], ax)
+    first = _rewrite_line(body, m, written[0], before[0], ax, skip)
     # a block-delete move (run under --block-delete off) keeps its '/' on every piece, so
     # that switching block delete on at the controller skips the whole move, not its first piece
     slash = "/" if body.lstrip(" \t").startswith("/") else ""
@@ -71,7 +74,8 @@ def _render_move(line: str, m: GMove, q, ctrl, ax: AxisWords):
         extra = [slash + " ".join(f"{a}{vals[j]}" for j, a in enumerate(ax.words) if _needed(j, vals, c0, m, ax))
                  + ending for vals, c0 in zip(written[1:], before[1:])]
     else:  # every word on every added line
-        extra = [slash + " ".join(f"{a}{v}" for a, v in zip(ax.words, vals)) + ending for vals in written[1:]]
+        extra = [slash + " ".join(f"{a}{v}" for a, v in zip(ax.words, vals) if a not in skip) + ending
+                 for vals in written[1:]]
     return _pieces(line, body, first, extra), ctrl
 
 
@@ -158,7 +162,7 @@ def _needed(j: int, vals, ctrl_before, m: GMove, ax: AxisWords) -> bool:
                                                            and abs(float(vals[j]) - ctrl_before[j]) < 1e-12)
 
 
-def _rewrite_line(body: str, m: GMove, vals, ctrl_before, ax: AxisWords) -> str:
+def _rewrite_line(body: str, m: GMove, vals, ctrl_before, ax: AxisWords, skip=()) -> str:
     # a kept word whose value is unchanged keeps its text as written (a chain's tool orientation)
     words, kept = m.words, ax.kept
     given = [(j, words[a]) for j, a in enumerate(ax.words) if a in words]
@@ -168,7 +172,7 @@ def _rewrite_line(body: str, m: GMove, vals, ctrl_before, ax: AxisWords) -> str:
                    default=m.motion_word.num_end if m.motion_word is not None else len(body))  # a NURBS: its G5.3
     if len(given) < len(ax.words):
         missing = "".join(f" {a}{vals[j]}" for j, a in enumerate(ax.words)
-                          if a not in words and (not kept or _needed(j, vals, ctrl_before, m, ax)))
+                          if a not in words and a not in skip and (not kept or _needed(j, vals, ctrl_before, m, ax)))
         if missing:
             edits.append((last_end, last_end, missing))
     if m.kind in ("arc", "spline"):  # written as its compensated chords: G1, without the curve's words

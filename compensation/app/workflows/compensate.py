@@ -36,6 +36,7 @@ from ...conditions import ConditionedField, path_conditions, solve_with_conditio
 from ...fields import FAILED_VERDICT, check_verdict, resolve_model, verdict_notes
 from ...gcode import DEFAULT_RAPIDS
 from ...gcode_spline import spline_lines
+from ...held_axes import held_points, held_to_write, merge_held, solve_held
 from ...nc_state import MACHINE, field_with_tool, machine_with_tool
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, compensated_sidecar
 from ...solvers import METHODS, solver_spec
@@ -314,11 +315,17 @@ def solve_units(paths, field_, truth, machine, s: CompensateSettings, executor=N
     out = []
     for f, tp in enumerate(paths):
         mine = [(u, owners[k][1], results[k]) for k, u in enumerate(units) if owners[k][0] == f]
+        held = held_points(tp, len(machine.axes))
+        if held is not None:  # axes a G53 line set: held there, the others solved (compensation.held_axes)
+            mine = [(u, idx, solve_held(ctx[u.context][1], ctx[u.context][2], r, u.targets_mm, u.axes, held[idx]))
+                    for u, idx, r in mine]
         chunks = sum(r.info["chunks"] for _, _, r in mine)
         turning = tp.turning if tp.turning is not None and tp.turning.any() else None
         true_r = base = None
         if turning is None:
             res = gather_results([r for _, _, r in mine], [idx for _, idx, _ in mine])
+            if held is not None:
+                res.info["held"] = merge_held([r.info.get("held") for _, _, r in mine])
             targets = res.targets_mm
             if truth is not None:
                 true_r, base = np.empty((len(targets), 3)), np.empty((len(targets), 3))
@@ -430,7 +437,8 @@ def compensate_one(p, dst, tp: ToolPath, res, targets, true_r, true_base, field_
     if tp.kind == "gcode" and s.work_offsets is not None and s.work_offsets.source == MACHINE:
         comments = [WORK_OFFSETS_MACHINE_NOTE] + comments
     comments = verdict_notes(verdict) + comments   # a failed verdict used on request: said in the program
-    o.text = render(tp, res.axes, res.commands_mm, machine, comments)
+    held = held_to_write(tp, res.axes) if res.info.get("held", {}).get("points") else None
+    o.text = render(tp, res.axes, res.commands_mm, machine, comments, held)
     if tp.kind != "gcode":
         o.meta = compensated_sidecar(tp.source, dst, comments)
     return o
@@ -468,6 +476,8 @@ def file_entry(p, tp: ToolPath, res, report, kept, machine, s: CompensateSetting
              "seconds": float(res.seconds), "chunks": res.info.get("chunks", 1)}
     if res.info.get("note"):
         entry["note"] = res.info["note"]
+    if res.info.get("held", {}).get("points"):  # axes held at a G53 value: how many points, what is left along them
+        entry["held"] = dict(res.info["held"])
     if res.info.get("conditions"):
         entry["conditions"] = res.info["conditions"]
     return entry
@@ -596,6 +606,11 @@ def print_gcode_notes(entry) -> None:
     if entry["g53_lines"]:
         print(f"  G53 (machine coordinates) on line(s) {', '.join(map(str, entry['g53_lines'][:10]))}: passed "
               "through unchanged, not compensated")
+    if "held" in entry:
+        h = entry["held"]
+        print(f"  {h['points']} point(s) of the moves after them hold {', '.join(h['axes'])} at the G53 value (no word "
+              f"written; the other axes compensated): error left along {'it' if len(h['axes']) == 1 else 'them'} max "
+              f"{h['along_held_max_um']:.4g} um (model)")
     if "spline_lines" in entry:
         print(f"  splines (G5/G5.1, NURBS G5.2-G5.3) on line(s) {', '.join(map(str, entry['spline_lines'][:10]))}: chords of the "
               f"exact curve within {entry['arc_tolerance_um'] / 2:g} um of it (half --arc-tolerance-um), written as "

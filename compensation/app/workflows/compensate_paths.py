@@ -138,7 +138,7 @@ def read_tool_path(path, machine, s, field_=None) -> ToolPath:
                      turning=turning, kept_machine=kept_machine, tool_xz=tool_xz)
 
 
-def render(tp: ToolPath, axes, commands_mm, machine, comments) -> str:
+def render(tp: ToolPath, axes, commands_mm, machine, comments, held=None) -> str:
     """The compensated file's text: the program axes of the compensated machine ``axes`` (n, k)
     (:func:`program_axes`), or the commands ``commands_mm`` (n, 3) of a WCS-target CSV. ``comments``: header
     lines of a G-code program (a CSV is plain: they go to its sidecar, :func:`compensation.pathio.compensated_sidecar`)."""
@@ -149,7 +149,8 @@ def render(tp: ToolPath, axes, commands_mm, machine, comments) -> str:
         dec = [DECIMALS[a.unit] for a in machine.axes]
         return _render_csv(tp.source, {c: (axes[:, j], dec[j]) for j, c in enumerate(machine.axis_columns)})
     job = tp.source
-    return render_chain_axes(job.program, axes[:, list(tp.columns)], job.counts, header=comments)
+    return render_chain_axes(job.program, axes[:, list(tp.columns)], job.counts, header=comments,
+                             held=held)  # held: per move, axes at a G53 value (compensation.held_axes)
 
 
 def program_axes(tp: ToolPath, axes, machine) -> np.ndarray:
