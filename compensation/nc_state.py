@@ -24,23 +24,11 @@ along Z. The tool tip is the chain's tool point moved back by the offset at the 
 on the offset's Abbe arm. The X offset is the X axis's offset (a radius: LinuxCNC stores it so in diameter
 mode too).
 
-Tables, each recognised by content (never by the file's name):
-
-* work offsets (:func:`read_work_offsets`): a LinuxCNC parameter file (``.var``: lines ``NUMBER VALUE``;
-  system ``P`` = 1..9 (G54..G59.3) at parameters ``5221 + 20·(P−1)`` … ``+8`` for ``X Y Z A B C U V W``, ``+9``
-  its XY rotation),
-  or a CSV ``system,x_mm,y_mm,z_mm[,a_deg,b_deg,c_deg]`` (``system``: ``G54`` … ``G59.3``, ``G54.1P3``,
-  Haas ``G154P12`` (``G110``–``G129``: ``G154P1``–``P20``));
-  ``machine`` (:data:`MACHINE`): the program is in machine coordinates, every offset zero;
-* tool tables (:func:`read_tool_table`): a LinuxCNC tool table (``.tbl``: ``T1 P1 Z+150.0 D10.0 ;comment``;
-  a lathe's ``T2 P2 X-1.5 Z+3.2 D0.8 Q2``) or a CSV ``tool,length_mm[,radius_mm]`` (a lathe's
-  ``tool,x_mm,z_mm[,radius_mm]``, ``tool`` the offset number a Fanuc/Haas ``TttOO`` word selects);
-* the program's own ``G10`` lines, in program order (:mod:`compensation.gcode_state`): ``L2 Pn`` (work
-  offset n; LinuxCNC's ``R`` its XY rotation), ``L1 Pn Z.. [R..]`` (tool n), and by dialect ``L20`` (LinuxCNC,
-  grbl: work offset n set so that the current position reads the values; Fanuc: the extended system ``G54.1 Pn``;
-  Haas: ``G154 Pn``), ``L10``/``L11`` (LinuxCNC: tool n's length set so that the current Z reads the value, in the
-  active system or in ``G59.3``; Fanuc, Haas: the length's geometry and wear, whose sum is the length — both are
-  needed), ``L12``/``L13`` (Haas: the diameter's geometry and wear).
+Tables, each recognised by content (never by the file's name): work offsets (:func:`read_work_offsets`: a
+LinuxCNC ``.var``, a CSV ``system,x_mm,y_mm,z_mm[,a_deg…]``, or ``machine``), tool tables
+(:func:`read_tool_table`: a LinuxCNC ``.tbl`` or a CSV ``tool,length_mm[,radius_mm]``, a lathe's
+``tool,x_mm,z_mm[,radius_mm]``), and the program's own ``G10`` lines in program order
+(:mod:`compensation.gcode_state`); their formats and each dialect's ``G10 L..`` forms: docs/reference/tool-paths.md.
 
 Every bad row is refused naming the file, the row and the column. A program that selects a work
 system or a tool length it was not given is refused naming the word, the line and the option that
