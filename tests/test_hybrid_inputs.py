@@ -150,6 +150,7 @@ def test_xz_saddle_is_outside_the_linearised_element_model(grinder):
     from errormap.elements import IDX
     from errormap.chain_kernel import error_jacobian
     from errormap.diagnosis.chain_update import parameter_matrix
+    from errormap.chain_elements import ChainElementSet
     from errormap.uncertainty import theta_covariance
     xs = np.linspace(*grinder.strokes["x_mm"], 21)
     zs = np.linspace(*grinder.strokes["z_mm"], 21)
@@ -157,8 +158,9 @@ def test_xz_saddle_is_outside_the_linearised_element_model(grinder):
     P = np.stack([X.ravel(), Z.ravel(), A.ravel()], axis=1)
     J = error_jacobian(grinder, P)
     truth = make_mt_truth(grinder, SEED)
-    slots, stations, _ = theta_covariance(truth.elements, None)
-    M = parameter_matrix(grinder, truth.elements, P, slots, stations).reshape(3 * P.shape[0], -1)   # linearised
+    nominal = ChainElementSet.zeros(grinder, truth.elements.stations["x_mm"].size)   # linearised at nominal
+    slots, stations, _ = theta_covariance(nominal, None)
+    M = parameter_matrix(grinder, nominal, P, slots, stations).reshape(3 * P.shape[0], -1)
     MtM = M.T @ M
     without = truth.element_values(P)
     shares = {}
