@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .identification import COV_FORMAT, load_covariance, parameter_vector
+from .identification import COV_FORMAT, parameter_vector
 from .io import NPY_ERRORS, InputError, atomic_write, check_document_size, companion_path
 
 
@@ -33,7 +33,7 @@ def covariance_path(elements_path) -> Path:
 
 def save_chain_covariance(res, path) -> Path:
     """The identification's covariance file (``format``, ``slot``, ``station``, ``cov``, as
-    :func:`errormap.identification.load_covariance` reads it) with the smoother's :data:`PRIOR_EXTRA_KEY`
+    :func:`read_chain_covariance` reads it) with the smoother's :data:`PRIOR_EXTRA_KEY`
     (zeros for an unsmoothed set); written whole."""
     extra = np.zeros(len(res.param_slot)) if res.prior_extra is None else np.asarray(res.prior_extra, float)
     with atomic_write(path, "wb") as fh:
@@ -54,14 +54,16 @@ def read_chain_covariance(cov_path, elements, prior: bool = False) -> tuple:
         with np.load(cov_path, allow_pickle=False) as d:
             files = set(d.files)
             extra = np.asarray(d[PRIOR_EXTRA_KEY], float) if PRIOR_EXTRA_KEY in files else None
-            if "format" not in files and "layout_element" in files:   # an older grinder identification's file
-                slots, stations = d["layout_element"].tolist(), d["layout_station"].astype(int)
-                C, theta = d["cov"], d["theta"]
-                _check_theta(cov_path, elements, slots, stations, theta)
+            old = "format" not in files and "layout_element" in files   # an older grinder identification's file
+            if not old and str(d["format"]) != COV_FORMAT:
+                raise InputError(f"{cov_path}: key 'format': expected {COV_FORMAT!r}, got {str(d['format'])!r}")
+            slots = [str(k) for k in d["layout_element" if old else "slot"]]
+            stations, C = d["layout_station" if old else "station"].astype(int), d["cov"].astype(float)
+            if old:
+                _check_theta(cov_path, elements, slots, stations, d["theta"])
     except NPY_ERRORS as exc:
-        raise InputError(f"{cov_path}: not a readable covariance file ({exc}); run `volcomp identify` again") from None
-    if "format" in files or "layout_element" not in files:
-        slots, stations, C = load_covariance(cov_path)
+        raise InputError(f"{cov_path}: not a readable covariance file ({exc}); a truncated or damaged copy? "
+                         "Run `volcomp identify` again to write it") from None
     if prior and extra is not None:
         if extra.shape != (len(slots),) or not np.all(np.isfinite(extra)) or np.any(extra < 0):
             raise InputError(f"{cov_path}: key '{PRIOR_EXTRA_KEY}': expected {len(slots)} finite variances >= 0, "
