@@ -19,10 +19,12 @@ PRIOR_EXTRA_KEY = "prior_extra"
 seeds an update (:func:`errormap.smoothing.smooth_blocks`: the whole mean-square change smoothing made, a
 conservative bound on its bias, so that the checks can correct what smoothing took away)."""
 COMPANION_THETA_TOL = 1e-9
-"""Relative: an older grinder covariance file holds the values (``theta``) of the element set it was saved with,
-and the element-set JSON keeps every float exactly; a larger difference is another identification's file."""
+"""Relative: an older grinder covariance file holds the values (``theta``) of the element set it was
+saved with, and the element-set JSON keeps every float exactly; a larger difference is another
+identification's file."""
 BAND_BATCH = 4096
-"""Points per block of the band: the parameter Jacobian is (n, 3, N) with N up to ~10^3 parameters (32 MB a block)."""
+"""Points per block of the band: the parameter Jacobian is (n, 3, N), N up to ~10^3 parameters
+(32 MB a block)."""
 
 
 def covariance_path(elements_path) -> Path:
@@ -44,19 +46,21 @@ def save_chain_covariance(res, path) -> Path:
 
 def read_chain_covariance(cov_path, elements, prior: bool = False) -> tuple:
     """``(slot names, stations, Σ)`` from a covariance file beside ``elements`` (the
-    :class:`errormap.chain_elements.ChainElementSet` beside it): a chain's (:func:`save_chain_covariance`) or an
-    older grinder identification's, whose ``theta`` must be ``elements``' values. ``prior``: Σ plus the file's
-    ``prior_extra`` on the diagonal (none in the file: Σ)."""
+    :class:`errormap.chain_elements.ChainElementSet` beside it): a chain's (:func:`save_chain_covariance`)
+    or an older grinder identification's, whose ``theta`` must be ``elements``' values. ``prior``: Σ plus the
+    file's ``prior_extra`` on the diagonal (none in the file: Σ)."""
     if not Path(cov_path).is_file():
-        raise InputError(f"{cov_path}: no such covariance file (written by `volcomp identify` beside the elements)")
+        raise InputError(f"{cov_path}: no such covariance file (written by `volcomp identify` beside the "
+                         "elements)")
     check_document_size(cov_path, "an element covariance")
     try:
         with np.load(cov_path, allow_pickle=False) as d:
             files = set(d.files)
             extra = np.asarray(d[PRIOR_EXTRA_KEY], float) if PRIOR_EXTRA_KEY in files else None
-            old = "format" not in files and "layout_element" in files   # an older grinder identification's file
+            old = "format" not in files and "layout_element" in files   # an older grinder identification's
             if not old and str(d["format"]) != COV_FORMAT:
-                raise InputError(f"{cov_path}: key 'format': expected {COV_FORMAT!r}, got {str(d['format'])!r}")
+                raise InputError(f"{cov_path}: key 'format': expected {COV_FORMAT!r}, "
+                                 f"got {str(d['format'])!r}")
             slots = [str(k) for k in d["layout_element" if old else "slot"]]
             stations, C = d["layout_station" if old else "station"].astype(int), d["cov"].astype(float)
             if old:
@@ -91,13 +95,13 @@ def _check_theta(cov_path, elements, slots, stations, theta) -> None:
 def band_sd(machine, elements, cov, axes) -> np.ndarray:
     """Standard deviation (n, 3) μm of the element set's tool-point error at ``axes`` (n, k) from the
     identification's covariance ``cov`` = ``(slot names, stations, Σ)``: the diagonal of ``J Σ Jᵀ`` per point,
-    ``J`` (3, N) the parameter Jacobian (:func:`errormap.diagnosis.chain_update.parameter_matrix`, linearised at
-    ``elements``)."""
+    ``J`` (3, N) the parameter Jacobian (:func:`errormap.diagnosis.chain_update.parameter_matrix`,
+    linearised at ``elements``)."""
     from .diagnosis.chain_update import parameter_matrix
     slots, stations, C = cov
     axes = np.atleast_2d(np.asarray(axes, float))
     out = np.empty((axes.shape[0], 3))
     for i in range(0, axes.shape[0], BAND_BATCH):
-        M = parameter_matrix(machine, elements, axes[i:i + BAND_BATCH], slots, stations)   # (b, 3, N) μm / unit
+        M = parameter_matrix(machine, elements, axes[i:i + BAND_BATCH], slots, stations)   # (b, 3, N)
         out[i:i + BAND_BATCH] = np.sqrt(np.maximum(np.einsum("bij,jk,bik->bi", M, C, M, optimize=True), 0.0))
     return out

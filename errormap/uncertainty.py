@@ -3,10 +3,10 @@
 :func:`smooth_identify` runs the one identification of every machine tool
 (:class:`errormap.identification.ChainIdentification` on the grinder file's chain, in the ``station-mean`` gauge
 by default), its covariance Gauss–Newton's σ̂²·(JᵀJ)⁻¹ through the gauge (or a residual bootstrap), the
-station values smoothed by :func:`errormap.identification.smooth_chain`. The covariance and its band are the
-chain's (:mod:`errormap.chain_covariance`). θ (:func:`theta_layout`): the 18 functions' values at their stations
-(X and Z: all; A: all but the last, which equals the first), then the 5 constants; the per-element smoothing
-experiments of the benchmarks work on it.
+station values smoothed by :func:`errormap.identification.smooth_chain`. The covariance and its band are
+the chain's (:mod:`errormap.chain_covariance`). θ (:func:`theta_layout`): the 18 functions' values at their
+stations (X and Z: all; A: all but the last, which equals the first), then the 5 constants; the per-element
+smoothing experiments of the benchmarks work on it.
 """
 from __future__ import annotations
 
@@ -17,7 +17,6 @@ import numpy as np
 from .chain_elements import ChainElementSet
 from .elements import A_ELEMENTS, AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS
 from .machine_tool import MachineTool
-from .smoothing import LAMBDA_GRID, _second_differences, _smoother, bootstrap_draws, smooth_blocks  # noqa: F401
 
 Z95 = 1.959963984540054
 
@@ -68,7 +67,8 @@ def theta_covariance(elements: ChainElementSet, C) -> tuple:
 
 
 def station_se(elements: ChainElementSet, C) -> dict:
-    """Standard error per element at each of its stations (A: last = first), μm or μrad, from a θ covariance."""
+    """Standard error per element at each of its stations (A: last = first), μm or μrad, from a θ
+    covariance."""
     sd = np.sqrt(np.clip(np.diag(C), 0, None))
     blocks = theta_blocks(elements)
     out = {k: np.r_[sd[i], sd[i[0]]] if k in A_ELEMENTS else sd[i] for k, i in blocks.items()}
@@ -76,8 +76,8 @@ def station_se(elements: ChainElementSet, C) -> dict:
 
 
 def nullspace_smoother(Sigma, periodic: bool) -> np.ndarray:
-    """The λ → ∞ limit of :func:`_smoother` with the same weights: the weighted least-squares
-    projection of the station values onto the second-difference penalty's null space
+    """The λ → ∞ limit of :func:`errormap.smoothing._smoother` with the same weights: the weighted
+    least-squares projection of the station values onto the second-difference penalty's null space
     (a constant and a slope in the station index; a constant for a periodic element), shape (m, m)."""
     m = Sigma.shape[0]
     var = np.diag(Sigma).copy()
@@ -108,9 +108,10 @@ def nullspace_noise_cov(raw_cov, elements: ChainElementSet) -> np.ndarray:
 
 @dataclass
 class SmoothIdentificationResult:
-    """``raw``: the interpolating identification; ``result``: the smoothed one (its ``elements_``, ``cov`` over
-    ``param_slot``/``param_station`` and ``prior_extra``: the covariance file, :func:`save_chain_covariance`);
-    ``noise_um``: σ used; ``smoothing``: per element {lambda, edf}; ``info``: how the covariance was obtained."""
+    """``raw``: the interpolating identification; ``result``: the smoothed one (its ``elements_``, ``cov``
+    over ``param_slot``/``param_station`` and ``prior_extra``: the covariance file,
+    :func:`errormap.chain_covariance.save_chain_covariance`); ``noise_um``: σ used; ``smoothing``: per element
+    {lambda, edf}; ``info``: how the covariance was obtained."""
 
     raw: object
     result: object
@@ -185,5 +186,5 @@ def smooth_identify(sweeps, machine: MachineTool, noise_um: float | None = None,
                       (", smoothed (H C H^T plus the smoother's estimated squared bias per element)" if smooth else ""),
             "n_boot": n_boot, "seed": seed, "noise_um": sigma, "noise_estimated": noise_um is None,
             "smoothed": bool(smooth), "gauge": gauge}
-    return SmoothIdentificationResult(replace(raw), res, sigma, res.covariance_info.get("smoothing", {}), info,
-                                      raw.cov[np.ix_(idx, idx)])
+    smoothing = res.covariance_info.get("smoothing", {})
+    return SmoothIdentificationResult(replace(raw), res, sigma, smoothing, info, raw.cov[np.ix_(idx, idx)])

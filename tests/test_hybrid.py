@@ -233,7 +233,8 @@ def test_hybrid_total_band_is_learned_band_plus_element_band(grinder):
     el_var = band_sd(grinder, el, cov, P) ** 2
     assert np.all(el_var > 0) and np.all(s_learned > 0)
     np.testing.assert_allclose(hyb.band_std(P), s_learned, atol=BAND_TOL_UM)
-    np.testing.assert_allclose(hyb.band_std(P, lambda q: band_sd(grinder, el, cov, q)) ** 2, s_learned**2 + el_var, atol=BAND_TOL_UM)
+    el_band = lambda q: band_sd(grinder, el, cov, q)   # noqa: E731
+    np.testing.assert_allclose(hyb.band_std(P, el_band) ** 2, s_learned**2 + el_var, atol=BAND_TOL_UM)
 
 
 # --- volcomp predict on a diagnosed (hybrid) model.json (issue 28 point 3) -----------------------

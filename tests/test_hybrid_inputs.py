@@ -39,8 +39,9 @@ and is far below any effect a one-axis element profile could represent."""
 LINEAR_SPAN_SHARE_MAX = 0.01
 """The share of xz_saddle's (default parameters) mean square spatial error that the linearised
 element model takes up — every element a free profile of its own axis (the element set's splines
-on its 21 stations) and every constant, through the error-transfer Jacobian
-(:func:`errormap.diagnosis.chain_update.parameter_matrix`) — on a symmetric X × Z × A grid: the effect is orthogonal to that span up to
+on its 21 stations) and every constant, through the error-transfer Jacobian at nominal
+(:func:`errormap.diagnosis.chain_update.parameter_matrix`) — on a symmetric X × Z × A grid: the effect is
+orthogonal to that span up to
 the odd X profile's tail beyond ±3.3 widths and the Z wavelet's beyond ±3.3 (measured 2e-5);
 1 % bounds that with room."""
 LINEAR_SPAN_SQUARENESS_MIN = 0.99

@@ -363,12 +363,14 @@ def test_a_stale_covariance_companion_is_refused(machine, tmp_path):
     np.savez(tmp_path / "E.cov.npz", theta=theta_from_elements(el), cov=np.eye(len(lay)),
              layout_element=np.array([k for k, _ in lay]), layout_station=np.array([i for _, i in lay]))
     el.save(tmp_path / "E.json")
-    read_chain_covariance(covariance_path(tmp_path / "E.json"), ChainElementSet.load(tmp_path / "E.json", machine))
+    read_chain_covariance(covariance_path(tmp_path / "E.json"),
+                          ChainElementSet.load(tmp_path / "E.json", machine))
     other = el.copy()
     other.constants["s_xz"] += 1.0
     other.save(tmp_path / "E.json")                      # re-identified, the old companion left beside it
     with pytest.raises(InputError, match=r"E\.cov\.npz: not the covariance of this element set: .* at s_xz"):
-        read_chain_covariance(covariance_path(tmp_path / "E.json"), ChainElementSet.load(tmp_path / "E.json", machine))
+        read_chain_covariance(covariance_path(tmp_path / "E.json"),
+                              ChainElementSet.load(tmp_path / "E.json", machine))
 
 
 def test_export_diagnosis_is_known_by_its_format_key(tmp_path):

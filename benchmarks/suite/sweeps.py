@@ -41,7 +41,7 @@ GAUGES = ("first-station", "station-mean")
 
 def _criterion_smoother(y, Sigma, periodic: bool, criterion: str) -> np.ndarray:
     """The product's Whittaker smoother (same weights and λ grid) with λ by ``gcv`` or ``reml``."""
-    from errormap.uncertainty import LAMBDA_GRID, _second_differences
+    from errormap.smoothing import LAMBDA_GRID, _second_differences
     m = y.size
     var = np.diag(Sigma).copy()
     if var.max() <= 0:

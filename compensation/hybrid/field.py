@@ -262,8 +262,9 @@ class HybridField:
     def band_std(self, axes, covariance=None) -> np.ndarray:
         """The hybrid's TOTAL predictive 1-σ band per component, shape (n, 3) μm, at axes (n, 3):
         the learned part's band (its posterior std, calibrated on its cross-validation) ⊕ the
-        elements' band ``diag(J Σ Jᵀ)`` from ``covariance`` (a function of the axes, :func:`total_band_std`;
-        None: the learned band alone). Measurement noise is not in it (a band of the field, not of a measurement)."""
+        elements' band ``diag(J Σ Jᵀ)`` from ``covariance`` (a function of the axes,
+        :func:`total_band_std`; None: the learned band alone). Measurement noise is not in it (a band of the
+        field, not of a measurement)."""
         axes = check_points(axes, self.learned.axes_label, len(self.learned.axes))
         return total_band_std(self.learned, self.machine, axes, covariance)
 

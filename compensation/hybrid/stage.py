@@ -227,7 +227,7 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     :data:`LEARNED_INPUTS` at call time; the work-frame sets need the grinder's ``rho0_mm``, :func:`errormap.grinder_file.rho0_mm`).
     ``frames``: the output frames (:data:`OUTPUT_FRAMES`) each input set is cross-validated in (None:
     :data:`LEARNED_FRAMES` at call time; ``machine`` only where the machine's work frame turns with an axis).
-    ``covariance``: the previous stage's elements' band (or None; :func:`total_band_std`): with it, the stage also
+    ``covariance``: the previous stage's elements' band (or None; :func:`total_band_std`): with the stage also
     reports the coverage of the hybrid's TOTAL band on the held-out checks
     (``held_out_band95_cover_total``: learned band ⊕ elements' J Σ Jᵀ ⊕ the fitted noise) and
     its map carries the total band.

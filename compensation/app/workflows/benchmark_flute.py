@@ -128,8 +128,9 @@ def identify_with_covariance(machine, s: BenchmarkSettings, truth, c: GrinderCon
     """The same sweeps identified as ``volcomp identify`` does with its defaults
     (:func:`compensation.app.workflows.identification.identify_elements` → :func:`errormap.uncertainty.smooth_identify`:
     penalised smoothing, station-mean gauge, tracker noise estimated from the ball residuals, the covariance
-    Gauss-Newton's or ``s.identify_bootstrap`` residual-bootstrap draws of seed 0). Returns ``(identification, seconds)``:
-    its ``result`` the element set and its covariance, what ``volcomp diagnose`` finds beside the element-set file."""
+    Gauss-Newton's or ``s.identify_bootstrap`` residual-bootstrap draws of seed 0). Returns
+    ``(identification, seconds)``: its ``elements_`` and covariance, what ``volcomp diagnose`` finds beside
+    the element-set file."""
     from errormap.uncertainty import smooth_identify
     sw = condition_sweeps(s, truth, c)
     t0 = time.perf_counter()

@@ -217,7 +217,8 @@ def check_chain_covariance(machine, elements, cov, cov_path="<covariance>") -> N
 
 def chain_band_sd(machine, elements, cov, axes, cov_path="<covariance>") -> np.ndarray:
     """Standard deviation (n, 3) μm of the element set's tool-point error at ``axes``
-    (:func:`errormap.chain_covariance.band_sd`), the covariance checked first (:func:`check_chain_covariance`)."""
+    (:func:`errormap.chain_covariance.band_sd`), the covariance checked first
+    (:func:`check_chain_covariance`)."""
     from errormap.chain_covariance import band_sd
     check_chain_covariance(machine, elements, cov, cov_path)
     return band_sd(machine, elements, cov, axes)
