@@ -168,7 +168,7 @@ class ChainIdentificationResult:
     """Per axis swept both ways, the RMS ball-position difference (m,) μm between the + and − runs per station."""
     prior_extra: np.ndarray | None = None
     """(N,) the smoother's whole mean-square change per parameter (:func:`smooth_chain`; a prior's extra variance
-    when the set seeds an update, :attr:`errormap.uncertainty.ElementCovariance.prior_extra`); None: not smoothed."""
+    when the set seeds an update, :data:`errormap.chain_covariance.PRIOR_EXTRA_KEY`); None: not smoothed."""
 
     def summary_lines(self) -> list[str]:
         lines = [f"axis {w}: {len(r)} stations, ball residual RMS max {r.max():.3g} um" +

@@ -52,7 +52,7 @@ def smooth_blocks(y, S, blocks: dict) -> tuple:
     (:func:`apply_blocks`); the smoother's squared bias is not in ``H S Hᵀ``, so per block the mean square of what
     it removed, less what noise alone explains (E|(I−H)y|² = |(I−H)f|² + tr((I−H)Σ(I−H)ᵀ)), is ``bias_var`` (to add
     on the diagonal), and ``prior_extra`` the rest of the whole mean-square change
-    (:attr:`ElementCovariance.prior_extra`)."""
+    (``prior_extra`` of :mod:`errormap.chain_covariance`)."""
     P = y.size
     Hb, smoothing = {}, {}
     bias_var, prior_extra = np.zeros(P), np.zeros(P)

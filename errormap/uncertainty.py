@@ -1,40 +1,24 @@
-"""The grinder file's identification with its uncertainty, in the grinder's element-set and covariance files.
+"""The grinder file's identification with its uncertainty.
 
 :func:`smooth_identify` runs the one identification of every machine tool
 (:class:`errormap.identification.ChainIdentification` on the grinder file's chain, in the ``station-mean`` gauge
 by default), its covariance Gauss–Newton's σ̂²·(JᵀJ)⁻¹ through the gauge (or a residual bootstrap), the
-station values smoothed by the UBRE smoother (:func:`errormap.smoothing.smooth_blocks` through
-:func:`errormap.identification.smooth_chain`), and re-expresses the result as the grinder's
-:class:`~errormap.chain_elements.ChainElementSet` and :class:`ElementCovariance` (the covariance of the smoothed values
-``H Σ Hᵀ`` plus the smoother's estimated squared bias per element on the diagonal).
-
-The parameter vector θ (:class:`ElementCovariance`): the 18 functions' values at their
-stations (X and Z: all stations; A: all but the last, which equals the first), then the
-5 constants. The element values at any axis point are linear in θ (cubic interpolation
-weights), so the spatial-error covariance at points is ``J Σ Jᵀ`` with ``J = ∂e/∂θ`` of
-shape (n, 3, P) (:meth:`ElementCovariance.prediction_cov`, shape (n, 3, 3)).
+station values smoothed by :func:`errormap.identification.smooth_chain`. The covariance and its band are
+the chain's (:mod:`errormap.chain_covariance`). θ (:func:`theta_layout`): the 18 functions' values at their
+stations (X and Z: all; A: all but the last, which equals the first), then the 5 constants; the per-element
+smoothing experiments of the benchmarks work on it.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import make_interp_spline
 
 from .chain_elements import ChainElementSet
 from .elements import A_ELEMENTS, AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS
-from .chain_kernel import error_jacobian
-from .io import NPY_ERRORS, InputError, atomic_write, check_document_size, companion_path
 from .machine_tool import MachineTool
-from .smoothing import LAMBDA_GRID, _second_differences, _smoother, bootstrap_draws, smooth_blocks  # noqa: F401
 
 Z95 = 1.959963984540054
-
-
-COMPANION_THETA_TOL = 1e-9
-"""Relative: a covariance file holds the θ of the element set it was saved with, and the element-set
-JSON keeps every float exactly (round-trip repr); a larger difference is another identification's file."""
 
 
 def theta_layout(elements: ChainElementSet) -> list[tuple[str, int]]:
@@ -75,128 +59,25 @@ def elements_from_theta(theta, template: ChainElementSet) -> ChainElementSet:
                            template.machine_sha256)
 
 
-def interpolation_weights(elements: ChainElementSet, axes) -> dict:
-    """Per axis key, the cubic-interpolation weights (n, m_free) mapping the free station values
-    to the element value at the points (the element set's own splines, applied to unit vectors)."""
-    axes = np.asarray(axes, dtype=float)
-    cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": elements.wrap("a_deg", axes[:, 2])}
-    out = {}
-    for key in ("x_mm", "z_mm"):
-        st = elements.stations[key]
-        out[key] = make_interp_spline(st, np.eye(st.size), k=3)(cols[key])
-    st = elements.stations["a_deg"]
-    eye = np.eye(st.size - 1)
-    out["a_deg"] = make_interp_spline(st, np.vstack([eye, eye[:1]]), k=3, bc_type="periodic")(cols["a_deg"])
-    return out
+def theta_covariance(elements: ChainElementSet, C) -> tuple:
+    """A θ covariance ``C`` (P, P) as the chain's ``(slot names, stations, Σ)``
+    (:func:`errormap.chain_covariance.band_sd`)."""
+    lay = theta_layout(elements)
+    return [k for k, _ in lay], np.array([i for _, i in lay]), C
 
 
-def theta_design(machine: MachineTool, elements: ChainElementSet, axes) -> np.ndarray:
-    """``∂(spatial error μm)/∂θ`` at axis points, shape (n, 3, P) (first order, exact in θ)."""
-    axes = np.asarray(axes, dtype=float)
-    J = error_jacobian(machine, axes)
-    W = interpolation_weights(elements, axes)
-    blocks = []
-    for j, k in enumerate(FUNCTION_ELEMENTS):
-        blocks.append(J[:, :, j, None] * W[AXIS_OF[k]][:, None, :])
-    blocks.append(J[:, :, len(FUNCTION_ELEMENTS):])
-    return np.concatenate(blocks, axis=2)
-
-
-@dataclass
-class ElementCovariance:
-    """Covariance of θ (P, P) of an element set, with ``theta`` (P,) its mean; ``info`` says
-    how it was obtained (noise level, bootstrap size, smoothing parameters)."""
-
-    theta: np.ndarray
-    cov: np.ndarray
-    elements: ChainElementSet
-    info: dict = field(default_factory=dict)
-    prior_extra: np.ndarray | None = None
-    """(P,) variance added on the diagonal when θ is used as a prior for an update (the
-    smoother's whole mean-square change per element: a conservative bound on its bias, so that
-    checks can correct what smoothing took away); None: nothing added."""
-
-    def prior_cov(self) -> np.ndarray:
-        """Covariance to use as a prior (P, P): ``cov`` plus ``prior_extra`` on the diagonal."""
-        return self.cov if self.prior_extra is None else self.cov + np.diag(self.prior_extra)
-
-    def station_se(self) -> dict:
-        """Standard error per element at each of its stations (A: last = first), μm or μrad."""
-        sd = np.sqrt(np.clip(np.diag(self.cov), 0, None))
-        out, i = {}, 0
-        for k in FUNCTION_ELEMENTS:
-            m = self.elements.stations[AXIS_OF[k]].size
-            if k in A_ELEMENTS:
-                out[k] = np.r_[sd[i:i + m - 1], sd[i]]
-                i += m - 1
-            else:
-                out[k] = sd[i:i + m]
-                i += m
-        for j, k in enumerate(CONSTANT_ELEMENTS):
-            out[k] = float(sd[i + j])
-        return out
-
-    def prediction_cov(self, machine: MachineTool, axes, chunk: int = 20_000) -> np.ndarray:
-        """Spatial-error covariance ``J Σ Jᵀ`` at axis points, shape (n, 3, 3) (μm²)."""
-        axes = np.asarray(axes, dtype=float)
-        out = np.empty((axes.shape[0], 3, 3))
-        for s in range(0, axes.shape[0], chunk):
-            A = theta_design(machine, self.elements, axes[s:s + chunk])
-            out[s:s + chunk] = np.einsum("nip,pq,njq->nij", A, self.cov, A, optimize=True)
-        return out
-
-    def save(self, path) -> Path:
-        """Write ``.npz`` atomically (theta, cov, layout names, info as JSON text)."""
-        import io as _io
-        import json
-        buf = _io.BytesIO()
-        lay = theta_layout(self.elements)
-        np.savez_compressed(buf, theta=self.theta, cov=self.cov,
-                            prior_extra=np.zeros_like(self.theta) if self.prior_extra is None else self.prior_extra,
-                            layout_element=np.array([k for k, _ in lay]), layout_station=np.array([i for _, i in lay]),
-                            info=np.array(json.dumps(self.info)))
-        with atomic_write(path, "wb") as fh:
-            fh.write(buf.getvalue())
-        return Path(path)
-
-    @classmethod
-    def load(cls, path, elements: ChainElementSet) -> "ElementCovariance":
-        """Read a covariance file written by :meth:`save` for ``elements``; errors name the file."""
-        import json
-        path = Path(path)
-        if not path.is_file():
-            raise InputError(f"{path}: no such covariance file (written by `volcomp identify` beside the elements)")
-        check_document_size(path, "an element covariance")   # ~15 MB at most for the 61-station chains
-        try:
-            d = np.load(path, allow_pickle=False)
-            theta, cov = d["theta"], d["cov"]
-            lay = list(zip(d["layout_element"].tolist(), d["layout_station"].tolist()))
-            info = json.loads(str(d["info"]))
-            extra = d["prior_extra"] if "prior_extra" in d.files else None
-        except NPY_ERRORS as exc:
-            raise InputError(f"{path}: not a readable volcomp covariance file ({exc}); a truncated or damaged copy? "
-                             "Run `volcomp identify` again to write it") from None
-        if lay != theta_layout(elements) or cov.shape != (len(lay), len(lay)):
-            raise InputError(f"{path}: its parameter layout does not match the element set's stations")
-        own = theta_from_elements(elements)
-        k = int(np.argmax(np.abs(theta - own)))
-        if abs(theta[k] - own[k]) > COMPANION_THETA_TOL * max(1.0, float(np.abs(own).max())):
-            name, st = lay[k]
-            raise InputError(f"{path}: not the covariance of this element set: its values differ at {name}"
-                             f"{'' if st < 0 else f' station {st}'} ({theta[k]:.6g} vs {own[k]:.6g}); a companion "
-                             "left from another identification? Identify again or move the right one beside it")
-        return cls(theta, cov, elements, info, extra)
-
-
-def covariance_path(elements_path) -> Path:
-    """Where the covariance of an element-set file lives: ``NAME.cov.npz`` beside it, whatever the
-    element set's suffix (:func:`errormap.io.companion_path`)."""
-    return companion_path(elements_path, ".cov.npz")
+def station_se(elements: ChainElementSet, C) -> dict:
+    """Standard error per element at each of its stations (A: last = first), μm or μrad, from a θ
+    covariance."""
+    sd = np.sqrt(np.clip(np.diag(C), 0, None))
+    blocks = theta_blocks(elements)
+    out = {k: np.r_[sd[i], sd[i[0]]] if k in A_ELEMENTS else sd[i] for k, i in blocks.items()}
+    return out | {k: float(sd[len(sd) - len(CONSTANT_ELEMENTS) + j]) for j, k in enumerate(CONSTANT_ELEMENTS)}
 
 
 def nullspace_smoother(Sigma, periodic: bool) -> np.ndarray:
-    """The λ → ∞ limit of :func:`_smoother` with the same weights: the weighted least-squares
-    projection of the station values onto the second-difference penalty's null space
+    """The λ → ∞ limit of :func:`errormap.smoothing._smoother` with the same weights: the weighted
+    least-squares projection of the station values onto the second-difference penalty's null space
     (a constant and a slope in the station index; a constant for a periodic element), shape (m, m)."""
     m = Sigma.shape[0]
     var = np.diag(Sigma).copy()
@@ -225,43 +106,50 @@ def nullspace_noise_cov(raw_cov, elements: ChainElementSet) -> np.ndarray:
     return H @ raw_cov @ H.T
 
 
-def prediction_sd(machine: MachineTool, elements: ChainElementSet, cov, axes) -> np.ndarray:
-    """Per-component standard deviation (n, 3) μm of the spatial error at ``axes`` for a θ
-    covariance ``cov`` (P, P) of ``elements``' layout (the diagonal of ``J Σ Jᵀ``)."""
-    A = theta_design(machine, elements, np.asarray(axes, dtype=float))
-    return np.sqrt(np.clip(np.einsum("nip,pq,niq->ni", A, cov, A, optimize=True), 0, None))
-
-
 @dataclass
 class SmoothIdentificationResult:
-    """``raw``: the interpolating identification; ``elements_``: the smoothed elements;
-    ``covariance_``: :class:`ElementCovariance` of the smoothed θ; ``noise_um``: σ used;
-    ``smoothing``: per element {lambda, edf}."""
+    """``raw``: the interpolating identification; ``result``: the smoothed one (its ``elements_``, ``cov``
+    over ``param_slot``/``param_station`` and ``prior_extra``: the covariance file,
+    :func:`errormap.chain_covariance.save_chain_covariance`); ``noise_um``: σ used; ``smoothing``: per element
+    {lambda, edf}; ``info``: how the covariance was obtained."""
 
     raw: object
-    elements_: ChainElementSet
-    covariance_: ElementCovariance
+    result: object
     noise_um: float
     smoothing: dict
+    info: dict
     raw_cov: np.ndarray | None = None
-    """(P, P) covariance of the raw (interpolating) station values, before smoothing
+    """(P, P) θ covariance of the raw (interpolating) station values, before smoothing
     (kept in memory, not written: :func:`nullspace_noise_cov` uses it)."""
 
+    @property
+    def elements_(self) -> ChainElementSet:
+        return self.result.elements_
+
+    @property
+    def covariance_(self) -> tuple:
+        """``(slot names, stations (N,), Σ (N, N))`` of the smoothed elements (μm² / μrad²)."""
+        return list(self.result.param_slot), self.result.param_station, self.result.cov
+
+    def station_se(self) -> dict:
+        idx = _grinder_theta_index(self.result)
+        return station_se(self.elements_, self.result.cov[np.ix_(idx, idx)])
+
     def summary_lines(self) -> list[str]:
-        se = self.covariance_.station_se()
+        se = self.station_se()
         edf = ", ".join(f"{k} {v['edf']:.3g}" for k, v in self.smoothing.items()) or "none (interpolating)"
         worst = max(FUNCTION_ELEMENTS, key=lambda k: float(np.max(se[k])))
         return [f"noise {self.noise_um:.3g} um per ball coordinate "
-                f"({'from the ball residuals' if self.covariance_.info.get('noise_estimated') else 'given'}); "
-                f"covariance: {self.covariance_.info['method']}",
+                f"({'from the ball residuals' if self.info.get('noise_estimated') else 'given'}); "
+                f"covariance: {self.info['method']}",
                 f"smoothing (effective degrees of freedom per element): {edf}",
                 f"largest station standard error: {worst} {np.max(se[worst]):.3g}"]
 
     def report_dict(self) -> dict:
-        se = self.covariance_.station_se()
         return {"noise_um": self.noise_um, "smoothing": self.smoothing,
-                "standard_errors": {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in se.items()},
-                "covariance": dict(self.covariance_.info)}
+                "standard_errors": {k: (v.tolist() if isinstance(v, np.ndarray) else v)
+                                    for k, v in self.station_se().items()},
+                "covariance": dict(self.info)}
 
 
 def _grinder_theta_index(result) -> np.ndarray:
@@ -279,10 +167,8 @@ def smooth_identify(sweeps, machine: MachineTool, noise_um: float | None = None,
     :class:`errormap.identification.ChainIdentification` in ``gauge``, its covariance Gauss–Newton's
     (σ̂ from the ball residuals, or the known ``noise_um``) or, with ``n_boot`` ≥ 2, the residual bootstrap's
     (:func:`errormap.identification.bootstrap_covariance`, seeded by ``seed``), smoothed by the UBRE smoother
-    (:func:`errormap.identification.smooth_chain`) unless ``smooth=False``. The result carries the grinder's
-    element set and :class:`ElementCovariance` (θ layout, files as before); ``raw`` is the chain identification
-    (its ``elements_`` the interpolating set). ``sweeps``: :class:`errormap.sweeps.Sweeps`
-    or a dict of sweep columns."""
+    (:func:`errormap.identification.smooth_chain`) unless ``smooth=False``. ``sweeps``:
+    :class:`errormap.sweeps.Sweeps` or a dict of sweep columns."""
     from dataclasses import replace
     from .identification import ChainIdentification, bootstrap_covariance, smooth_chain
     from .sweeps import Sweeps, sweeps_from_columns
@@ -294,9 +180,6 @@ def smooth_identify(sweeps, machine: MachineTool, noise_um: float | None = None,
         raw = bootstrap_covariance(sweeps, machine, raw, n_boot, seed, **settings)
     res = smooth_chain(raw, machine) if smooth else raw
     idx = _grinder_theta_index(raw)
-    elements = res.elements_
-    C = res.cov[np.ix_(idx, idx)]
-    extra = None if res.prior_extra is None else res.prior_extra[idx]
     sigma = raw.sigma_um if noise_um is None else float(noise_um)
     info = {"method": (f"residual bootstrap of the identification, {n_boot} draws" if n_boot is not None else
                        "Gauss-Newton covariance of the identification") +
@@ -304,6 +187,4 @@ def smooth_identify(sweeps, machine: MachineTool, noise_um: float | None = None,
             "n_boot": n_boot, "seed": seed, "noise_um": sigma, "noise_estimated": noise_um is None,
             "smoothed": bool(smooth), "gauge": gauge}
     smoothing = res.covariance_info.get("smoothing", {})
-    return SmoothIdentificationResult(replace(raw), elements, ElementCovariance(theta_from_elements(elements), C, elements,
-                                                                           info, extra),
-                                      sigma, smoothing, raw.cov[np.ix_(idx, idx)])
+    return SmoothIdentificationResult(replace(raw), res, sigma, smoothing, info, raw.cov[np.ix_(idx, idx)])

@@ -13,8 +13,8 @@ from errormap.chain_field import ChainField
 from errormap.chain_kernel import spatial_error
 from errormap.chain_truth import EFFECT_DEFAULTS, TRUTH_STATIONS, make_mt_truth, random_axes
 from errormap.chain_sweeps import simulated_sweeps
-from errormap.uncertainty import (ElementCovariance, covariance_path, elements_from_theta, smooth_identify,
-                                  theta_design, theta_from_elements)
+from errormap.chain_covariance import band_sd, covariance_path, read_chain_covariance, save_chain_covariance
+from errormap.uncertainty import elements_from_theta, smooth_identify, theta_covariance, theta_from_elements
 
 SEED = 0
 TRACKER_NOISE_UM = 2.0
@@ -33,7 +33,7 @@ def _loop(grinder, sm, cols, tmp, **kw):
     from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain
     mt = grinder
     el_path = sm.elements_.save(tmp / "el.json")
-    sm.covariance_.save(covariance_path(el_path))
+    save_chain_covariance(sm.result, covariance_path(el_path))
     el, cov, _ = load_chain_model(el_path, mt, prior=True)
     checks = MTChecks.from_columns(mt, cols)
     return closed_loop_chain(mt, el, checks, cov=cov, **kw), checks
@@ -82,23 +82,24 @@ def test_smoothing_beats_interpolation_on_the_truth(grinder, indep):
     assert rms(sm.elements_) < SMOOTH_GAIN * rms(sm.raw.elements_)
 
 
-def test_theta_design_is_the_first_order_change(grinder, indep):
+def test_the_bands_parameter_matrix_is_the_first_order_change(grinder, indep):
+    from errormap.diagnosis.chain_update import parameter_matrix
     _, sm = indep
     el = sm.elements_
     pts = random_axes(grinder, 200, np.random.default_rng(2))
     dtheta = np.random.default_rng(3).normal(0, 1.0, theta_from_elements(el).size)  # ~1 μm / μrad
     new = elements_from_theta(theta_from_elements(el) + dtheta, el)
     exact = spatial_error(grinder, pts, new.values(pts)) - spatial_error(grinder, pts, el.values(pts))
-    lin = np.einsum("nip,p->ni", theta_design(grinder, el, pts), dtheta)
+    slots, stations, _ = theta_covariance(el, None)
+    lin = np.einsum("nip,p->ni", parameter_matrix(grinder, el, pts, slots, stations), dtheta)
     assert np.abs(exact - lin).max() < LINEAR_REL_TOL * np.abs(exact).max()
 
 
-def test_prediction_cov_shape_and_station_se(grinder, indep):
+def test_band_shape_and_station_se(grinder, indep):
     _, sm = indep
-    C = sm.covariance_.prediction_cov(grinder, random_axes(grinder, 10, np.random.default_rng(4)))
-    assert C.shape == (10, 3, 3)
-    assert np.all(np.linalg.eigvalsh(C) > -1e-9)
-    se = sm.covariance_.station_se()
+    sd = band_sd(grinder, sm.elements_, sm.covariance_, random_axes(grinder, 10, np.random.default_rng(4)))
+    assert sd.shape == (10, 3) and np.all(sd > 0)
+    se = sm.station_se()
     assert se["dx_x"].shape == (21,) and se["ex_a"][0] == se["ex_a"][-1] and se["s_xz"] > 0
 
 
@@ -128,7 +129,7 @@ def test_predict_band_cli(tmp_path, capsys):
     el = tmp_path / "el.json"
     assert main(["identify", str(sw), "--out", str(el)]) == 0
     assert covariance_path(el).is_file()
-    ElementCovariance.load(covariance_path(el), ChainElementSet.load(el, load_machine()))
+    read_chain_covariance(covariance_path(el), ChainElementSet.load(el, load_machine()))
     pts = tmp_path / "p.csv"
     pts.write_text("x_mm,z_mm,a_deg\n10,5,30\n150,40,200\n")
     out = tmp_path / "pred.csv"

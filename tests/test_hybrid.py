@@ -217,7 +217,8 @@ BAND_TOL_UM = 1e-12
 def test_hybrid_total_band_is_learned_band_plus_element_band(grinder):
     """band_std = sqrt(learned std² + diag(J Σ Jᵀ)); without a covariance, the learned band alone."""
     from compensation.hybrid import axis_features
-    from errormap.uncertainty import ElementCovariance, theta_from_elements, theta_layout
+    from errormap.chain_covariance import band_sd
+    from errormap.uncertainty import theta_covariance, theta_layout
     from training.residual import ResidualRegressor
     rng = np.random.default_rng(SEED + 5)
     axes = random_axes(grinder, 80, rng)
@@ -225,14 +226,15 @@ def test_hybrid_total_band_is_learned_band_plus_element_band(grinder):
     reg = ResidualRegressor(seed=SEED, margin_se=0.0).fit(axis_features(axes)[0], r)
     el = make_mt_truth(grinder, SEED).elements
     p = len(theta_layout(el))
-    cov = ElementCovariance(theta_from_elements(el), 0.25 * np.eye(p), el, {})
+    cov = theta_covariance(el, 0.25 * np.eye(p))
     hyb = HybridField(ChainField(grinder, el), LearnedResidual(reg, axes[:, :2].min(0), axes[:, :2].max(0)))
     P = random_axes(grinder, 50, np.random.default_rng(SEED + 6))
     _, s_learned = hyb.learned.predict(P, return_std=True)
-    el_var = np.diagonal(cov.prediction_cov(grinder, P), axis1=1, axis2=2)
+    el_var = band_sd(grinder, el, cov, P) ** 2
     assert np.all(el_var > 0) and np.all(s_learned > 0)
     np.testing.assert_allclose(hyb.band_std(P), s_learned, atol=BAND_TOL_UM)
-    np.testing.assert_allclose(hyb.band_std(P, cov) ** 2, s_learned**2 + el_var, atol=BAND_TOL_UM)
+    el_band = lambda q: band_sd(grinder, el, cov, q)   # noqa: E731
+    np.testing.assert_allclose(hyb.band_std(P, el_band) ** 2, s_learned**2 + el_var, atol=BAND_TOL_UM)
 
 
 # --- volcomp predict on a diagnosed (hybrid) model.json (issue 28 point 3) -----------------------
@@ -307,7 +309,8 @@ def test_predict_on_a_hybrid_model_total_band_and_outside_flag(grinder, staged, 
     --allow volume, which the header records."""
     from compensation.app.cli import main
     from errormap.chain_elements import ChainElementSet
-    from errormap.uncertainty import Z95, ElementCovariance, covariance_path
+    from errormap.chain_covariance import band_sd, covariance_path, read_chain_covariance
+    from errormap.uncertainty import Z95
     _, learned, _ = staged
     el = _identified(tmp_path)
     (tmp_path / "model.json").write_text(json.dumps({
@@ -328,9 +331,9 @@ def test_predict_on_a_hybrid_model_total_band_and_outside_flag(grinder, staged, 
     e = np.stack([t.float(c) for c in ("dx_um", "dy_um", "dz_um")], 1)
     field = HybridField(ChainField(grinder, ChainElementSet.load(el, grinder)), learned)
     np.testing.assert_allclose(e, field.predict(P), rtol=0, atol=PREDICT_TOL_UM)
-    cov = ElementCovariance.load(covariance_path(el), ChainElementSet.load(el, grinder))
-    sd = np.sqrt(learned.predict(P, return_std=True)[1] ** 2
-                 + np.diagonal(cov.prediction_cov(grinder, P), axis1=1, axis2=2))
+    els = ChainElementSet.load(el, grinder)
+    cov = read_chain_covariance(covariance_path(el), els)
+    sd = np.sqrt(learned.predict(P, return_std=True)[1] ** 2 + band_sd(grinder, els, cov, P) ** 2)
     band = np.stack([t.float(f"{c}_band95_um") for c in ("dx", "dy", "dz")], 1)
     np.testing.assert_allclose(band, Z95 * sd, rtol=BAND_TOL_REL)
     assert list(t.raw("learned_part")) == ["fitted"] * 6 + ["unknown"] * 2

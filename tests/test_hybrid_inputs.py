@@ -39,8 +39,9 @@ and is far below any effect a one-axis element profile could represent."""
 LINEAR_SPAN_SHARE_MAX = 0.01
 """The share of xz_saddle's (default parameters) mean square spatial error that the linearised
 element model takes up — every element a free profile of its own axis (the element set's splines
-on its 21 stations) and every constant, through the error-transfer Jacobian
-(:func:`errormap.uncertainty.theta_design`) — on a symmetric X × Z × A grid: the effect is orthogonal to that span up to
+on its 21 stations) and every constant, through the error-transfer Jacobian at nominal
+(:func:`errormap.diagnosis.chain_update.parameter_matrix`) — on a symmetric X × Z × A grid: the effect is
+orthogonal to that span up to
 the odd X profile's tail beyond ±3.3 widths and the Z wavelet's beyond ±3.3 (measured 2e-5);
 1 % bounds that with room."""
 LINEAR_SPAN_SQUARENESS_MIN = 0.99
@@ -149,14 +150,18 @@ def test_xz_saddle_is_outside_the_linearised_element_model(grinder):
     absorbs, is taken up wholly by the same projection."""
     from errormap.elements import IDX
     from errormap.chain_kernel import error_jacobian
-    from errormap.uncertainty import theta_design
+    from errormap.diagnosis.chain_update import parameter_matrix
+    from errormap.chain_elements import ChainElementSet
+    from errormap.uncertainty import theta_covariance
     xs = np.linspace(*grinder.strokes["x_mm"], 21)
     zs = np.linspace(*grinder.strokes["z_mm"], 21)
     X, Z, A = np.meshgrid(xs, zs, np.arange(24) * 15.0, indexing="ij")
     P = np.stack([X.ravel(), Z.ravel(), A.ravel()], axis=1)
     J = error_jacobian(grinder, P)
     truth = make_mt_truth(grinder, SEED)
-    M = theta_design(grinder, truth.elements, P).reshape(3 * P.shape[0], -1)   # the element model, linearised
+    nominal = ChainElementSet.zeros(grinder, truth.elements.stations["x_mm"].size)   # linearised at nominal
+    slots, stations, _ = theta_covariance(nominal, None)
+    M = parameter_matrix(grinder, nominal, P, slots, stations).reshape(3 * P.shape[0], -1)
     MtM = M.T @ M
     without = truth.element_values(P)
     shares = {}

@@ -46,7 +46,7 @@ def test_predict_band_with_a_damaged_covariance(tmp_path, identified, points, ho
     cov = tmp_path / "E.cov.npz"
     cov.write_bytes(_damage((identified / "E.cov.npz").read_bytes(), how))
     rc, _, err = run_cli(["predict", points, "--model", el, "--band", "95", "--out", tmp_path / "p.csv"])
-    one_line(rc, err, str(cov), "not a readable volcomp covariance file", "identify")
+    one_line(rc, err, str(cov), "not a readable covariance file", "identify")
     assert not (tmp_path / "p.csv").exists()
 
 

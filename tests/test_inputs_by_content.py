@@ -18,7 +18,7 @@ from errormap.machine import load_machine
 from errormap.chain_truth import make_mt_truth
 from errormap.chain_sweeps import simulated_sweeps
 from errormap.sweeps import write_sweeps
-from errormap.uncertainty import covariance_path
+from errormap.chain_covariance import covariance_path
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 5
@@ -354,19 +354,23 @@ def test_pkm_calibration_file_is_known_by_its_format_key(tmp_path):
 
 
 def test_a_stale_covariance_companion_is_refused(machine, tmp_path):
-    """The companion is found by name; that it belongs to the element set is checked by content."""
-    from errormap.uncertainty import ElementCovariance, theta_from_elements, theta_layout
+    """The companion is found by name; that an older grinder file (θ layout) belongs to the element set is
+    checked by content."""
+    from errormap.chain_covariance import read_chain_covariance
+    from errormap.uncertainty import theta_from_elements, theta_layout
     el = make_mt_truth(machine, SEED).elements
-    p = len(theta_layout(el))
-    ElementCovariance(theta_from_elements(el), np.eye(p), el, {}).save(tmp_path / "E.cov.npz")
+    lay = theta_layout(el)
+    np.savez(tmp_path / "E.cov.npz", theta=theta_from_elements(el), cov=np.eye(len(lay)),
+             layout_element=np.array([k for k, _ in lay]), layout_station=np.array([i for _, i in lay]))
     el.save(tmp_path / "E.json")
-    ElementCovariance.load(covariance_path(tmp_path / "E.json"), ChainElementSet.load(tmp_path / "E.json", machine))
+    read_chain_covariance(covariance_path(tmp_path / "E.json"),
+                          ChainElementSet.load(tmp_path / "E.json", machine))
     other = el.copy()
     other.constants["s_xz"] += 1.0
     other.save(tmp_path / "E.json")                      # re-identified, the old companion left beside it
     with pytest.raises(InputError, match=r"E\.cov\.npz: not the covariance of this element set: .* at s_xz"):
-        ElementCovariance.load(covariance_path(tmp_path / "E.json"),
-                               ChainElementSet.load(tmp_path / "E.json", machine))
+        read_chain_covariance(covariance_path(tmp_path / "E.json"),
+                              ChainElementSet.load(tmp_path / "E.json", machine))
 
 
 def test_export_diagnosis_is_known_by_its_format_key(tmp_path):

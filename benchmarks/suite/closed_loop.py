@@ -117,7 +117,7 @@ def run_case(family: str, seed: int, effect: str, flute: bool = False, also=None
     from errormap.machine import load_machine
     from errormap.seeds import spawn_seeds
     from errormap.chain_truth import make_mt_truth, random_axes
-    from errormap.uncertainty import ElementCovariance, covariance_path
+    from errormap.chain_covariance import band_sd, covariance_path, read_chain_covariance
     t_cpu = time.process_time()
     eff = [] if effect == "none" else [effect]
     m = load_machine()
@@ -135,14 +135,14 @@ def run_case(family: str, seed: int, effect: str, flute: bool = False, also=None
         cpu_loop = time.process_time() - t_cpu
         s = json.loads((td / "diag" / "diagnosis.json").read_text())
         el = ChainElementSet.load(td / "el.json", m)
-        cov = ElementCovariance.load(covariance_path(td / "el.json"), el)
+        cov = read_chain_covariance(covariance_path(td / "el.json"), el)
         upd = ChainElementSet.load(td / "diag" / "updated_elements.json", m)
         fl = _flute(main, td, m, truth, flute_points_per_turn) if flute and effect == "none" else None
         more = also(td, m, truth, probe_ss) if also is not None else None
     P = random_axes(m, N_PROBE, np.random.default_rng(probe_ss))
     et = ChainField(m, truth.elements).predict(P)
     e_id = ChainField(m, el).predict(P) - et
-    sd = np.sqrt(np.diagonal(cov.prediction_cov(m, P), axis1=1, axis2=2))
+    sd = band_sd(m, el, cov, P)
     e_up = ChainField(m, upd).predict(P) - et
     found = s["effects"]
     exp = EXPECTED[effect]

@@ -110,14 +110,15 @@ def chain_setting():
     from errormap.machine import load_machine
     from errormap.chain_truth import make_mt_truth
     from errormap.chain_sweeps import simulated_sweeps
-    from errormap.uncertainty import covariance_path, smooth_identify
+    from errormap.chain_covariance import covariance_path, save_chain_covariance
+    from errormap.uncertainty import smooth_identify
     grinder = load_machine()
     mt = grinder
     truth = make_mt_truth(grinder, 4)
     sm = smooth_identify(simulated_sweeps(truth, noise_um=2.0, seed=54), grinder, n_boot=40)
     with tempfile.TemporaryDirectory() as tmp:
         el_path = sm.elements_.save(Path(tmp) / "el.json")
-        sm.covariance_.save(covariance_path(el_path))
+        save_chain_covariance(sm.result, covariance_path(el_path))
         el, cov, _ = load_chain_model(el_path, mt, prior=True)
     checks = MTChecks.from_columns(mt, truth.check_measurements(N_CHECKS, CHECK_NOISE_UM, seed=5))
     return mt, el, cov, checks
@@ -171,6 +172,7 @@ def prediction_coverage(seeds_per_family: int) -> dict:
     from errormap.chain_truth import random_axes
     from errormap.chain_sweeps import simulated_sweeps
     from errormap.chain_truth import make_mt_truth
+    from errormap.chain_covariance import band_sd
     from errormap.uncertainty import smooth_identify
     grinder = load_machine()
     inside = total = 0
@@ -180,7 +182,7 @@ def prediction_coverage(seeds_per_family: int) -> dict:
             sm = smooth_identify(simulated_sweeps(truth, noise_um=2.0, seed=s + 500), grinder, n_boot=100, seed=s)
             pts = random_axes(grinder, 400, np.random.default_rng(s + 7))
             err = ChainField(grinder, sm.elements_).predict(pts) - ChainField(grinder, truth.elements).predict(pts)
-            sd = np.sqrt(np.diagonal(sm.covariance_.prediction_cov(grinder, pts), axis1=1, axis2=2))
+            sd = band_sd(grinder, sm.elements_, sm.covariance_, pts)
             inside += int(np.sum(np.abs(err) <= Z95 * sd))
             total += err.size
     rate = inside / total

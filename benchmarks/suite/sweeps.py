@@ -41,7 +41,7 @@ GAUGES = ("first-station", "station-mean")
 
 def _criterion_smoother(y, Sigma, periodic: bool, criterion: str) -> np.ndarray:
     """The product's Whittaker smoother (same weights and λ grid) with λ by ``gcv`` or ``reml``."""
-    from errormap.uncertainty import LAMBDA_GRID, _second_differences
+    from errormap.smoothing import LAMBDA_GRID, _second_differences
     m = y.size
     var = np.diag(Sigma).copy()
     if var.max() <= 0:
@@ -106,17 +106,19 @@ def floor_case(args) -> dict:
     family, seed = args
     from errormap.elements import A_ELEMENTS
     from errormap.chain_field import ChainField
-    from errormap.uncertainty import (elements_from_theta, nullspace_noise_cov, prediction_sd, smooth_identify,
-                                      theta_blocks, theta_from_elements)
+    from errormap.chain_covariance import band_sd
+    from errormap.uncertainty import (elements_from_theta, nullspace_noise_cov, smooth_identify, theta_blocks,
+                                      theta_covariance, theta_from_elements)
     t0 = time.process_time()
     m, sw, P, et = loop_sweeps(family, seed)
     sm = smooth_identify(sw, m)
     el, S = sm.elements_, sm.raw_cov
     e = ChainField(m, el).predict(P) - et
-    sd = prediction_sd(m, el, sm.covariance_.cov, P)
+    sd = band_sd(m, el, sm.covariance_, P)
     out = {"family": family, "seed": seed, "ubre_rms_um": _rms(e), "band_sd_um": _sd_rms(sd),
            "band95_cover": float(np.mean(np.abs(e) <= Z95 * sd)),
-           "floor_um": _sd_rms(prediction_sd(m, sm.raw.elements_, nullspace_noise_cov(S, sm.raw.elements_), P)),
+           "floor_um": _sd_rms(band_sd(m, sm.raw.elements_, theta_covariance(
+               sm.raw.elements_, nullspace_noise_cov(S, sm.raw.elements_)), P)),
            "raw_rms_um": _rms(ChainField(m, sm.raw.elements_).predict(P) - et)}
     y = theta_from_elements(sm.raw.elements_)
     for crit in ("gcv", "reml"):
@@ -136,7 +138,8 @@ def mc_case(args) -> dict:
     from errormap.chain_field import ChainField
     from errormap.machine import load_machine
     from errormap.chain_truth import make_mt_truth, random_axes
-    from errormap.uncertainty import prediction_sd, smooth_identify
+    from errormap.chain_covariance import band_sd
+    from errormap.uncertainty import smooth_identify
     m = load_machine()
     truth = make_mt_truth(m, seed, family=family)
     P = random_axes(m, 3000, np.random.default_rng(123))
@@ -144,7 +147,7 @@ def mc_case(args) -> dict:
         sw = _sweeps(main, Path(td), family, seed, 1000 + k)
     sm = smooth_identify(sw, m, seed=k)
     e = ChainField(m, sm.elements_).predict(P) - ChainField(m, truth.elements).predict(P)
-    sd = prediction_sd(m, sm.elements_, sm.covariance_.cov, P)
+    sd = band_sd(m, sm.elements_, sm.covariance_, P)
     return {"family": family, "seed": seed, "draw": k, "cover": float(np.mean(np.abs(e) <= Z95 * sd)),
             "mean_z2": float(np.mean((e / sd) ** 2)), "rms_um": _rms(e)}
 
@@ -153,14 +156,16 @@ def gauge_case(args) -> dict:
     """One truth identified in both gauges: RMS, floor, band's predicted RMS, 95 % coverage per gauge."""
     family, seed = args
     from errormap.chain_field import ChainField
-    from errormap.uncertainty import nullspace_noise_cov, prediction_sd, smooth_identify
+    from errormap.chain_covariance import band_sd
+    from errormap.uncertainty import nullspace_noise_cov, smooth_identify, theta_covariance
     m, sw, P, et = loop_sweeps(family, seed)
     out = {"family": family, "seed": seed}
     for g in GAUGES:
         sm = smooth_identify(sw, m, gauge=g)
         e = ChainField(m, sm.elements_).predict(P) - et
-        sd = prediction_sd(m, sm.elements_, sm.covariance_.cov, P)
-        floor = prediction_sd(m, sm.raw.elements_, nullspace_noise_cov(sm.raw_cov, sm.raw.elements_), P)
+        sd = band_sd(m, sm.elements_, sm.covariance_, P)
+        raw_el = sm.raw.elements_
+        floor = band_sd(m, raw_el, theta_covariance(raw_el, nullspace_noise_cov(sm.raw_cov, raw_el)), P)
         out[g] = {"rms_um": _rms(e), "floor_um": _sd_rms(floor), "band_sd_um": _sd_rms(sd),
                   "band95_cover": float(np.mean(np.abs(e) <= Z95 * sd))}
     return out

@@ -262,20 +262,21 @@ class HybridField:
     def band_std(self, axes, covariance=None) -> np.ndarray:
         """The hybrid's TOTAL predictive 1-σ band per component, shape (n, 3) μm, at axes (n, 3):
         the learned part's band (its posterior std, calibrated on its cross-validation) ⊕ the
-        elements' band ``diag(J Σ Jᵀ)`` from ``covariance`` (an
-        :class:`errormap.uncertainty.ElementCovariance` of the base's elements; None: the learned
-        band alone). Measurement noise is not in it (a band of the field, not of a measurement)."""
+        elements' band ``diag(J Σ Jᵀ)`` from ``covariance`` (a function of the axes,
+        :func:`total_band_std`; None: the learned band alone). Measurement noise is not in it (a band of the
+        field, not of a measurement)."""
         axes = check_points(axes, self.learned.axes_label, len(self.learned.axes))
         return total_band_std(self.learned, self.machine, axes, covariance)
 
 
 def total_band_std(learned, machine, axes, covariance=None) -> np.ndarray:
-    """(n, 3) μm: ``learned``'s 1-σ band (zeros when None) ⊕ the elements' ``diag(J Σ Jᵀ)``."""
+    """(n, 3) μm: ``learned``'s 1-σ band (zeros when None) ⊕ the elements' ``diag(J Σ Jᵀ)``: ``covariance`` a
+    function axes (n, k) → their standard deviation (n, 3) μm (:func:`errormap.chain_covariance.band_sd`)."""
     var = np.zeros((len(axes), 3))
     if learned is not None:
         var += learned.predict(axes, return_std=True)[1] ** 2
     if covariance is not None:
-        var += np.diagonal(covariance.prediction_cov(machine, axes), axis1=1, axis2=2)
+        var += covariance(axes) ** 2
     return np.sqrt(var)
 
 

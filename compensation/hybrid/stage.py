@@ -170,8 +170,9 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     ``stage["learned"]["replaced_condition_terms"]`` lists the replaced ones and ``refit_residual`` is
     called with that tuple instead of the bool). ``families`` / ``inputs`` / ``frames``: what is
     cross-validated (None: :data:`LEARNED_FAMILIES`, :data:`LEARNED_INPUTS`, :data:`LEARNED_FRAMES` at call
-    time). ``covariance``: the previous stage's element covariance or None (with it, the held-out coverage
-    of the TOTAL band, ``held_out_band95_cover_total``). ``refit_residual``: None or
+    time). ``covariance``: the previous stage's elements' band (a function of the axes giving the elements'
+    standard deviation, :func:`total_band_std`) or None (with it, the held-out coverage of the TOTAL band,
+    ``held_out_band95_cover_total``). ``refit_residual``: None or
     ``(replaces_condition_terms) -> (n, 3)``, the residual of the base re-estimated on all checks, on which
     the shipped learned part is estimated (``refit_mode``, :data:`REFIT_MODES`); selection, gate and
     held-out figures come before any refit. ``base_update``: None or ``(replaced, offset_um, idx) -> (n,

@@ -100,14 +100,16 @@ def _predict_diagnosed(args, t, axes, machine, model):
     calibrated volume (the checks' box for a hybrid) are refused unless ``--allow volume``
     (or ``extrapolate``), and the override is recorded in the header. → (columns, header lines)."""
     from compensation.hybrid import total_band_std
-    from errormap.uncertainty import ElementCovariance, covariance_path
+    from errormap.chain_covariance import band_sd, covariance_path, read_chain_covariance
+    from ..workflows.measurement import check_chain_covariance
     field = model.field.corrected
     n_out = _check_volume(args, t, axes, field, machine)
     cond = _point_conditions(t, field.needs, args.units, "diagnosed model")
     el_path = model.elements_path
     cov = None
     if model.covariance_path is not None:
-        cov = ElementCovariance.load(model.covariance_path, model.elements)   # keyed by its element set
+        cov = read_chain_covariance(model.covariance_path, model.elements)   # checked against its element set
+        check_chain_covariance(machine, model.elements, cov, model.covariance_path)
     elif args.band:   # the band asked for, half of it missing: refused, never a band without the elements' part
         raise UsageError(f"--band needs the kept elements' covariance {covariance_path(el_path)} (written beside "
                          f"them by volcomp diagnose); not found")
@@ -117,7 +119,7 @@ def _predict_diagnosed(args, t, axes, machine, model):
     cols = {n: np.array(t.raw(n)) for n in t.names if n not in ("dx_um", "dy_um", "dz_um")}
     cols.update({"dx_um": e[:, 0], "dy_um": e[:, 1], "dz_um": e[:, 2]})
     if cov is not None:   # the TOTAL band: learned (when kept) ⊕ the elements' J Σ Jᵀ
-        sd = total_band_std(learned, machine, axes, cov)
+        sd = total_band_std(learned, machine, axes, lambda p: band_sd(machine, model.elements, cov, p))
         cols.update(_band_columns(sd, args.band))
     meta = [f"stage: {model.stage}"]
     if learned is not None:
@@ -149,7 +151,7 @@ def _learned_part(cols, learned, axes) -> list:
 
 
 def _chain_covariance(args, model, machine) -> tuple:
-    """``--band`` on a machine-tool chain, checked before any work: the model's element set and its
+    """``--band`` on a machine tool, checked before any work: the model's element set and its
     identification covariance (``E.cov.npz`` of ``identify --machine`` beside it, or the file its model.json
     names) as ``(elements, cov, cov_path)``; refused for a model that holds more than elements (their band
     alone would understate it) or no covariance."""
@@ -161,7 +163,7 @@ def _chain_covariance(args, model, machine) -> tuple:
 
 
 def _chain_band(args, machine, axes, band_src) -> dict:
-    """The band columns on a chain: ``J Σ Jᵀ`` per point through the chain's parameter Jacobian."""
+    """The band columns: ``J Σ Jᵀ`` per point through the chain's parameter Jacobian."""
     from ..workflows.measurement import chain_band_sd
     el, cov, cov_path = band_src
     print(f"band: covariance {cov_path} ({len(cov[0])} parameters)", file=sys.stderr)
@@ -209,7 +211,7 @@ def _run_machine_tool(machine, args) -> int:
         path = write_csv(args.out, cols, header_comments=meta + allowed + tail)
         print(f"wrote {len(axes)} predictions to {path}")
         return 0
-    band_src = _chain_covariance(args, model, machine) if args.band and chain else None
+    band_src = _chain_covariance(args, model, machine) if args.band else None
     field = model.field
     cond = _point_conditions(t, model.needs, args.units) if model.needs else None  # per point, from columns
     n_out = _check_volume(args, t, axes, field, machine)
@@ -229,13 +231,8 @@ def _run_machine_tool(machine, args) -> int:
     if n_out:   # the override recorded in the output itself, on every machine
         meta.append(f"allowed: volume ({n_out} of {len(axes)} points outside the calibrated volume, "
                     f"--allow {'volume' if 'volume' in args.allow else 'extrapolate'})")
-    if args.band and chain:
+    if args.band:
         cols.update(_chain_band(args, machine, axes, band_src))
-    elif args.band:
-        from errormap.uncertainty import ElementCovariance
-        cov = ElementCovariance.load(_band_covariance(args, model), model.elements)
-        sd = np.sqrt(np.diagonal(cov.prediction_cov(machine, axes), axis1=1, axis2=2))
-        cols.update(_band_columns(sd, args.band))
     path = write_csv(args.out, cols, header_comments=meta + allowed + tail)
     print(f"wrote {len(axes)} predictions to {path}")
     return 0

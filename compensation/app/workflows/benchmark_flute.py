@@ -156,13 +156,14 @@ def identify_with_covariance(machine, s: BenchmarkSettings, truth, c: GrinderCon
     """The same sweeps identified as ``volcomp identify`` does with its defaults
     (:func:`compensation.app.workflows.identification.identify_elements` → :func:`errormap.uncertainty.smooth_identify`:
     penalised smoothing, station-mean gauge, tracker noise estimated from the ball residuals, the covariance
-    Gauss-Newton's or ``s.identify_bootstrap`` residual-bootstrap draws of seed 0). Returns ``(ElementCovariance, seconds)``: the element
-    set and its covariance, what ``volcomp diagnose`` finds beside the element-set file."""
+    Gauss-Newton's or ``s.identify_bootstrap`` residual-bootstrap draws of seed 0). Returns
+    ``(identification, seconds)``: its ``elements_`` and covariance, what ``volcomp diagnose`` finds beside
+    the element-set file."""
     from errormap.uncertainty import smooth_identify
     sw = condition_sweeps(s, truth, c)
     t0 = time.perf_counter()
     sm = smooth_identify(sw, machine, n_boot=s.identify_bootstrap, seed=0)
-    return sm.covariance_, time.perf_counter() - t0
+    return sm.result, time.perf_counter() - t0
 
 
 def compensate_true(machine, s: BenchmarkSettings, points: GrinderTestPoints, truth, field_, method: str,
@@ -341,9 +342,9 @@ class GrinderBench:
         try:
             cov, id_s = identify_with_covariance(self.m, s, truth, c)
             with tempfile.TemporaryDirectory(prefix="volcomp-benchmark-") as td:
-                from errormap.uncertainty import covariance_path
-                el_path = cov.elements.save(Path(td) / "elements.json")
-                cov.save(covariance_path(el_path))
+                from errormap.chain_covariance import covariance_path, save_chain_covariance
+                el_path = cov.elements_.save(Path(td) / "elements.json")
+                save_chain_covariance(cov, covariance_path(el_path))
                 t0 = time.perf_counter()
                 summary, _ = diagnose_chain(checks, self.m, el_path, Path(td) / "diagnosis")
                 loop_s = time.perf_counter() - t0

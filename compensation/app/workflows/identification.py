@@ -2,7 +2,8 @@
 
 :func:`identify_elements` runs :func:`errormap.uncertainty.smooth_identify` (the one identification of every
 machine tool, on the grinder file's chain) and writes the grinder's element set, its covariance
-(``E.cov.npz``) and the identification report (JSON).
+(``E.cov.npz``, the chain's, :func:`errormap.chain_covariance.save_chain_covariance`) and the identification
+report (JSON).
 """
 from __future__ import annotations
 
@@ -36,7 +37,8 @@ def identify_elements(machine, sweep_files, out, report=None, noise_um=None, n_b
                       smooth: bool = True, gauge: str = "station-mean", sweeps=None) -> Identification:
     """Identify from ``sweep_files`` and write ``out`` (element set), its covariance and ``report``
     (default ``OUT.report.json``). ``sweeps``: the files already read (else read here)."""
-    from errormap.uncertainty import covariance_path, smooth_identify
+    from errormap.chain_covariance import covariance_path, save_chain_covariance
+    from errormap.uncertainty import smooth_identify
     sweeps = read_sweeps(sweep_files, machine) if sweeps is None else sweeps
     sm = smooth_identify(sweeps, machine, noise_um=noise_um, n_boot=n_boot, seed=seed, smooth=smooth, gauge=gauge)
     res = sm.raw
@@ -48,7 +50,7 @@ def identify_elements(machine, sweep_files, out, report=None, noise_um=None, n_b
     info.update({"sweeps": [str(s) for s in sweep_files], "machine_file": machine.path,
                  "machine_sha256": machine.sha256, "elements_file": str(out),
                  "uncertainty": sm.report_dict(), "covariance_file": str(cov_path)})
-    sm.covariance_.save(cov_path)
+    save_chain_covariance(sm.result, cov_path)
     write_json(report, info)
     el_path = res.elements_.save(out)
     return Identification(sm, el_path, cov_path, report)

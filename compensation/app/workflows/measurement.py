@@ -182,10 +182,6 @@ def load_chain_model(path, machine, prior: bool = False):
     return el, read_chain_covariance(cp, el, prior), cp
 
 
-BAND_BATCH = 4096
-"""Points per block of the band: the parameter Jacobian is (n, 3, N) with N up to ~10^3 parameters (32 MB a block)."""
-
-
 def check_chain_covariance(machine, elements, cov, cov_path="<covariance>") -> None:
     """Refuse (InputError naming ``cov_path`` and its key) a covariance ``(slot names, stations, Σ)`` that is not
     one of ``elements``' parameters: shape, a slot the machine lacks, a station beyond the set's, a negative or
@@ -207,19 +203,12 @@ def check_chain_covariance(machine, elements, cov, cov_path="<covariance>") -> N
 
 
 def chain_band_sd(machine, elements, cov, axes, cov_path="<covariance>") -> np.ndarray:
-    """Standard deviation (n, 3) μm of the element set's tool-point error at ``axes`` (n, k) from the
-    identification's covariance ``cov`` = ``(slot names, stations, Σ)`` (``E.cov.npz``): the diagonal of
-    ``J Σ Jᵀ`` per point, ``J`` (3, N) the parameter Jacobian (:func:`errormap.diagnosis.chain_loop.parameter_matrix`,
-    linearised at ``elements``); the covariance checked first (:func:`check_chain_covariance`)."""
-    from errormap.diagnosis.chain_loop import parameter_matrix
+    """Standard deviation (n, 3) μm of the element set's tool-point error at ``axes``
+    (:func:`errormap.chain_covariance.band_sd`), the covariance checked first
+    (:func:`check_chain_covariance`)."""
+    from errormap.chain_covariance import band_sd
     check_chain_covariance(machine, elements, cov, cov_path)
-    slots, stations, C = cov
-    axes = np.atleast_2d(np.asarray(axes, float))
-    out = np.empty((axes.shape[0], 3))
-    for i in range(0, axes.shape[0], BAND_BATCH):
-        M = parameter_matrix(machine, elements, axes[i:i + BAND_BATCH], slots, stations)   # (b, 3, N) μm / unit
-        out[i:i + BAND_BATCH] = np.sqrt(np.maximum(np.einsum("bij,jk,bik->bi", M, C, M, optimize=True), 0.0))
-    return out
+    return band_sd(machine, elements, cov, axes)
 
 
 def chain_learned_stage(machine, checks, elements, terms, summary, seed: int = 0, families=None, refit=None,
