@@ -208,7 +208,7 @@ def _run_chain(args, fp, settings, max_iter, max_time, hidden) -> int:
     print(f"stopped after {res.history.iterations} iterations, {res.seconds:.1f} s "
           f"({m['train_cpu_seconds']:.1f} CPU s): {res.history.stop_reason}")
     _print_fit(args, res, "the chain's element set", " (kept alone: the network did not improve it)"
-               if m["physics_alone_kept"] else "")
+               if m.get("physics_alone_kept") else "")
     print(f"{'baseline (OLS)':<16}{m['baseline_ols_val_max_um']:>10.4f}{m['baseline_ols_val_rms_um']:>10.4f}"
           "   (affine least squares on the axes, same validation points)")
     print(f"wrote model: {out / 'model'} (inputs {', '.join(machine.axis_columns)}; machine {machine.name})")
