@@ -13,6 +13,8 @@ docs/reference/python-api.md) load lazily on first use, so ``import compensation
   effect terms, learned residual, network, provenance).
 """
 
+from errormap import lazy_exports
+
 _LAZY = {
     "compensate_points": "compensation.compensate",
     "compensate_program": "compensation.compensate",
@@ -27,13 +29,4 @@ _LAZY = {
 
 __all__ = sorted(_LAZY)
 
-
-def __getattr__(name):
-    if name in _LAZY:
-        import importlib
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'compensation' has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_LAZY))
+__getattr__, __dir__ = lazy_exports(__name__, _LAZY)

@@ -6,8 +6,8 @@ the nominal tool points ``forward(axes)``), CSV WCS targets ``px_mm, py_mm, pz_m
 and the input's provenance are kept), and G-code: any file whose first line (after blank and ``#`` lines) is
 not a CSV header (:func:`is_csv`), read by :mod:`compensation.gcode` with an explicit allow-list;
 :func:`plan_gcode` places the vertices of each compensated move (arcs linearised, long moves split), one
-:class:`ToolPathFile` row per vertex. :func:`write_compensated` writes the compensated program in the
-input's own format, atomically (:func:`errormap.io.atomic_write`); G-code gets new axis numbers on each
+:class:`ToolPathFile` row per vertex. ``compensate`` writes the compensated program in the input's own
+format (:func:`compensation.app.workflows.compensate.write_outputs`); G-code gets new axis numbers on each
 compensated line in the line's own units and distance mode (:func:`compensation.gcode.render_program`)."""
 from __future__ import annotations
 
@@ -628,69 +628,11 @@ def align_turns(a_deg, a_ref_deg) -> np.ndarray:
     return a - 360.0 * np.round((a - ref) / 360.0)
 
 
-def render_compensated(toolpath: ToolPathFile, axes, commands_mm, comments=()) -> str:
-    """The compensated program's text (see the module docstring for what changes).
-
-    ``axes`` shape (n, 3): compensated axis commands; ``commands_mm`` shape (n, 3):
-    compensated WCS commands ``p_r``. ``comments`` become header ``(...)`` comment lines in G-code
-    output (after a leading ``%`` line); a CSV output is plain, its comments go to its sidecar
-    (:func:`compensated_sidecar`).
-    """
-    axes = np.asarray(axes, dtype=float)
-    commands_mm = np.asarray(commands_mm, dtype=float)
-    n = len(toolpath)
-    for name, arr in (("axes", axes), ("commands_mm", commands_mm)):
-        if arr.shape != (n, 3):
-            raise ValueError(f"Expected {name} of shape ({n}, 3), got {arr.shape}")
-    if toolpath.kind == "gcode":
-        return render_gcode(toolpath.source, axes, header=comments)[0]
-    if toolpath.kind == "csv-axes":
-        dec = (DECIMALS_MM, DECIMALS_MM, DECIMALS_DEG)
-        return _render_csv(toolpath.source, {c: (axes[:, j], dec[j]) for j, c in enumerate(AXIS_COLUMNS)})
-    return _render_csv(toolpath.source, {c: (commands_mm[:, j], DECIMALS_MM) for j, c in enumerate(TARGET_COLUMNS)})
-
-
 def compensated_sidecar(table, out_path, comments=()) -> str:
     """The provenance sidecar's text (:func:`errormap.io.sidecar_json`) of the compensated CSV ``out_path``
     rendered from the input CSV ``table``: the input's provenance lines, then ``comments``."""
     from errormap.io import sidecar_json
     return sidecar_json(out_path, table.names, len(table), [*table.comments, *comments])
-
-
-def write_compensated(toolpath: ToolPathFile, out_path, axes, commands_mm, comments=()) -> Path:
-    """Write the compensated program to ``out_path`` atomically; refuse to overwrite the input."""
-    text = render_compensated(toolpath, axes, commands_mm, comments)
-    return write_outputs([(toolpath, out_path, text, comments)])[0]
-
-
-def write_outputs(items) -> list:
-    """Write several rendered programs as one set: ``items`` is a list of ``(toolpath, out_path, text)`` or
-    ``(toolpath, out_path, text, comments)``; a CSV program's sidecar (:func:`compensated_sidecar`, with
-    ``comments``) is written with it. Every file is first written in full to a temporary file
-    beside its target; only when all are on disk are they renamed into place, one after the
-    other. An error or interrupt before that leaves none of them (temporary files removed)."""
-    import contextlib
-
-    from errormap.io import sidecar_path
-    for tp, out, *_ in items:
-        out = Path(out)
-        if out.exists() and out.resolve() == tp.path.resolve():
-            raise InputError(f"{out}: refusing to overwrite the input file")
-    with contextlib.ExitStack() as stack:
-        for tp, out, text, *comments in items:
-            fh = stack.enter_context(atomic_write(out, "wb"))
-            fh.write(text.encode("latin-1" if tp.kind == "gcode" else "utf-8"))
-            if tp.kind != "gcode":
-                side = stack.enter_context(atomic_write(sidecar_path(out), "w", encoding="utf-8"))
-                side.write(compensated_sidecar(tp.source, out, comments[0] if comments else ()))
-    return [Path(item[1]) for item in items]
-
-
-def write_targets_csv(path, targets_mm, comments=()) -> Path:
-    """Write WCS targets as a ``px_mm, py_mm, pz_mm`` CSV, atomically."""
-    from errormap.io import write_csv
-    t = np.asarray(targets_mm, dtype=float)
-    return write_csv(path, dict(zip(TARGET_COLUMNS, t.T)), header_comments=comments, float_fmt="%.9f")
 
 
 def write_axes_gcode(path, axes, feed_mm_min: float = 200.0, header=()) -> Path:

@@ -34,12 +34,19 @@ _LAZY = {
 __all__ = sorted(_LAZY)
 
 
-def __getattr__(name):
-    if name in _LAZY:
-        import importlib
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'errormap' has no attribute {name!r}")
+def lazy_exports(package: str, names: dict):
+    """``(__getattr__, __dir__)`` of a package whose public ``names`` ({name: module}) load on first use."""
+    import importlib
+    import sys
+
+    def get(name):
+        if name in names:
+            return getattr(importlib.import_module(names[name]), name)
+        raise AttributeError(f"module {package!r} has no attribute {name!r}")
+
+    def listing():
+        return sorted(set(vars(sys.modules[package])) | set(names))
+    return get, listing
 
 
-def __dir__():
-    return sorted(set(globals()) | set(_LAZY))
+__getattr__, __dir__ = lazy_exports(__name__, _LAZY)

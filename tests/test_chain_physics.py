@@ -16,10 +16,10 @@ from errormap.io import InputError
 from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import ChainField
-from errormap.chain_truth import make_mt_truth
-from training.chain_model import ChainMLPField, ChainPhysicsMLPField, fit_chain_field, random_chain_axes
+from errormap.chain_truth import make_mt_truth, random_axes
+from training.chain_model import ChainMLPField, ChainPhysicsMLPField
 from training.physics import fit_physics_elements
-from training.trainers import TrainSettings
+from training.trainers import TrainSettings, fit_field
 
 GRID = 7              # 343 feature points of mill-xyz: a small grid keeps the fits fast
 TRUTH_SEED = 1        # `volcomp simulate --machine mill-xyz --seed 1`'s truth (default family, ~150 μm field)
@@ -52,14 +52,14 @@ def mill():
     truth = ChainField(m, make_mt_truth(m, TRUTH_SEED).elements)
     axes = grid_axes(m, GRID)
     fp = FeaturePoints(axes, truth.predict(axes), {"machine": m.name}, axis_columns=m.axis_columns)
-    val = random_chain_axes(m, 2000, 11)
+    val = random_axes(m, 2000, np.random.default_rng(11))
     return m, fp, (val, truth.predict(val))
 
 
 def _fit(mill, physics, out_dir=None):
     m, fp, val = mill
-    return fit_chain_field(fp, m, TrainSettings(hidden=SMALL_NET, max_iter=ITERS, seed=0, physics=physics),
-                           validation=val, out_dir=out_dir, quiet=True)
+    return fit_field(fp, TrainSettings(hidden=SMALL_NET, max_iter=ITERS, seed=0, physics=physics), machine=m,
+                     validation=val, out_dir=out_dir, quiet=True)
 
 
 def test_physics_first_beats_the_plain_network_off_the_grid(mill):
@@ -106,7 +106,7 @@ def test_jacobian_is_the_sum_of_closed_forms_on_five_axes():
     f = ChainPhysicsMLPField.for_machine(mt, a_encoding="periodic", hidden=(6, 5), activation="tanh")
     assert f.periodic == (False, False, False, True, True) and f.n_inputs == 7
     rng = np.random.default_rng(3)
-    ax = random_chain_axes(mt, 200, 4)
+    ax = random_axes(mt, 200, np.random.default_rng(4))
     f.set_physics(mt, ChainElementSet.random(mt, 6, n_stations=5))
     f.fit_scalers(ax, rng.normal(0.0, 20.0, (200, 3)))
     f.theta_ = torch.randn(f.n_params, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
@@ -150,7 +150,7 @@ def test_cli_trains_physics_first_on_five_axes_and_predicts_from_the_store(tmp_p
     assert doc["params"]["physics"] == "first-order" and doc["params"]["a_encoding"] == "periodic"
     assert doc["beats_baseline"] and doc["val_rms_um"] < doc["baseline_ols_val_rms_um"]
     pts = tmp_path / "pts.csv"
-    a = random_chain_axes(mt, 5, 9)
+    a = random_axes(mt, 5, np.random.default_rng(9))
     pts.write_text(",".join(mt.axis_columns) + "\n" + "".join(",".join(f"{v:.17g}" for v in r) + "\n" for r in a))
     for i, model in enumerate((str(tmp_path / "run"), f"runs:/{doc['run_id']}/model")):
         assert main(["predict", "--machine", "five-axis-ac", "--model", model, str(pts), "--tracking-uri", uri,

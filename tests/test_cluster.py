@@ -23,7 +23,8 @@ ray = pytest.importorskip("ray")
 from compensation.app.cli import main  # noqa: E402
 from compensation.app.workflows.cluster import FAULT_ENV, RayExecutor  # noqa: E402
 from compensation.batch import LocalExecutor, solve_batch  # noqa: E402
-from compensation.pathio import write_axes_gcode, write_targets_csv  # noqa: E402
+from compensation.pathio import write_axes_gcode  # noqa: E402
+from path_files import write_targets_csv  # noqa: E402
 from compensation.toolpath import flute_path  # noqa: E402
 from errormap.chain_field import ChainField  # noqa: E402
 from errormap.io import write_csv  # noqa: E402

@@ -6,8 +6,9 @@ import pytest
 
 from compensation.app.cli import main
 from compensation.nc_state import MACHINE, read_work_offsets
-from compensation.pathio import read_path, write_axes_gcode, write_targets_csv
+from compensation.pathio import read_path, write_axes_gcode
 from compensation.toolpath import flute_path
+from path_files import write_targets_csv
 from errormap.chain_field import ChainField
 from errormap.chain_truth import make_mt_truth
 from errormap.io import read_table
@@ -230,16 +231,19 @@ def test_kept_rapid_outside_the_strokes_is_refused(setup, capsys):
 
 
 def test_output_set_is_all_or_nothing(setup, grinder, tmp_path):
-    """An error while the set is being written leaves no output and no temporary file."""
-    import compensation.pathio as pathio
+    """An error while compensate's set is being written leaves no output and no temporary file."""
+    from compensation.app.workflows.compensate import write_outputs
+    from path_files import outcome, read_as_compensate
     d, el, nc, csv, _ = setup
-    a, b = pathio.read_path(nc, grinder, work_offsets=MCS), pathio.read_path(csv, grinder, work_offsets=MCS)
+    a, b = (read_as_compensate(p, grinder, work_offsets=MCS) for p in (nc, csv))
     out = tmp_path / "set"
-    items = [(a, out / "flute.nc", "G1 X1 Z1 A1\n"), (b, out / "flute.csv", 12345)]  # the second cannot be encoded
+    items = [outcome(a, out / "flute.nc", grinder, a.axes),
+             outcome(b, out / "flute.csv", grinder, b.axes, b.targets_mm)]
+    items[1].text = 12345  # the second cannot be encoded
     with pytest.raises(AttributeError):
-        pathio.write_outputs(items)
+        write_outputs(items)
     assert list(out.iterdir()) == []  # the first file, complete on disk, was not renamed into place
-    pathio.write_outputs(items[:1])
+    write_outputs(items[:1])
     assert sorted(p.name for p in out.iterdir()) == ["flute.nc"]
 
 

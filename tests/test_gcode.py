@@ -8,9 +8,12 @@ from hypothesis import strategies as st
 
 from compensation.gcode import MM_PER_INCH, AxisWords, move_points, parse_program
 from compensation.nc_state import MACHINE, read_work_offsets
-from compensation.pathio import read_path, render_gcode, write_compensated
+from compensation.app.validate import UsageError
+from compensation.app.workflows.compensate import plan_outputs
+from compensation.pathio import read_path, render_gcode
 from errormap.io import InputError
 from errormap.machine import load_machine
+from path_files import read_as_compensate, write_compensated
 
 MCS = read_work_offsets(MACHINE)
 """The G-code programs here are written in machine coordinates (the grinder's axes): read with
@@ -71,9 +74,9 @@ def test_block_delete_is_an_explicit_choice(tmp_path, machine):
 
 def test_round_trip_keeps_every_other_line_byte_for_byte(tmp_path, machine):
     src = _write(tmp_path, PROGRAM)
-    tp = read_path(src, machine, block_delete="off", work_offsets=MCS)
+    tp = read_as_compensate(src, machine, block_delete="off", work_offsets=MCS)  # as compensate reads it
     new_axes = tp.axes + np.array([0.0123, -0.0045, 0.0678])
-    out = write_compensated(tp, tmp_path / "out" / "prog.nc", new_axes, tp.targets_mm)
+    out = write_compensated(tp, tmp_path / "out" / "prog.nc", machine, new_axes)
     assert src.read_bytes() == PROGRAM  # input untouched
     a, b = PROGRAM.split(b"\n"), out.read_bytes().split(b"\n")
     assert len(a) == len(b)
@@ -84,15 +87,14 @@ def test_round_trip_keeps_every_other_line_byte_for_byte(tmp_path, machine):
     assert b[4] == b"N30 G1 Z0.295500 X90.012300 A0.067800 F100"
     assert b[7] == b"N40 X90.512300 A10.567800 Z0.295500 (cut)"
     assert b[9].startswith(b"/N55 G1 X")
-    back = read_path(out, machine, block_delete="off", work_offsets=MCS)
+    back = read_as_compensate(out, machine, block_delete="off", work_offsets=MCS)
     assert np.abs(back.axes - new_axes).max() < TOL_MM
 
 
 def test_refuses_to_overwrite_the_input(tmp_path, machine):
     src = _write(tmp_path, PROGRAM)
-    tp = read_path(src, machine, block_delete="on", work_offsets=MCS)
-    with pytest.raises(InputError, match="overwrite"):
-        write_compensated(tp, src, tp.axes, tp.targets_mm)
+    with pytest.raises(UsageError, match="would overwrite the input"):   # compensate's output plan
+        plan_outputs([src], src.parent)
     assert src.read_bytes() == PROGRAM
 
 

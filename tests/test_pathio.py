@@ -5,10 +5,11 @@ import numpy as np
 import pytest
 
 from compensation.nc_state import MACHINE, read_work_offsets
-from compensation.pathio import align_turns, read_path, write_axes_gcode, write_compensated, write_targets_csv
+from compensation.pathio import align_turns, read_path, write_axes_gcode
 from compensation.toolpath import flute_path
 from errormap.io import InputError, sidecar_path
 from errormap.chain_kernel import forward
+from path_files import read_as_compensate, write_compensated, write_targets_csv
 
 MCS = read_work_offsets(MACHINE)
 """The G-code programs here are written in machine coordinates (the grinder's axes): read with
@@ -23,13 +24,15 @@ def test_axes_csv_targets_are_forward(tmp_path, grinder):
     tp = read_path(p, grinder, work_offsets=MCS)
     assert tp.kind == "csv-axes" and tp.lines.tolist() == [3, 4]
     assert np.allclose(tp.targets_mm, forward(grinder, tp.axes))
-    out = write_compensated(tp, tmp_path / "out" / "axes.csv", tp.axes + 0.001, tp.targets_mm, comments=["method: x"])
+    tpw = read_as_compensate(p, grinder, work_offsets=MCS)   # written as compensate writes it
+    out = write_compensated(tpw, tmp_path / "out" / "axes.csv", grinder, tp.axes + 0.001,
+                            comments=["method: x"])
     text = out.read_text().splitlines()
     # a plain CSV (header first); the input's '#' provenance and the added lines go to the sidecar
     assert text[0] == "x_mm,z_mm,a_deg,feed" and text[1].endswith(",100")
     side = json.loads(sidecar_path(out).read_text())
     assert side["lines"] == ["job: test", "method: x"] and side["columns"] == text[0].split(",")
-    back = read_path(out, grinder, work_offsets=MCS)
+    back = read_as_compensate(out, grinder, work_offsets=MCS)
     assert np.abs(back.axes - (tp.axes + 0.001)).max() < TOL_MM
     assert back.source.meta() == {"job": "test", "method": "x"}
 
@@ -40,8 +43,10 @@ def test_targets_csv_round_trip_and_unwrap(tmp_path, grinder):
     tp = read_path(p, grinder, work_offsets=MCS)
     assert tp.kind == "csv-targets"
     assert np.abs(tp.axes[:, 2] - f.theta_deg).max() < 1e-6  # A unwrapped along the path
-    out = write_compensated(tp, tmp_path / "o" / "flute.csv", tp.axes, tp.targets_mm + 1e-4)
-    assert np.abs(read_path(out, grinder, work_offsets=MCS).targets_mm - (f.targets_mm + 1e-4)).max() < TOL_MM
+    tpw = read_as_compensate(p, grinder, work_offsets=MCS)
+    out = write_compensated(tpw, tmp_path / "o" / "flute.csv", grinder, tpw.axes, tpw.targets_mm + 1e-4)
+    back = read_as_compensate(out, grinder, work_offsets=MCS).targets_mm
+    assert np.abs(back - (f.targets_mm + 1e-4)).max() < TOL_MM
 
 
 @pytest.mark.parametrize("text, match", [

@@ -86,7 +86,7 @@ def test_the_sidecar_of_another_name(tmp_path):
 
 @pytest.mark.slow  # a grinder's whole file path: simulate, featurepoints, predict, sweeps, compensate, report, export
 def test_every_csv_of_the_grinder_commands_opens_in_pandas(tmp_path):
-    from compensation.pathio import write_targets_csv
+    from path_files import write_targets_csv
     from compensation.toolpath import flute_path
     el = tmp_path / "sim" / "truth_elements.json"
     _ok("simulate", "--seed", "0", "--out", tmp_path / "sim", "--checks", "20")

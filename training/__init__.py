@@ -14,6 +14,8 @@ May import ``errormap``; never ``compensation``. The public names below load laz
 * :func:`training.tracking.load_field` — a trained field by run id / ``runs:/`` / ``models:/``.
 """
 
+from errormap import lazy_exports
+
 # Training stops on iterations by default (the same settings give the same model on any machine):
 DEFAULT_MAX_ITER = 1000  # LM on the paper's network: ~0.2 s an iteration on 2 cores (~3-4 min)
 QUICK_MAX_ITER = 300     # the demo-sized setting
@@ -47,9 +49,4 @@ _LAZY = {
 
 __all__ = sorted(_LAZY)
 
-
-def __getattr__(name):
-    if name in _LAZY:
-        import importlib
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'training' has no attribute {name!r}")
+__getattr__, __dir__ = lazy_exports(__name__, _LAZY)

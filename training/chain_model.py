@@ -5,13 +5,12 @@ file set) with one input per axis column of the chain, each scaled from its trai
 full-turn rotary axis as ``(cos q, sin q)`` (exactly periodic). Output: the tool point's error (μm) in the
 workpiece frame, with the input Jacobian (n, 3, k) by forward-mode tangents. Its files record the format
 ``volcomp-chain-mlpfield/1``, the axis columns and the machine (:func:`check_machine` refuses another);
-:func:`fit_chain_field` trains it. docs/reference/learned-stage.md ("The network over a chain")."""
+:func:`training.trainers.fit_field` trains it (given the machine). docs/reference/learned-stage.md
+("The network over a chain")."""
 from __future__ import annotations
 
 import json
 import math
-import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -250,34 +249,7 @@ def check_machine(model: ChainMLPField, machine, where) -> ChainMLPField:
     return model
 
 
-# -- training ------------------------------------------------------------------------------
-@dataclass
-class ChainFitResult:
-    """What :func:`fit_chain_field` returns: the trained field, metrics (μm), params, seconds."""
-
-    field: ChainMLPField
-    metrics: dict
-    seconds: float
-    history: object = None
-    params: dict = field(default_factory=dict)
-
-
-def random_chain_axes(machine, n: int, seed) -> np.ndarray:
-    """``n`` points uniform over the machine's strokes, (n, k) (off the grid with probability one)."""
-    rng = np.random.default_rng(seed)
-    return machine.stroke_lo + (machine.stroke_hi - machine.stroke_lo) * rng.random((int(n), len(machine.axes)))
-
-
-def chain_reference(machine, meta: dict):
-    """The element set's field named in the feature points' provenance (``elements_file``), or None."""
-    el = meta.get("elements_file")
-    if not el or not Path(el).is_file():
-        return None
-    from errormap.chain_elements import ChainElementSet
-    from errormap.chain_field import ChainField
-    return ChainField(machine, ChainElementSet.load(el, machine))
-
-
+# -- the plain baseline beside the trained network (training.trainers.fit_field) ---------
 def ols_baseline(model: ChainMLPField, train_axes, train_errors_um, eval_axes) -> np.ndarray:
     """The plain baseline an engineer tries first: ordinary least squares of each error component on
     the axis columns (affine; a full-turn rotary axis as cos/sin, as the network takes it), fitted on
@@ -293,107 +265,3 @@ def ols_baseline(model: ChainMLPField, train_axes, train_errors_um, eval_axes) -
         return np.column_stack(cols)
     coef = np.linalg.lstsq(design(np.asarray(train_axes, float)), np.asarray(train_errors_um, float), rcond=None)[0]
     return design(np.asarray(eval_axes, float)) @ coef
-
-
-def _chain_model_and_target(machine, axes, errors_um, s):
-    """The untrained network (scalers fitted) and what it learns: the feature points' errors
-    (``physics="none"``), or what the chain's element set fitted to the same points leaves
-    (``"first-order"``: :class:`ChainPhysicsMLPField`, :func:`training.physics.fit_physics_elements`)."""
-    settings = dict(a_encoding=s.a_encoding, hidden=s.hidden, activation=s.activation)
-    if s.physics == "none":
-        model, target = ChainMLPField.for_machine(machine, **settings), errors_um
-    else:
-        from .physics import fit_physics_elements
-        model = ChainPhysicsMLPField.for_machine(machine, **settings)
-        model.set_physics(machine, fit_physics_elements(machine, axes, errors_um, s.physics_stations))
-        target = errors_um - model.physics_predict(axes)
-    return model.fit_scalers(axes, target), target
-
-
-def fit_chain_field(featurepoints, machine, settings=None, *, validation=None, out_dir=None,
-                    quiet: bool = False) -> ChainFitResult:
-    """Train a :class:`ChainMLPField` on a chain's feature points (axes (n, k), errors (n, 3) μm).
-
-    ``settings``: :class:`training.trainers.TrainSettings`: ``a_encoding`` says how a rotary axis
-    short of a full turn enters (a full-turn one is always cos/sin, :meth:`ChainMLPField.for_machine`);
-    ``physics="first-order"``: the network learns what the chain's own element set, fitted to the
-    same feature points (``physics_stations`` per axis), leaves (:class:`ChainPhysicsMLPField`;
-    ``physics_*`` metrics: that part alone). ``validation``: ``(axes (m, k), errors (m, 3) μm)``; when None,
-    ``n_validation`` random points of the element set the feature points name (SeedSequence(seed)
-    child 0); the LM's iterate selection (``select_best``) uses ``n_select`` more from child 1.
-    ``out_dir``: write ``model/`` and ``metrics.json`` there as a set. Not tracked in MLflow.
-    The metrics hold the plain baseline beside the network (:func:`ols_baseline` on the same
-    validation points, ``baseline_ols_val_*``) and ``beats_baseline``; a network whose validation RMS is not below the baseline's is refused
-    (InputError, nothing written): it is never returned.
-    """
-    from errormap.io import atomic_dir, write_json
-    from errormap.seeds import spawn_seeds
-
-    from .trainers import (SELECTION_STREAM, VALIDATION_STREAM, TrainSettings, _BestOnSelection, _train,
-                           check_run_folder, data_hash, fit_metrics, keep_physics_alone, physics_metrics)
-    s = settings or TrainSettings()
-    if out_dir is not None:
-        check_run_folder(out_dir)
-    axes = np.asarray(featurepoints.axes, float)
-    errors = np.asarray(featurepoints.errors_um, float)
-    if tuple(featurepoints.axis_columns) != tuple(machine.axis_columns):
-        raise InputError(f"{featurepoints.source or 'feature points'}: axis columns "
-                         f"{', '.join(featurepoints.axis_columns)}; the machine {machine.name!r} has "
-                         f"{', '.join(machine.axis_columns)}")
-    meta = dict(getattr(featurepoints, "meta", {}) or {})
-    ref = chain_reference(machine, meta)
-    streams = spawn_seeds(s.seed, 2)
-    if validation is not None:
-        val_axes, val_errors = (np.asarray(v, float) for v in validation)
-        val_source = "given"
-    elif ref is not None:
-        val_axes = random_chain_axes(machine, s.n_validation, streams[VALIDATION_STREAM])
-        val_errors = ref.predict(val_axes)
-        val_source = (f"element set {meta.get('elements_file')} ({s.n_validation} random points, "
-                      f"SeedSequence({s.seed}) child {VALIDATION_STREAM})")
-    else:
-        from .trainers import no_validation_message
-        raise InputError(no_validation_message(getattr(featurepoints, "source", ""), meta, machine.axis_columns))
-    t0 = time.process_time()
-    model, target = _chain_model_and_target(machine, axes, errors, s)
-    selector = None
-    if s.select_best and s.trainer == "lm" and ref is not None:
-        sel_axes = random_chain_axes(machine, s.n_select, streams[SELECTION_STREAM])
-        sel_target = ref.predict(sel_axes) - (model.physics_predict(sel_axes) if s.physics != "none" else 0.0)
-        selector = _BestOnSelection(model, sel_axes, sel_target, s.select_every, s.select_patience)
-    hist = _train(model, axes, target, s, selector, quiet)
-    physics_kept_alone = s.physics != "none" and keep_physics_alone(model, selector, sel_target if selector else None)
-    cpu = time.process_time() - t0
-    metrics = fit_metrics("train", model.predict(axes), errors)
-    metrics.update(fit_metrics("val", model.predict(val_axes), val_errors))
-    if s.physics != "none":
-        metrics.update(physics_metrics(model, axes, errors, val_axes, val_errors))
-        metrics["physics_alone_kept"] = physics_kept_alone
-    base = fit_metrics("val", ols_baseline(model, axes, errors, val_axes), val_errors)
-    metrics.update({"baseline_ols_val_max_um": base["val_max_um"], "baseline_ols_val_rms_um": base["val_rms_um"]})
-    metrics["beats_baseline"] = bool(metrics["val_rms_um"] < base["val_rms_um"])
-    metrics.update({"final_mse_scaled": hist.loss[-1] if hist.loss else float("nan"),
-                    "iterations": hist.iterations, "train_seconds": hist.seconds, "train_cpu_seconds": cpu})
-    if selector is not None:
-        metrics.update({"selected_iteration": selector.best_iteration, "selection_max_um": selector.best_max_um})
-    params = {"hidden": ",".join(map(str, model.hidden)), "activation": s.activation, "inputs": ",".join(model.axis_columns),
-              "periodic": ",".join(c for c, p in zip(model.axis_columns, model.periodic) if p),
-              "n_params": model.n_params, "trainer": s.trainer, "mse_goal": s.mse_goal, "max_iter": s.max_iter,
-              "seed": s.seed, "n_train": len(axes), "n_val": len(val_axes), "validation_source": val_source,
-              "data_sha256": data_hash(axes, errors), "machine": machine.name, "machine_sha256": machine.sha256 or "",
-              "elements_sha256": meta.get("elements_sha256", ""), "stop_reason": hist.stop_reason,
-              "output_scale_um": model.out_scale_, "init": s.init, "select_best": selector is not None,
-              "a_encoding": s.a_encoding, "physics": s.physics}
-    if s.physics != "none":
-        params["physics_stations"] = model.physics_stations
-    if not metrics["beats_baseline"]:
-        raise InputError(f"{featurepoints.source or 'feature points'}: the trained network's validation RMS "
-                         f"{metrics['val_rms_um']:.4g} μm is not below the plain OLS baseline's "
-                         f"{base['val_rms_um']:.4g} μm ({val_source}); model not written (more feature points, "
-                         "iterations or another network)")
-    if out_dir is not None:
-        with atomic_dir(out_dir) as d:
-            model.save(d / "model")
-            write_json(d / "metrics.json", {**metrics, "stop_reason": hist.stop_reason, "trainer": s.trainer,
-                                            "seconds": hist.seconds, "params": params})
-    return ChainFitResult(model, metrics, hist.seconds, hist, params)

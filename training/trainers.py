@@ -199,6 +199,16 @@ def reference_from_meta(meta: dict):
     return machine, ChainField(machine, ChainElementSet.load(el, machine))
 
 
+def chain_reference(machine, meta: dict):
+    """(machine, its element set's field) named in a chain's feature points' ``elements_file``, or None."""
+    from errormap.chain_elements import ChainElementSet
+    from errormap.chain_field import ChainField
+    el = meta.get("elements_file")
+    if not el or not Path(el).is_file():
+        return None
+    return machine, ChainField(machine, ChainElementSet.load(el, machine))
+
+
 def zero_network(model) -> None:
     """Make the network part of ``model`` output exactly zero μm (last layer and output mean zeroed):
     a :class:`PhysicsMLPField` is then its physical part alone."""
@@ -420,66 +430,96 @@ def _settings(settings, tracking, overrides) -> tuple[TrainSettings, TrackSettin
     return s, t
 
 
-def fit_field(featurepoints, settings: TrainSettings | None = None, *, validation=None, selection=None,
-              tracking: TrackSettings | None = None, out_dir=None, quiet: bool = False, **overrides) -> FitResult:
-    """Train an :class:`MLPField` on feature points and record the fit as an MLflow run.
+def fit_field(featurepoints, settings: TrainSettings | None = None, *, machine=None, validation=None,
+              selection=None, tracking: TrackSettings | None = None, out_dir=None, quiet: bool = False,
+              **overrides) -> FitResult:
+    """Train the network on feature points: an :class:`MLPField` on the grinder's (x, z, a) ones, recorded as
+    an MLflow run; with ``machine`` (a machine-tool chain) a :class:`~training.chain_model.ChainMLPField` over
+    its axis columns, held against the plain OLS baseline (:func:`_chain_run`).
 
-    ``featurepoints``: :class:`errormap.featurepoints.FeaturePoints` (axes, errors μm, meta). ``settings``:
-    :class:`TrainSettings`; ``tracking``: :class:`TrackSettings`. Keyword ``overrides`` name fields of
-    either (``fit_field(fp, max_iter=60, track=False)``) and go through the same validation. ``validation``:
-    ``(axes (m, 3), errors (m, 3) μm)``; when None, ``n_validation`` random off-grid points of the HTM model
-    named in the feature points' meta (``elements_file``, ``machine_file``), InputError if there is none.
-    ``out_dir``: also save the model, plots and ``metrics.json`` there (written as a set). ``selection``
-    (for ``select_best``): ``(axes (k, 3), errors (k, 3) μm)``, never the validation data; by default random
-    off-grid points of the same model from another stream of the seed. Selection keeps the iterate best over
-    the volume, not on the grid (docs/reference/learned-stage.md); off without an HTM reference and with
-    ``select_best=False``."""
+    ``featurepoints``: :class:`errormap.featurepoints.FeaturePoints` (axes (n, k), errors (n, 3) μm, meta).
+    ``settings``: :class:`TrainSettings`; ``tracking``: :class:`TrackSettings` (the grinder's run; a chain's
+    is recorded by its caller). Keyword ``overrides`` name fields of either (``fit_field(fp, max_iter=60,
+    track=False)``) and go through the same validation. ``validation``: ``(axes (m, k), errors (m, 3) μm)``;
+    when None, ``n_validation`` random off-grid points of the element set named in the feature points' meta
+    (``elements_file``), InputError if there is none. ``out_dir``: also save the model and ``metrics.json``
+    there (written as a set). ``selection`` (for ``select_best``): ``(axes (s, k), errors (s, 3) μm)``, never
+    the validation data; by default random off-grid points of the same model from another stream of the seed.
+    Selection keeps the iterate best over the volume, not on the grid (docs/reference/learned-stage.md); off
+    without a reference and with ``select_best=False``."""
     s, t = _settings(settings, tracking, overrides)
     if out_dir is not None:
         check_run_folder(out_dir)
     axes, errors = np.asarray(featurepoints.axes, float), np.asarray(featurepoints.errors_um, float)
-    meta = dict(getattr(featurepoints, "meta", {}) or {})
-    ref = reference_from_meta(meta)
+    meta, source = dict(getattr(featurepoints, "meta", {}) or {}), getattr(featurepoints, "source", "")
+    if machine is not None and tuple(featurepoints.axis_columns) != tuple(machine.axis_columns):
+        raise InputError(f"{source or 'feature points'}: axis columns "
+                         f"{', '.join(featurepoints.axis_columns)}; the machine {machine.name!r} has "
+                         f"{', '.join(machine.axis_columns)}")
+    ref = reference_from_meta(meta) if machine is None else chain_reference(machine, meta)
     # the initial weights use the seed itself; validation and selection points its children
     streams = spawn_seeds(s.seed, 2)
     (val_axes, val_errors), val_source = _validation_data(s, validation, ref, meta, streams[VALIDATION_STREAM],
-                                                          getattr(featurepoints, "source", ""))
-    if s.physics == "none":
-        model = MLPField(s.hidden, s.activation, s.a_encoding)
-        target = errors
-    else:  # the network learns the feature points minus a physical part fitted to the same points
-        from .physics import fit_physics_elements
-        machine = ref[0] if ref is not None else machine_from_meta(meta)
-        model = PhysicsMLPField(s.hidden, s.activation, s.a_encoding)
-        model.set_physics(machine, fit_physics_elements(machine, axes, errors, s.physics_stations))
-        target = errors - model.physics_predict(axes)
-    model.fit_scalers(axes, target)
-    selector = None
+                                                          source, machine)
+    t0 = time.process_time()
+    model, target = _model_and_target(machine, ref, meta, axes, errors, s)
+    selector = sel_errors = None
     if s.select_best and s.trainer == "lm" and (selection is not None or ref is not None):
-        if selection is not None:
-            sel_axes, sel_errors = (np.asarray(v, float) for v in selection)
-        else:
-            sel_axes, sel_errors = validation_points(ref[0], ref[1], n=s.n_select, seed=streams[SELECTION_STREAM])
+        sel_axes, sel_errors = (tuple(np.asarray(v, float) for v in selection) if selection is not None
+                                else validation_points(*ref, n=s.n_select, seed=streams[SELECTION_STREAM]))
         if s.physics != "none":
             sel_errors = sel_errors - model.physics_predict(sel_axes)
         selector = _BestOnSelection(model, sel_axes, sel_errors, s.select_every, s.select_patience)
     hist = _train(model, axes, target, s, selector, quiet)
-    physics_kept_alone = s.physics != "none" and keep_physics_alone(model, selector, sel_errors if selector else None)
+    physics_kept_alone = s.physics != "none" and keep_physics_alone(model, selector, sel_errors)
+    cpu = time.process_time() - t0
     metrics = fit_metrics("train", model.predict(axes), errors)
     metrics.update(fit_metrics("val", model.predict(val_axes), val_errors))
     if s.physics != "none":
         metrics.update(physics_metrics(model, axes, errors, val_axes, val_errors))
+    if machine is not None:   # the plain baseline beside the network, on the same validation points
+        from .chain_model import ols_baseline
+        base = fit_metrics("val", ols_baseline(model, axes, errors, val_axes), val_errors)
+        metrics.update({"baseline_ols_val_max_um": base["val_max_um"],
+                        "baseline_ols_val_rms_um": base["val_rms_um"],
+                        "beats_baseline": bool(metrics["val_rms_um"] < base["val_rms_um"]),
+                        "train_cpu_seconds": cpu})
     metrics.update({"final_mse_scaled": hist.loss[-1] if hist.loss else float("nan"),
                     "iterations": hist.iterations, "train_seconds": hist.seconds})
     if selector is not None:
         metrics.update({"selected_iteration": selector.best_iteration, "selection_max_um": selector.best_max_um})
     if s.physics != "none":
         metrics["physics_alone_kept"] = physics_kept_alone
+    if machine is not None:
+        return _chain_run(model, metrics, hist, s, machine, meta, axes, errors, len(val_axes), val_source,
+                          source, out_dir)
     params = _fit_params(model, s, meta, hist, axes, errors, len(val_axes), val_source, selector is not None)
     run_id = None
     if t.track or out_dir is not None:
         run_id = _write_run(model, axes, errors, ref, metrics, params, hist, s, t, meta, out_dir)
     return FitResult(model, metrics, run_id, hist.seconds, hist, params)
+
+
+def _model_and_target(machine, ref, meta: dict, axes, errors_um, s: TrainSettings):
+    """The untrained network (scalers fitted) and what it learns: the feature points' errors
+    (``physics="none"``), or what the element set fitted to the same points leaves (``"first-order"``,
+    :mod:`training.physics`); the grinder's :class:`MLPField` (``machine`` None) or the chain's
+    :class:`~training.chain_model.ChainMLPField`."""
+    physics = s.physics != "none"
+    if machine is None:
+        model = (PhysicsMLPField if physics else MLPField)(s.hidden, s.activation, s.a_encoding)
+        machine = (ref[0] if ref is not None else machine_from_meta(meta)) if physics else None
+    else:
+        from .chain_model import ChainMLPField, ChainPhysicsMLPField
+        model = (ChainPhysicsMLPField if physics else ChainMLPField).for_machine(
+            machine, s.a_encoding, hidden=s.hidden, activation=s.activation)
+    target = errors_um
+    if physics:
+        from .physics import fit_physics_elements
+        model.set_physics(machine, fit_physics_elements(machine, axes, errors_um, s.physics_stations))
+        target = errors_um - model.physics_predict(axes)
+    model.fit_scalers(axes, target)
+    return model, target
 
 
 def no_validation_message(source, meta: dict, columns) -> str:
@@ -490,14 +530,15 @@ def no_validation_message(source, meta: dict, columns) -> str:
             f"with {', '.join(columns)}, dx_um, dy_um, dz_um)")
 
 
-def _validation_data(s: TrainSettings, validation, ref, meta: dict, seed, source=""):
+def _validation_data(s: TrainSettings, validation, ref, meta: dict, seed, source="", machine=None):
     """``((axes, errors), source)``: the given validation points, or random ones of the reference model."""
     if validation is not None:
         return tuple(np.asarray(v, float) for v in validation), "given"
     if ref is None:
-        raise InputError(no_validation_message(source, meta, ("x_mm", "z_mm", "a_deg")))
-    source = (f"HTM model {meta.get('elements_file')} ({s.n_validation} random points, "
-              f"SeedSequence({s.seed}) child {VALIDATION_STREAM})")
+        columns = ("x_mm", "z_mm", "a_deg") if machine is None else machine.axis_columns
+        raise InputError(no_validation_message(source, meta, columns))
+    source = (f"{'HTM model' if machine is None else 'element set'} {meta.get('elements_file')} "
+              f"({s.n_validation} random points, SeedSequence({s.seed}) child {VALIDATION_STREAM})")
     return validation_points(ref[0], ref[1], n=s.n_validation, seed=seed), source
 
 
@@ -580,3 +621,36 @@ def _write_run(model, axes, errors, ref, metrics, params, hist, s: TrainSettings
             if out_dir is not None:
                 write_json(d / "metrics.json", {**summary, "run_id": run_id})
     return run_id
+
+
+def _chain_run(model, metrics: dict, hist, s, machine, meta: dict, axes, errors, n_val: int,
+               val_source: str, source: str, out_dir):
+    """The end of :func:`training.trainers.fit_field` on a chain (a :class:`training.trainers.FitResult`):
+    a network whose validation RMS is not below the OLS baseline's is refused (InputError, nothing
+    written), never returned; else ``model/`` and ``metrics.json`` go to ``out_dir`` as a set (not tracked
+    in MLflow)."""
+    from errormap.io import atomic_dir, write_json
+    params = {"hidden": ",".join(map(str, model.hidden)), "activation": s.activation,
+              "inputs": ",".join(model.axis_columns),
+              "periodic": ",".join(c for c, p in zip(model.axis_columns, model.periodic) if p),
+              "n_params": model.n_params, "trainer": s.trainer, "mse_goal": s.mse_goal,
+              "max_iter": s.max_iter, "seed": s.seed, "n_train": len(axes), "n_val": n_val,
+              "validation_source": val_source, "data_sha256": data_hash(axes, errors),
+              "machine": machine.name, "machine_sha256": machine.sha256 or "",
+              "elements_sha256": meta.get("elements_sha256", ""),
+              "stop_reason": hist.stop_reason, "output_scale_um": model.out_scale_, "init": s.init,
+              "select_best": "selected_iteration" in metrics, "a_encoding": s.a_encoding,
+              "physics": s.physics}
+    if s.physics != "none":
+        params["physics_stations"] = model.physics_stations
+    if not metrics["beats_baseline"]:
+        raise InputError(f"{source or 'feature points'}: the trained network's validation RMS "
+                         f"{metrics['val_rms_um']:.4g} μm is not below the plain OLS baseline's "
+                         f"{metrics['baseline_ols_val_rms_um']:.4g} μm ({val_source}); model not written "
+                         "(more feature points, iterations or another network)")
+    if out_dir is not None:
+        with atomic_dir(out_dir) as d:
+            model.save(d / "model")
+            write_json(d / "metrics.json", {**metrics, "stop_reason": hist.stop_reason, "trainer": s.trainer,
+                                            "seconds": hist.seconds, "params": params})
+    return FitResult(model, metrics, None, hist.seconds, hist, params)

@@ -185,15 +185,16 @@ def _chain_machine(fp):
 
 
 def _run_chain(args, fp, settings, max_iter, max_time, hidden) -> int:
-    """``train`` on a machine-tool chain's feature points: :func:`training.chain_model.fit_chain_field`
-    (``--physics first-order``: the network on what the chain's own fitted element set leaves)."""
+    """``train`` on a machine-tool chain's feature points: :func:`training.trainers.fit_field` given the
+    machine (``--physics first-order``: the network on what the chain's own fitted element set leaves)."""
     machine = _chain_machine(fp)
     fp.check_units(machine)
     partial = [a.column for a in machine.axes if is_rotary_column(a.column) and not a.full_turn]
     if args.a_encoding is not None and not partial:  # refused, never silently ignored
         raise UsageError(f"--a-encoding: the machine-tool chain {machine.name!r} has no rotary axis short of a full "
                          "turn to encode (a full-turn rotary axis is always (cos, sin), a linear axis one scaled input)")
-    from training.chain_model import ChainMLPField, fit_chain_field
+    from training.chain_model import ChainMLPField
+    from training.trainers import fit_field
     if args.trainer == "lm":
         from ..validate import check_lm_size
         net = ChainMLPField.for_machine(machine, settings.a_encoding, hidden=hidden)
@@ -203,12 +204,12 @@ def _run_chain(args, fp, settings, max_iter, max_time, hidden) -> int:
     print(f"training {args.trainer} on {len(fp.axes)} feature points of the machine-tool chain {machine.name!r} "
           f"({', '.join(machine.axis_columns)}) from {args.featurepoints} (at most {max_iter} iterations"
           + (f", {max_time:g} s" if math.isfinite(max_time) else "") + ") ...", file=sys.stderr)
-    res = fit_chain_field(fp, machine, settings, validation=validation, out_dir=out)
+    res = fit_field(fp, settings, machine=machine, validation=validation, out_dir=out)
     m = res.metrics
     print(f"stopped after {res.history.iterations} iterations, {res.seconds:.1f} s "
           f"({m['train_cpu_seconds']:.1f} CPU s): {res.history.stop_reason}")
     _print_fit(args, res, "the chain's element set", " (kept alone: the network did not improve it)"
-               if m["physics_alone_kept"] else "")
+               if m.get("physics_alone_kept") else "")
     print(f"{'baseline (OLS)':<16}{m['baseline_ols_val_max_um']:>10.4f}{m['baseline_ols_val_rms_um']:>10.4f}"
           "   (affine least squares on the axes, same validation points)")
     print(f"wrote model: {out / 'model'} (inputs {', '.join(machine.axis_columns)}; machine {machine.name})")

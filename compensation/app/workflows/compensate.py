@@ -532,6 +532,21 @@ def gcode_entry(entry, tp: ToolPath, res, true_r, true_base, field_, truth, mach
         entry["cutter_radius_bound_um"] = bound
 
 
+def write_outputs(outcomes) -> None:
+    """Write the accepted files (with a CSV's provenance sidecar) as one set: each in full to a temporary file
+    beside its target, then all renamed into place; an error or interrupt before that leaves none of them."""
+    with contextlib.ExitStack() as stack:
+        for o in outcomes:
+            if not o.refused:
+                fh = stack.enter_context(atomic_write(o.dst, "wb"))
+                fh.write(o.text.encode("latin-1" if o.tp.kind == "gcode" else "utf-8"))
+                o.entry["output"] = str(o.dst)
+                if o.meta is not None:
+                    side = sidecar_path(o.dst)
+                    stack.enter_context(atomic_write(side, "w", encoding="utf-8")).write(o.meta)
+                    o.entry["provenance"] = str(side)
+
+
 def write_run(outcomes, old_outputs, src, verdict, field_, truth, machine, s: CompensateSettings,
               executor) -> CompensateRun:
     """Remove what a previous run left, write the accepted files as one set, the summary last."""
@@ -542,15 +557,7 @@ def write_run(outcomes, old_outputs, src, verdict, field_, truth, machine, s: Co
             if q.is_file() and p.name not in written:
                 q.unlink()
                 removed.append(str(q))
-    with contextlib.ExitStack() as stack:  # all files in full to temporary files, then renamed together
-        for o in outcomes:
-            if not o.refused:
-                fh = stack.enter_context(atomic_write(o.dst, "wb"))
-                fh.write(o.text.encode("latin-1" if o.tp.kind == "gcode" else "utf-8"))
-                o.entry["output"] = str(o.dst)
-                if o.meta is not None:
-                    stack.enter_context(atomic_write(sidecar_path(o.dst), "w", encoding="utf-8")).write(o.meta)
-                    o.entry["provenance"] = str(sidecar_path(o.dst))
+    write_outputs(outcomes)
     conditions = getattr(field_, "conditions", {}) or {}
     summary = write_json(Path(s.out_dir) / SUMMARY_NAME, {
         "conditions": {k: v for k, v in dict(conditions).items() if v is not None},

@@ -212,10 +212,9 @@ def _train(machine, el_path: Path, folder: Path, s: dict, name: str) -> tuple:
                         tracking_uri=s["tracking_uri"], run_name=f"fleet {name}", quiet=True, out_dir=folder / "train",
                         tags=tags)
         return fp_path, res.run_id, int(res.history.iterations), res.metrics
-    from training.chain_model import fit_chain_field
     from training.tracking import log_fit
     settings = TrainSettings(max_iter=s["train_iter"], max_time_s=np.inf, seed=s["seed"], hidden=tuple(s["hidden"]))
-    res = fit_chain_field(fp, machine, settings, out_dir=folder / "train", quiet=True)
+    res = fit_field(fp, settings, machine=machine, out_dir=folder / "train", quiet=True)
     metrics = {k: float(v) for k, v in res.metrics.items() if isinstance(v, (int, float))}
     run_id = log_fit(res.params, metrics, res.history, folder / "train" / "model", [folder / "train" / "metrics.json"],
                      tracking_uri=s["tracking_uri"], run_name=f"fleet {name}",
