@@ -5,7 +5,7 @@ The residuals of docs/explanation/kinematics.md, never mixed up: the **model res
 :class:`~compensation.solvers.SolveResult`) and the **true residual** (the tool point the simulated truth
 machine reaches with the compensated commands, minus the target: :func:`true_residual_um`). A truth is any
 simulated machine tool with ``machine``, ``spatial_error(axes, **conditions) -> (n, 3)`` μm and
-``default_conditions(n)`` (:class:`errormap.chain_truth.MTTruth`); :func:`load_truth` reads one from what
+``default_conditions(n)`` (:class:`errormap.chain_truth.ChainTruth`); :func:`load_truth` reads one from what
 ``simulate`` wrote. Metrics give the norm ``|r|`` and its square ``|r|²`` (μm², the grinder paper's
 figures)."""
 from __future__ import annotations
@@ -17,7 +17,7 @@ import numpy as np
 
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_kernel import NominalChain
-from errormap.chain_truth import MTTruth
+from errormap.chain_truth import ChainTruth
 from errormap.io import InputError, read_document_text
 from errormap.machine import made_on
 from errormap.stats import residual_stats
@@ -61,7 +61,7 @@ def _effects(info: dict, path: Path, mt) -> dict:
     return out
 
 
-def load_truth(spec, machine) -> MTTruth:
+def load_truth(spec, machine) -> ChainTruth:
     """The truth machine of ``spec`` on the machine tool ``machine`` (a grinder file through its chain): a
     ``simulate`` folder or its ``truth.json`` (elements beside it plus the effects it lists), or an element-set
     file (the elements alone). InputError naming the file and key otherwise."""
@@ -70,7 +70,7 @@ def load_truth(spec, machine) -> MTTruth:
         p = p / "truth.json"
         if not p.is_file():
             if (p.parent / "truth_elements.json").is_file():
-                return MTTruth(machine, ChainElementSet.load(p.parent / "truth_elements.json", machine), {})
+                return ChainTruth(machine, ChainElementSet.load(p.parent / "truth_elements.json", machine), {})
             raise InputError(f"{p.parent}: not a simulate folder (no truth.json)")
     elif not p.is_file():
         raise InputError(f"{p}: no such simulate folder or element-set file")
@@ -81,8 +81,8 @@ def load_truth(spec, machine) -> MTTruth:
             raise InputError(f"{p}: key 'machine_sha256': the truth belongs to machine {d.get('machine')!r}, "
                              f"not {machine.name!r}")
         el = p.parent / str(d.get("elements") or "truth_elements.json")
-        return MTTruth(machine, ChainElementSet.load(el, machine), _effects(d, p, machine), d.get("seed"))
-    return MTTruth(machine, ChainElementSet.load(p, machine), {})
+        return ChainTruth(machine, ChainElementSet.load(el, machine), _effects(d, p, machine), d.get("seed"))
+    return ChainTruth(machine, ChainElementSet.load(p, machine), {})
 
 
 def true_residual_um(truth, axes, targets_mm, conditions: dict | None = None) -> np.ndarray:

@@ -5,7 +5,7 @@ arrays, :func:`_spline_at`), then the chain's ops on a running rotation and orig
 nominal chain. Packed once per field (:meth:`CompiledChain._program`): ETs that depend on a point stay single
 ops, every run of constant ETs is folded into one block. The axis and the error-transfer Jacobians are
 geometric and exact (:func:`_jacobian_columns`, :func:`error_jacobian`); checked against the numpy reference
-:mod:`errormap.chain_field` in ``tests/test_mt_kernel.py``. Shapes: ``axes`` (n, k); ``out`` (n, 3) μm;
+:mod:`errormap.chain_field` in ``tests/test_chain_kernel.py``. Shapes: ``axes`` (n, k); ``out`` (n, 3) μm;
 ``jac`` (n, 3, k) μm per mm / per deg; error Jacobian (n, 3, P) μm per μm / per μrad."""
 from __future__ import annotations
 

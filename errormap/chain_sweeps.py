@@ -108,8 +108,8 @@ def sweep_stations(machine: MachineTool, n_stations: int = DEFAULT_STATIONS) -> 
 def simulated_sweeps(truth, noise_um: float = 2.0, seed=0, tracker_pose=None, n_stations: int = DEFAULT_STATIONS,
                        bidirectional: bool = False, dt_s: float = 20.0, warmup_c: float = 0.0, stations: dict | None = None,
                        axes=None) -> dict:
-    """Simulated tracker sweeps of a truth machine (:class:`errormap.chain_truth.MTTruth`, or the grinder's
-    :class:`errormap.chain_truth.MTTruth`; its effects included), as a dict of sweep-file columns
+    """Simulated tracker sweeps of a truth machine (:class:`errormap.chain_truth.ChainTruth`, or the grinder's
+    :class:`errormap.chain_truth.ChainTruth`; its effects included), as a dict of sweep-file columns
     (axis, station, command, target, x_mm, y_mm, z_mm, direction, time_s, temp_c; each (3·rows,), rows in
     measurement order: per time, then target).
 

@@ -162,8 +162,8 @@ def truth_rngs(seed, rec: Recipe, n: int = 3) -> list:
 
 
 CHAIN_SIMULATED = ("thermal", "reversal", "periodic", "harmonic", "interaction")
-"""The registry's kinds this simulator draws on a chain (:meth:`MTTruth.element_values` dispatches on
-them; ``tests/test_mt_model.py`` checks the table against the registry)."""
+"""The registry's kinds this simulator draws on a chain (:meth:`ChainTruth.element_values` dispatches on
+them; ``tests/test_chain_model.py`` checks the table against the registry)."""
 EFFECT_KINDS = tuple(k.name for k in _REGISTRY if k.name in CHAIN_SIMULATED)
 """Canonical names (the registry's, :mod:`errormap.effect_kinds`), in the registry's order."""
 EFFECT_ALIASES = {a: k.name for k in _REGISTRY if k.name in EFFECT_KINDS for a in k.aliases}
@@ -357,7 +357,7 @@ def independent_effect_parameters(rng: np.random.Generator) -> dict:
 
 
 @dataclass
-class MTTruth:
+class ChainTruth:
     """A simulated machine tool: true elements plus effects ``{"KIND:AXES": parameters}``."""
 
     machine: MachineTool
@@ -523,8 +523,8 @@ class MTTruth:
         return out
 
 
-def make_mt_truth(machine: MachineTool, seed: int, effects=(), family: str = "default",
-                  n_stations: int | None = None) -> MTTruth:
+def make_chain_truth(machine: MachineTool, seed: int, effects=(), family: str = "default",
+                  n_stations: int | None = None) -> ChainTruth:
     """A seeded truth of ``family`` for ``machine`` (module doc) on ``n_stations`` per axis (None: the
     family's); ``effects``: ``KIND[:AXES]`` strings, or a mapping of them to parameter overrides."""
     rec = recipe(machine, family)
@@ -540,9 +540,9 @@ def make_mt_truth(machine: MachineTool, seed: int, effects=(), family: str = "de
         kind, words = parse_effect(machine, key)
         use = kind in EFFECT_KINDS or rec.draw_truth_only
         params[effect_key(kind, words)] = {**(drawn.get(kind, {}) if use else {}), **(over or {})}
-    return MTTruth(machine, el, params, seed, family)
+    return ChainTruth(machine, el, params, seed, family)
 
 
-__all__ = ["MTTruth", "make_mt_truth", "random_chain_elements", "volume_grid", "parse_effect", "EFFECT_KINDS",
+__all__ = ["ChainTruth", "make_chain_truth", "random_chain_elements", "volume_grid", "parse_effect", "EFFECT_KINDS",
            "SIMULATED_KINDS", "CHAIN_TRUTH_ONLY",
            "FAMILIES", "COMPONENTS"]

@@ -140,7 +140,7 @@ class ClosedLoop(Estimator):
     ``effects`` / ``max_effects`` (the effect search); ``smoothing`` (``"gcv"`` or a weight); ``refit_all`` (the
     kept stage re-estimated on all checks once chosen, as ``volcomp diagnose`` ships it).
 
-    ``fit(checks, elements, covariance=None)``: ``checks`` an :class:`errormap.diagnosis.chain_loop.MTChecks`
+    ``fit(checks, elements, covariance=None)``: ``checks`` an :class:`errormap.diagnosis.chain_loop.ChainChecks`
     (:func:`errormap.read_checks`, :func:`errormap.simulate_checks`), ``elements`` the identified element
     set, ``covariance`` the update's prior ``(slot names, stations, Σ)`` (``Identification.prior_covariance_``,
     what ``volcomp diagnose`` reads; None: no element update). Learned: ``summary_`` (stages with held-out and fitting statistics, the kept stage and why,
@@ -156,11 +156,11 @@ class ClosedLoop(Estimator):
         keep_settings(self, locals())
 
     def fit(self, checks, elements, covariance=None) -> "ClosedLoop":
-        from .diagnosis.chain_loop import MTChecks, closed_loop_chain, ship_on_all_checks
+        from .diagnosis.chain_loop import ChainChecks, closed_loop_chain, ship_on_all_checks
         from .diagnosis.loop_model import ChainModelField
         from .chain_elements import ChainElementSet
         mt = machine_tool(self.machine, "ClosedLoop(machine=...)")
-        _require_type(checks, (MTChecks,), "ClosedLoop.fit(checks)", "read the file first (errormap.read_checks)")
+        _require_type(checks, (ChainChecks,), "ClosedLoop.fit(checks)", "read the file first (errormap.read_checks)")
         _require_type(elements, (ChainElementSet,), "ClosedLoop.fit(elements)", "an identified element set "
                       "(Identification.elements_ or ChainElementSet.load)")
         summary = closed_loop_chain(mt, elements, checks, cov=covariance, fit_fraction=self.fit_fraction,

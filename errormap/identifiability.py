@@ -15,7 +15,7 @@ import numpy as np
 
 from .machine_tool import MachineTool
 from .identification import ChainIdentification
-from .chain_truth import make_mt_truth, volume_grid
+from .chain_truth import make_chain_truth, volume_grid
 from .chain_sweeps import simulated_sweeps, swept_words
 from .seeds import spawn_rngs
 from .sweeps import sweeps_from_columns
@@ -83,7 +83,7 @@ def identifiability(machine: MachineTool, seed: int = 0, noise_um: float = 2.0, 
     if not noise_um > 0:
         raise ValueError(f"Expected noise_um > 0, got {noise_um}")
     words = swept_words(machine)
-    truth = make_mt_truth(machine, seed)
+    truth = make_chain_truth(machine, seed)
     sn = seed if seed_noise is None else seed_noise
 
     def fit(noise):

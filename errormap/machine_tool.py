@@ -15,7 +15,7 @@ import numpy as np
 
 from .chain import Chain, ET, inverted
 from .machine_checks import MachineFileError, check_known_keys, check_number, check_table, optional_table, short_repr
-from .machine_tool_file import (AXIS_WORDS, COMPONENTS, MT_SCHEMA_VERSION, UM_MM, MTAxis, Slot, chain_side,
+from .machine_tool_file import (AXIS_WORDS, COMPONENTS, CHAIN_SCHEMA_VERSION, UM_MM, ChainAxis, Slot, chain_side,
                                 read_spindle, read_targets, read_tcp)
 
 @dataclass(frozen=True)
@@ -470,9 +470,9 @@ def parse_machine_tool(doc: dict, path, sha: str = "") -> MachineTool:
     if not isinstance(name, str):
         raise MachineFileError(f"{path}: key 'machine.name': expected a string, got {short_repr(name)}")
     ver = m.get("schema", None)
-    if isinstance(ver, bool) or ver != MT_SCHEMA_VERSION:
+    if isinstance(ver, bool) or ver != CHAIN_SCHEMA_VERSION:
         raise MachineFileError(f"{path}: key 'machine.schema': this volcomp reads machine-tool schema "
-                               f"{MT_SCHEMA_VERSION}, got {short_repr(ver)}")
+                               f"{CHAIN_SCHEMA_VERSION}, got {short_repr(ver)}")
     g = optional_table(doc, "geometry", path, {})
     geometry = {}
     for k in g:
@@ -496,7 +496,7 @@ def parse_machine_tool(doc: dict, path, sha: str = "") -> MachineTool:
     if dup:
         raise MachineFileError(f"{path}: duplicate error slot name {dup[0]!r} (squareness names must differ from "
                                "the derived names)")
-    mt_axes = tuple(axes[i][0] for i in order)
+    axis_names = tuple(axes[i][0] for i in order)
     joints = tuple(axes[i][1] for i in order)
     kind_rank = {"component": 0, "location": 1, "squareness": 2}
     ordered = sorted(slots, key=lambda s: (kind_rank[s.kind], AXIS_WORDS.index(s.axis)))  # stable: file order within
@@ -508,13 +508,13 @@ def parse_machine_tool(doc: dict, path, sha: str = "") -> MachineTool:
         raise MachineFileError(f"{path}: {exc}") from None
     by_name = {s.name: s for s in slots}
     slot_list = tuple(by_name[n] for n in chain.param_names)
-    targets = read_targets(optional_table(doc, "targets", path, {}), path, mt_axes)
+    targets = read_targets(optional_table(doc, "targets", path, {}), path, axis_names)
     body_index = {**{w: ("work", k) for w, k in work_body.items()}, **{w: ("tool", k) for w, k in tool_body.items()}}
-    return MachineTool(name=name, axes=mt_axes, slots=slot_list, chain=chain, work_ets=tuple(work_n),
+    return MachineTool(name=name, axes=axis_names, slots=slot_list, chain=chain, work_ets=tuple(work_n),
                        tool_ets=tuple(tool_n), targets=targets, geometry=geometry, body_index=body_index,
                        path=str(path), sha256=sha, description=str(m.get("description", "")),
-                       spindle=read_spindle(optional_table(doc, "spindle", path), path, mt_axes),
-                       tcp=read_tcp(optional_table(doc, "tcp", path), path, mt_axes),
+                       spindle=read_spindle(optional_table(doc, "spindle", path), path, axis_names),
+                       tcp=read_tcp(optional_table(doc, "tcp", path), path, axis_names),
                        truth=optional_table(doc, "truth", path, {}))
 
 

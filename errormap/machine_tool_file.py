@@ -16,7 +16,7 @@ import numpy as np
 from .chain import AXES, Joint, et
 from .machine_checks import MachineFileError, check_array, check_known_keys, check_number, check_range, short_repr
 
-MT_SCHEMA_VERSION = 1
+CHAIN_SCHEMA_VERSION = 1
 AXIS_WORDS = ("X", "Y", "Z", "U", "V", "W", "A", "B", "C")
 """Axis words in canonical order (the order of the machine's axes columns)."""
 LINEAR_WORDS = ("X", "Y", "Z", "U", "V", "W")
@@ -34,7 +34,7 @@ MAX_ROTARY_ANGLE_DEG = 1e5  # a fixed rotation value beyond this is no angle (a 
 
 
 @dataclass(frozen=True)
-class MTAxis:
+class ChainAxis:
     """One moving axis: ``word`` (X … C), ``kind`` linear|rotary, ``along`` (0, 1, 2 = x, y, z of
     the frame it moves in), ``direction`` ±1, ``stroke`` (lo, hi) in mm or deg, ``side`` work|tool."""
 
@@ -158,10 +158,10 @@ def _joint_entry(d, where, path, side, words):
     if "stroke" not in d:
         raise MachineFileError(f"{path}: missing key '{where}.stroke' ([lo, hi] in {unit})")
     stroke = check_range(d["stroke"], f"{where}.stroke", path, kind == "rotary", "rotary strokes")
-    return MTAxis(word, kind, AXES.index(along), float(sign), stroke, side)
+    return ChainAxis(word, kind, AXES.index(along), float(sign), stroke, side)
 
 
-def _squareness(d, where, path, ax: MTAxis):
+def _squareness(d, where, path, ax: ChainAxis):
     """``R_w(+s)·[motion]·R_w(−s)`` ETs (before, after) and slots of a linear axis' squareness entries."""
     items = d.get("squareness", [])
     if not isinstance(items, list):
@@ -195,7 +195,7 @@ def _squareness(d, where, path, ax: MTAxis):
     return before, after, slots
 
 
-def _location_ets(ax: MTAxis, d, where, path):
+def _location_ets(ax: ChainAxis, d, where, path):
     if "location" in d and not isinstance(d["location"], bool):
         raise MachineFileError(f"{path}: key '{where}.location': expected true or false, got {short_repr(d['location'])}")
     if ax.kind != "rotary":

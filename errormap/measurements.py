@@ -18,11 +18,11 @@ def read_sweeps(paths, machine):
 
 def read_checks(path, machine, units: str = "check"):
     """Check measurements of a machine-tool chain or the grinder file
-    (:class:`errormap.diagnosis.chain_loop.MTChecks`, in ``seq`` order: ``axes`` (n, k) mm/deg, ``measured_um``
+    (:class:`errormap.diagnosis.chain_loop.ChainChecks`, in ``seq`` order: ``axes`` (n, k) mm/deg, ``measured_um``
     (n, 3)). ``units="as-written"`` skips the likely-unit-mistake tests."""
-    from .diagnosis.chain_loop import load_mt_checks
+    from .diagnosis.chain_loop import load_chain_checks
     from .estimators import machine_tool
-    return load_mt_checks(path, machine_tool(machine, "read_checks(machine=...)"), units=units)
+    return load_chain_checks(path, machine_tool(machine, "read_checks(machine=...)"), units=units)
 
 
 def read_poses(path, chain):
@@ -45,11 +45,11 @@ def read_drift_log(path, **options):
 
 def simulate_truth(machine, seed: int, family: str = "default"):
     """A hidden truth of a machine-tool chain or the grinder file's chain
-    (:class:`errormap.chain_truth.MTTruth`): seeded random element functions (``family`` ``"default"`` or
+    (:class:`errormap.chain_truth.ChainTruth`): seeded random element functions (``family`` ``"default"`` or
     ``"independent"``), no effects. For testing: an estimator is never given it."""
-    from .chain_truth import make_mt_truth
+    from .chain_truth import make_chain_truth
     from .estimators import machine_tool
-    return make_mt_truth(machine_tool(machine, "simulate_truth(machine=...)"), seed, family=family)
+    return make_chain_truth(machine_tool(machine, "simulate_truth(machine=...)"), seed, family=family)
 
 
 def simulate_sweeps(truth, noise_um: float = 2.0, seed: int = 0, n_stations: int | None = None):
@@ -65,11 +65,11 @@ def simulate_sweeps(truth, noise_um: float = 2.0, seed: int = 0, n_stations: int
 
 
 def simulate_checks(truth, n: int = 400, noise_um: float = 1.0, seed: int = 0):
-    """``n`` simulated check measurements of ``truth`` (:class:`errormap.diagnosis.chain_loop.MTChecks`):
+    """``n`` simulated check measurements of ``truth`` (:class:`errormap.diagnosis.chain_loop.ChainChecks`):
     what ``volcomp simulate --machine`` writes to ``checks.csv``, read back."""
-    from .diagnosis.chain_loop import MTChecks
+    from .diagnosis.chain_loop import ChainChecks
     cols = truth.check_measurements(n=n, noise_um=noise_um, seed=seed)
-    return MTChecks.from_columns(truth.machine, cols, path="<simulated checks>")
+    return ChainChecks.from_columns(truth.machine, cols, path="<simulated checks>")
 
 
 __all__ = ["read_checks", "read_drift_log", "read_poses", "read_sweeps", "simulate_checks", "simulate_sweeps",

@@ -53,7 +53,7 @@ def pytest_terminal_summary(terminalreporter):
 SAME_WORKER = {
     "tests/test_demo.py": "tiny demo, mill-xyz reversal:Z diagnosis",
     "tests/test_report_pages.py": "tiny demo, mill-xyz reversal:Z diagnosis",
-    "tests/test_mt_report.py": "tiny demo, mill-xyz reversal:Z diagnosis",
+    "tests/test_chain_report.py": "tiny demo, mill-xyz reversal:Z diagnosis",
     "tests/test_diagnose_chain_output.py": "tiny demo, mill-xyz reversal:Z diagnosis",
     "tests/test_hybrid_user_path.py": "bump user path",
     "tests/test_tracking_learned_residual.py": "bump user path",
@@ -62,7 +62,7 @@ SAME_WORKER = {
 ``--dist loadscope``, so the run happens once, on one worker."""
 
 EACH_TEST_ITS_OWN_UNIT = {
-    "tests/test_mt_loop_terms.py",        # two independent five-axis user's paths (one ~200 CPU s)
+    "tests/test_chain_loop_terms.py",        # two independent five-axis user's paths (one ~200 CPU s)
     "tests/test_hybrid_condition_terms.py",
     "tests/test_hybrid_backfit.py",
 }
@@ -73,7 +73,7 @@ while the other idles."""
 UNIT_CPU_S = {
     "bump user path": 200.0,
     "tests/test_hybrid.py": 100.0,
-    "tests/test_mt_loop_terms.py::test_cli_term_the_joint_fit_does_not_support_is_dropped": 100.0,
+    "tests/test_chain_loop_terms.py::test_cli_term_the_joint_fit_does_not_support_is_dropped": 100.0,
     "tests/test_hybrid_backfit.py::test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt": 40.0,
     "tests/test_cluster.py": 100.0,
 }

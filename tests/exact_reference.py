@@ -41,8 +41,8 @@ def case(name):
         from compensation.solvers import solve
         from errormap.chain_field import ChainField
         from errormap.chain_kernel import forward
-        from errormap.chain_truth import make_mt_truth
-        field = ChainField(m, make_mt_truth(m, field_seed).elements)
+        from errormap.chain_truth import make_chain_truth
+        field = ChainField(m, make_chain_truth(m, field_seed).elements)
         axes = rng_axes.uniform(m.stroke_lo, m.stroke_hi, (n, 3))
         targets = forward(m, axes)
         return (lambda: solve("exact", field, targets, m, target_axes=axes, progress=False)), targets, axes

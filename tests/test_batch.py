@@ -8,7 +8,7 @@ import pytest
 from compensation.batch import LocalExecutor, plan_chunks, solve_batch
 from compensation.toolpath import flute_path
 from errormap.chain_field import ChainField
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 
 # small GA settings: the properties below are about streams and chunks, not convergence
 GA_OPTIONS = {"ga": {"generations": 3, "population": 10}, "batched-ga": {"generations": 20}}
@@ -16,7 +16,7 @@ GA_OPTIONS = {"ga": {"generations": 3, "population": 10}, "batched-ga": {"genera
 
 @pytest.fixture(scope="module")
 def field(grinder):
-    return ChainField(grinder, make_mt_truth(grinder, 7).elements)
+    return ChainField(grinder, make_chain_truth(grinder, 7).elements)
 
 
 def _paths(grinder):

@@ -18,8 +18,8 @@ REFUSE_WITHIN_S = 10.0
 
 @pytest.fixture(scope="module")
 def elements(tmp_path_factory, grinder):
-    from errormap.chain_truth import make_mt_truth
-    return make_mt_truth(grinder, 3).elements.save(tmp_path_factory.mktemp("el") / "elements.json")
+    from errormap.chain_truth import make_chain_truth
+    return make_chain_truth(grinder, 3).elements.save(tmp_path_factory.mktemp("el") / "elements.json")
 
 
 def test_two_million_columns_refused_at_once(tmp_path, elements):

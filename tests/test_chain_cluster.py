@@ -58,9 +58,9 @@ def test_ray_two_workers_write_the_one_process_bytes_on_the_grinder(ray_session,
     from compensation.pathio import write_axes_gcode
     from compensation.toolpath import flute_path
     from errormap.machine import load_machine
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     g = load_machine()
-    el = make_mt_truth(g, 7).elements.save(tmp_path / "el.json")
+    el = make_chain_truth(g, 7).elements.save(tmp_path / "el.json")
     prog = write_axes_gcode(tmp_path / "flute.nc", flute_path(turns=2, points_per_turn=100).axes(g))
     base = ["compensate", str(prog), "--model", str(el), "--method", method, "--work-offsets", "machine",
             "--chunk-points", str(CHUNK)]

@@ -17,7 +17,7 @@ from errormap.chain_field import ChainField
 from errormap.chain_kernel import NominalChain
 
 from chain_fixtures import lathe_targets as _targets
-from test_mt_compensate import chain_elements
+from test_chain_compensate import chain_elements
 
 LATHE = "lathe-xzc"
 GA_TOL_UM = DEFAULT_TOL_UM

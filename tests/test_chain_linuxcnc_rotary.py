@@ -13,7 +13,7 @@ from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import ChainField
 
-from test_mt_linuxcnc import check_and_write_tables, joint_tables
+from test_chain_linuxcnc import check_and_write_tables, joint_tables
 
 LATHE = "lathe-xzc"
 ANGULAR_ONLY_TOL_UM = 0.01

@@ -7,7 +7,7 @@ import pytest
 from errormap import chain_normal
 from errormap.chain_normal import BlockLayout, Undecided
 from errormap.chain_sweeps import simulated_sweeps, swept_words
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 from errormap.identification import ChainIdentification, parameter_vector
 from errormap.machine import load_machine
 from errormap.sweeps import sweeps_from_columns
@@ -23,7 +23,7 @@ COND_RTOL = 1e-6
 
 def _fit(monkeypatch, dense: bool, gauge: str, machine="mill-xyz"):
     mt = load_machine(machine)
-    sw = sweeps_from_columns(simulated_sweeps(make_mt_truth(mt, 1), n_stations=7, seed=101), axes=swept_words(mt))
+    sw = sweeps_from_columns(simulated_sweeps(make_chain_truth(mt, 1), n_stations=7, seed=101), axes=swept_words(mt))
     if dense:
         def refuse(*a, **k):
             raise Undecided("forced")
@@ -71,6 +71,6 @@ def test_a_decidable_fit_never_builds_the_dense_jacobian(monkeypatch):
         raise AssertionError("the dense Jacobian was built")
     monkeypatch.setattr(ChainIdentification, "_dense", refuse)
     mt = load_machine("mill-xyz")
-    sw = sweeps_from_columns(simulated_sweeps(make_mt_truth(mt, 2), n_stations=7, seed=102), axes=swept_words(mt))
+    sw = sweeps_from_columns(simulated_sweeps(make_chain_truth(mt, 2), n_stations=7, seed=102), axes=swept_words(mt))
     res = ChainIdentification(gauge="station-mean").fit(sw, mt).result_
     assert res.cov.shape == (len(res.param_slot),) * 2 and not res.unobservable

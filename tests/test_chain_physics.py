@@ -16,7 +16,7 @@ from errormap.io import InputError
 from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import ChainField
-from errormap.chain_truth import make_mt_truth, random_axes
+from errormap.chain_truth import make_chain_truth, random_axes
 from training.chain_model import ChainMLPField, ChainPhysicsMLPField
 from training.physics import fit_physics_elements
 from training.trainers import TrainSettings, fit_field
@@ -49,7 +49,7 @@ def one_torch_thread():
 @pytest.fixture(scope="module")
 def mill():
     m = load_machine("mill-xyz")
-    truth = ChainField(m, make_mt_truth(m, TRUTH_SEED).elements)
+    truth = ChainField(m, make_chain_truth(m, TRUTH_SEED).elements)
     axes = grid_axes(m, GRID)
     fp = FeaturePoints(axes, truth.predict(axes), {"machine": m.name}, axis_columns=m.axis_columns)
     val = random_axes(m, 2000, np.random.default_rng(11))
@@ -120,7 +120,7 @@ def test_chain_element_fit_matches_the_grid_of_a_five_axis_machine():
     """The shared station solve on five-axis-ac's 27 component errors and constants: at the grid's
     nodes the exact chain of the fitted set reproduces the truth to its second-order terms."""
     mt = load_machine("five-axis-ac")
-    truth = ChainField(mt, make_mt_truth(mt, TRUTH_SEED).elements)
+    truth = ChainField(mt, make_chain_truth(mt, TRUTH_SEED).elements)
     axes = grid_axes(mt, 4)
     el = fit_physics_elements(mt, axes, truth.predict(axes))
     assert isinstance(el, ChainElementSet) and set(el.functions) == set(mt.function_slots)
@@ -137,7 +137,7 @@ def test_chain_element_fit_matches_the_grid_of_a_five_axis_machine():
 def test_cli_trains_physics_first_on_five_axes_and_predicts_from_the_store(tmp_path, capsys):
     from compensation.app.cli import main
     mt = load_machine("five-axis-ac")
-    truth = make_mt_truth(mt, TRUTH_SEED).elements.save(tmp_path / "truth.json")
+    truth = make_chain_truth(mt, TRUTH_SEED).elements.save(tmp_path / "truth.json")
     fp = tmp_path / "fp.csv"
     assert main(["featurepoints", "--machine", "five-axis-ac", "--elements", str(truth), "--grid", "4",
                  "--out", str(fp)]) == 0
@@ -176,9 +176,9 @@ def test_compensate_takes_the_physics_first_model(mill, tmp_path):
     """``compensate --model RUN`` on mill-xyz with the physics-first folder: exact solve to the model,
     and the TRUE residual (the truth the feature points came from) well under the uncompensated error."""
     from compensation.app.cli import main
-    from test_mt_compensate import MILL_PROGRAM
+    from test_chain_compensate import MILL_PROGRAM
     m = mill[0]
-    truth = make_mt_truth(m, TRUTH_SEED).elements.save(tmp_path / "truth.json")
+    truth = make_chain_truth(m, TRUTH_SEED).elements.save(tmp_path / "truth.json")
     _fit(mill, "first-order", out_dir=tmp_path / "run")
     out = tmp_path / "comp"
     assert main(["compensate", str(MILL_PROGRAM), "--machine", "mill-xyz", "--model", str(tmp_path / "run"),

@@ -15,7 +15,7 @@ from errormap.machine import load_machine
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import NominalChain
 
-from test_mt_compensate import TOL_MODEL_RESIDUAL_UM, chain_elements
+from test_chain_compensate import TOL_MODEL_RESIDUAL_UM, chain_elements
 
 LATHE = "lathe-xzc"
 BOUND_TOL_DEG = 1e-12
@@ -143,9 +143,9 @@ def test_rotary_limit_option_refused_where_nothing_turns(tmp_path, capsys):
                  "--max-rotary-correction-deg", "0", "--out", str(tmp_path / "o")]) == 2
     assert "--max-rotary-correction-deg: expected a number in (0, 180] deg" in capsys.readouterr().err
     # the grinder (the default machine) compensates on its chain, where the exact solver moves A: the bound applies
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     g = load_machine()
-    gel = make_mt_truth(g, 7).elements.save(tmp_path / "grinder_el.json")
+    gel = make_chain_truth(g, 7).elements.save(tmp_path / "grinder_el.json")
     gpath = tmp_path / "g.csv"
     np.savetxt(gpath, np.array([[90.0, 5.0, 10.0], [91.0, 5.0, 20.0]]), delimiter=",", header="x_mm,z_mm,a_deg",
                comments="", fmt="%.6f")

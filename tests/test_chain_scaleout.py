@@ -19,7 +19,7 @@ DATA = Path(__file__).resolve().parent / "data"
 MILL_PROGRAM = DATA / "mill_pocket.nc"
 
 ELEMENT_SCALE_UM = 10.0
-"""Element values of ±10 μm / μrad (1 σ): a real machine tool's geometric errors (tests/test_mt_compensate.py's)."""
+"""Element values of ±10 μm / μrad (1 σ): a real machine tool's geometric errors (tests/test_chain_compensate.py's)."""
 SMALL_CHUNK = 7
 """Points per chunk in the identity runs: every file cut into many chunks, the last one short."""
 
@@ -93,7 +93,7 @@ def test_tool_lengths_are_solved_in_chunks_with_the_default_bytes(tmp_path, caps
 
 
 MODEL_ROUNDOFF_UM = 1e-6
-"""The exact chain solver's model residual (tests/test_mt_compensate.py TOL_MODEL_RESIDUAL_UM): with the
+"""The exact chain solver's model residual (tests/test_chain_compensate.py TOL_MODEL_RESIDUAL_UM): with the
 truth equal to the model, the TRUE residual at the vertices is this round-off."""
 UNCOMPENSATED_MIN_UM = 15.0
 """±10 μm / μrad elements through ~0.5 m lever arms: tens of μm along these programs (50 μm observed)."""

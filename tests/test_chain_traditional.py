@@ -26,7 +26,7 @@ FIVE_AXIS_PROGRAM = ("(5-AXIS TEST)\nG21 G90 G17\nT3 M6\nG0 X0. Y0. Z-200. A0. C
 ELEMENT_SCALE_UM = 20.0
 """Element values of ±20 μm / μrad (1 σ): a real machine tool's geometric errors (errors up to ~150 μm)."""
 TOL_EXACT_UM = 1e-6
-"""exact's model (= TRUE here) residual: Newton to round-off (tests/test_mt_compensate.py's bound)."""
+"""exact's model (= TRUE here) residual: Newton to round-off (tests/test_chain_compensate.py's bound)."""
 FIRST_ORDER_REL = 0.02
 """traditional's residual vs its first-order prediction ``−1e-3·G(q_d)·E(q_d)`` (G the field's gradient
 per mm of tool point, μm/mm), relative to the prediction's largest value. The difference is the

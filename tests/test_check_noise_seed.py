@@ -9,7 +9,7 @@ import pytest
 from compensation.app.cli import main
 from errormap.io import read_table
 from errormap.machine import load_machine
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 from provenance import text_and_provenance
 
 N, SIGMA = 50, 1.0
@@ -18,7 +18,7 @@ LAYOUT = ("x_mm", "z_mm", "a_deg", "time_s", "temp_c", "dir_x", "dir_z", "dir_a"
 
 @pytest.mark.parametrize("family", ["default", "independent"])
 def test_redraw_changes_only_the_noise(family):
-    truth = make_mt_truth(load_machine(), 2, effects=["a_tilt"], family=family)
+    truth = make_chain_truth(load_machine(), 2, effects=["a_tilt"], family=family)
     a = truth.check_measurements(N, SIGMA, seed=7)
     b = truth.check_measurements(N, SIGMA, seed=7, noise_seed=11)
     for k in LAYOUT:
@@ -34,9 +34,9 @@ def test_redraw_changes_only_the_noise(family):
 
 def test_default_noise_is_todays_stream():
     """Without ``noise_seed`` the noise is the layout stream's next draw, as before the option existed."""
-    from errormap.chain_truth import make_mt_truth, random_axes
+    from errormap.chain_truth import make_chain_truth, random_axes
     m = load_machine()
-    truth = make_mt_truth(m, 3, effects=["bump"])
+    truth = make_chain_truth(m, 3, effects=["bump"])
     a = truth.check_measurements(N, SIGMA, seed=5)
     rng = np.random.default_rng(5)                          # the draw order of TruthGrinder.check_measurements
     axes = random_axes(m, N, rng)

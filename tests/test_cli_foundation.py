@@ -136,18 +136,18 @@ def test_predict_refuses_outside_the_calibrated_volume(tmp_path, capsys):
                                                   ("z_mm", 1e-3, "metres rather than mm"),
                                                   ("a_deg", np.pi / 180, "radians rather than degrees")])
 def test_checks_in_metres_or_radians_are_refused(tmp_path, column, scale, named):
-    from errormap.diagnosis.chain_checks import load_mt_checks
+    from errormap.diagnosis.chain_checks import load_chain_checks
     from errormap.io import InputError, write_csv
     from errormap.machine import load_machine
     machine = load_machine()
     assert main(["simulate", "--seed", "1", "--out", str(tmp_path / "sim"), "--checks", "40"]) == 0
     t = read_table(tmp_path / "sim" / "checks.csv")
     d = {c: t.float(c) for c in t.names}
-    load_mt_checks(tmp_path / "sim" / "checks.csv", machine)  # as simulated: accepted
+    load_chain_checks(tmp_path / "sim" / "checks.csv", machine)  # as simulated: accepted
     d[column] = d[column] * scale
     write_csv(tmp_path / "c.csv", d)
     with pytest.raises(InputError, match=named) as exc:
-        load_mt_checks(tmp_path / "c.csv", machine)
+        load_chain_checks(tmp_path / "c.csv", machine)
     assert f"column '{column}'" in str(exc.value)
 
 

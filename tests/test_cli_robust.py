@@ -253,9 +253,9 @@ def test_predict_batched_equals_whole(grinder):
     import numpy as np
 
     from errormap.chain_field import ChainField
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     rng = np.random.default_rng(7)
-    field = ChainField(grinder, make_mt_truth(grinder, 3).elements)
+    field = ChainField(grinder, make_chain_truth(grinder, 3).elements)
     lo = np.array([grinder.strokes[k][0] for k in ("x_mm", "z_mm", "a_deg")])
     hi = np.array([grinder.strokes[k][1] for k in ("x_mm", "z_mm", "a_deg")])
     axes = lo + (hi - lo) * rng.random((validate.PREDICT_BATCH + 1000, 3))

@@ -11,7 +11,7 @@ from errormap.chain_elements import ChainElementSet
 from errormap.machine import load_machine
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import spatial_error
-from errormap.chain_truth import EFFECT_DEFAULTS, TRUTH_STATIONS, make_mt_truth, random_axes
+from errormap.chain_truth import EFFECT_DEFAULTS, TRUTH_STATIONS, make_chain_truth, random_axes
 from errormap.chain_sweeps import simulated_sweeps
 from errormap.chain_covariance import band_sd, covariance_path, read_chain_covariance, save_chain_covariance
 from errormap.uncertainty import elements_from_theta, smooth_identify, theta_covariance, theta_from_elements
@@ -30,26 +30,26 @@ def _loop(grinder, sm, cols, tmp, **kw):
     ``sm`` as the files ``volcomp identify`` writes (elements and covariance with its prior_extra), read as the
     command reads them; ``cols`` the check columns. → (summary with ``_models``, checks)."""
     from compensation.app.workflows.measurement import load_chain_model
-    from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain
+    from errormap.diagnosis.chain_loop import ChainChecks, closed_loop_chain
     mt = grinder
     el_path = sm.elements_.save(tmp / "el.json")
     save_chain_covariance(sm.result, covariance_path(el_path))
     el, cov, _ = load_chain_model(el_path, mt, prior=True)
-    checks = MTChecks.from_columns(mt, cols)
+    checks = ChainChecks.from_columns(mt, cols)
     return closed_loop_chain(mt, el, checks, cov=cov, **kw), checks
 
 
 @pytest.fixture(scope="module")
 def indep(grinder):
-    truth = make_mt_truth(grinder, SEED, family="independent")
+    truth = make_chain_truth(grinder, SEED, family="independent")
     sm = smooth_identify(simulated_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=SEED + 50), grinder)
     return truth, sm
 
 
 def test_independent_family_is_seeded_and_differs(grinder):
-    a = make_mt_truth(grinder, 3, family="independent", effects=["pitch", "worm"])
-    b = make_mt_truth(grinder, 3, family="independent", effects=["pitch", "worm"])
-    d = make_mt_truth(grinder, 3)
+    a = make_chain_truth(grinder, 3, family="independent", effects=["pitch", "worm"])
+    b = make_chain_truth(grinder, 3, family="independent", effects=["pitch", "worm"])
+    d = make_chain_truth(grinder, 3)
     assert a.elements.stations["x_mm"].size == TRUTH_STATIONS
     np.testing.assert_array_equal(a.elements.functions["dx_x"], b.elements.functions["dx_x"])
     assert a.effects == b.effects
@@ -115,7 +115,7 @@ def test_update_brings_held_out_to_the_noise_floor_and_reports_no_effect(grinder
 
 @pytest.mark.slow
 def test_reversal_is_named_after_the_update(grinder, tmp_path):
-    truth = make_mt_truth(grinder, 1, family="independent", effects=["reversal"])
+    truth = make_chain_truth(grinder, 1, family="independent", effects=["reversal"])
     sm = smooth_identify(simulated_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=51), grinder)
     s, _ = _loop(grinder, sm, truth.check_measurements(800, 1.0, seed=13), tmp_path)
     e = s["effects"]
@@ -149,7 +149,7 @@ COMP_TRUE_TOL_UM = 0.01  # model = truth exactly here; the exact solver's own re
 def test_compensate_takes_the_diagnosed_model_and_its_conditions(grinder, tmp_path, capsys):
     from errormap.io import read_table
     from errormap.chain_kernel import forward
-    truth = make_mt_truth(grinder, 3, effects=["reversal"])
+    truth = make_chain_truth(grinder, 3, effects=["reversal"])
     truth.elements.save(tmp_path / "updated_elements.json")
     b = truth.parameters("reversal")["backlash_um"]
     term = {"kind": "reversal", "axis": "z", "element": "dz_z", "coefficients": [b], "period_mm": None, "order": None,
@@ -187,7 +187,7 @@ def test_compensate_takes_per_point_conditions_from_the_path_columns(grinder, tm
     the commands land on the targets on the truth under each point's own conditions."""
     from errormap.io import read_table
     from errormap.chain_kernel import forward
-    truth = make_mt_truth(grinder, 3, effects=["reversal", "thermal"])
+    truth = make_chain_truth(grinder, 3, effects=["reversal", "thermal"])
     b = truth.parameters("reversal")["backlash_um"]
     k = truth.parameters("thermal")["k_um_per_mm_c"]
     ref = {"ref_temp_c": 20.0, "ref_time_s": 0.0}
@@ -233,7 +233,7 @@ def test_compensate_takes_per_point_conditions_from_the_path_columns(grinder, tm
 def test_compensate_gcode_with_a_diagnosed_model_follows_the_replanned_vertices(grinder, tmp_path):
     """A G-code path (no condition columns) with a thermal term: the option's temperature holds at
     every vertex the replan adds to the long moves, and the model residual stays at solver level."""
-    truth = make_mt_truth(grinder, 3, effects=["thermal"])
+    truth = make_chain_truth(grinder, 3, effects=["thermal"])
     k = truth.parameters("thermal")["k_um_per_mm_c"]
     model = _diagnosed_model(tmp_path, truth, [{"kind": "thermal", "axis": "x", "element": "dx_x", "coefficients": [k],
                                                 "reference": {"ref_temp_c": 20.0, "ref_time_s": 0.0}}])
@@ -251,7 +251,7 @@ def test_compensate_gcode_with_a_diagnosed_model_follows_the_replanned_vertices(
 def test_an_effect_the_update_would_imitate_is_named_and_kept(grinder, tmp_path):
     """Thermal growth (a dx_x slope at the mean temperature) is partly taken up by an update made alone; the loop
     names it, re-fits it jointly with the update, and keeps the model with it."""
-    truth = make_mt_truth(grinder, 0, family="independent", effects=["thermal"])
+    truth = make_chain_truth(grinder, 0, family="independent", effects=["thermal"])
     sm = smooth_identify(simulated_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder)
     s, _ = _loop(grinder, sm, truth.check_measurements(800, 1.0, seed=14), tmp_path)
     assert s["effects"] and (s["effects"][0]["kind"], s["effects"][0]["axis"]) == ("thermal", "X")
@@ -264,7 +264,7 @@ def test_an_effect_the_element_slots_represent_is_named_as_absorbed(grinder, tmp
     """An X·Z coupling on the grinder is angular elements times lever arms: the element slots represent it over
     the checks, so the update takes it up; the loop names it as absorbed (not a missed effect) and the updated
     model reaches the held-out target."""
-    truth = make_mt_truth(grinder, 0, family="independent", effects=["interaction"])
+    truth = make_chain_truth(grinder, 0, family="independent", effects=["interaction"])
     sm = smooth_identify(simulated_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder)
     s, _ = _loop(grinder, sm, truth.check_measurements(800, 1.0, seed=14), tmp_path)
     assert ("interaction", "X*Z") in {(e["kind"], e["axis"]) for e in s["effects_absorbed"]}

@@ -28,7 +28,7 @@ from path_files import write_targets_csv  # noqa: E402
 from compensation.toolpath import flute_path  # noqa: E402
 from errormap.chain_field import ChainField  # noqa: E402
 from errormap.io import write_csv  # noqa: E402
-from errormap.chain_truth import make_mt_truth, random_axes  # noqa: E402
+from errormap.chain_truth import make_chain_truth, random_axes  # noqa: E402
 from tests.test_batch import small_learned_field  # noqa: E402
 from tests.test_mlflow_server import mlflow_server  # noqa: E402,F401  (the fixture)
 
@@ -63,7 +63,7 @@ def ray_session():
 def batch(tmp_path_factory, grinder):
     """Three small files, one 20k-point path in four chunks, an element set, and the local run's outputs."""
     d = tmp_path_factory.mktemp("cluster")
-    el = make_mt_truth(grinder, 7).elements.save(d / "elements.json")
+    el = make_chain_truth(grinder, 7).elements.save(d / "elements.json")
     f = flute_path(turns=1, points_per_turn=60)
     files = [write_axes_gcode(d / "in" / "flute.nc", f.axes(grinder)),
              write_axes_gcode(d / "in" / "sparse.nc", f.axes(grinder)[::4]),
@@ -91,7 +91,7 @@ def test_ray_batch_writes_the_local_runs_bytes(ray_session, batch, grinder, caps
     assert summary["solved_on"].startswith("Ray") and summary["chunk_points"] == CHUNK_POINTS
     assert [e["chunks"] for e in summary["files"]] == [1, 1, 1, BIG_POINTS // CHUNK_POINTS]
     # every method: the same arrays from Ray actors as from local threads (GA: per-chunk seeds)
-    field = ChainField(grinder, make_mt_truth(grinder, 7).elements)
+    field = ChainField(grinder, make_chain_truth(grinder, 7).elements)
     fl = flute_path(turns=1, points_per_turn=40)
     paths = [SimpleNamespace(targets_mm=fl.targets_mm, axes=fl.axes(grinder)),
              SimpleNamespace(targets_mm=fl.targets_mm[3:9], axes=fl.axes(grinder)[3:9])]
@@ -130,12 +130,12 @@ def test_worker_killed_mid_batch(ray_session, batch, monkeypatch, capsys):
 
 
 def _fleet_inputs(d: Path, grinder) -> Path:
-    from errormap.chain_truth import MTTruth
+    from errormap.chain_truth import ChainTruth
     from errormap.chain_sweeps import simulated_sweeps
     from errormap.sweeps import write_sweeps
     for seed in (1, 2):
-        truth = make_mt_truth(grinder, seed)
-        write_sweeps(d / f"m{seed}" / "sweeps.csv", simulated_sweeps(MTTruth(grinder, truth.elements, {}),
+        truth = make_chain_truth(grinder, seed)
+        write_sweeps(d / f"m{seed}" / "sweeps.csv", simulated_sweeps(ChainTruth(grinder, truth.elements, {}),
                                                                      seed=seed), comments=["setup: s1"])
         write_csv(d / f"m{seed}" / "checks.csv", truth.check_measurements(n=150, seed=seed + 10),
                   header_comments=["format: volcomp-checks/1"])

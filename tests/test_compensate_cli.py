@@ -10,7 +10,7 @@ from compensation.pathio import read_path, write_axes_gcode
 from compensation.toolpath import flute_path
 from path_files import write_targets_csv
 from errormap.chain_field import ChainField
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 from errormap.io import read_table
 
 MCS = read_work_offsets(MACHINE)
@@ -26,7 +26,7 @@ TOL_MODEL_RESIDUAL_UM = 1e-3
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory, grinder):
     d = tmp_path_factory.mktemp("comp")
-    truth = make_mt_truth(grinder, 7)
+    truth = make_chain_truth(grinder, 7)
     el = truth.elements.save(d / "elements.json")
     f = flute_path(turns=1, points_per_turn=40)
     nc = write_axes_gcode(d / "in" / "flute.nc", f.axes(grinder), header=["flute test"])

@@ -12,12 +12,12 @@ from compensation.app.cli import main
 from compensation.app.workflows.network_diagnosis import (TermsOnBase, augmented_feature_points, grid_aliasing,
                                                           retrain_learned)
 from errormap.chain_elements import ChainElementSet
-from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain
+from errormap.diagnosis.chain_loop import ChainChecks, closed_loop_chain
 from errormap.featurepoints import make_feature_points
 from errormap.chain_field import ChainField
 from errormap.io import write_csv
 from errormap.seeds import spawn_seeds
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 from training import TrainSettings
 
 NOISE_UM = 1.0
@@ -47,8 +47,8 @@ def chain_elements(elements, mt):
 def run_loop(machine, seed, effects):
     """The loop on the truth's own elements (nothing to update) and 400 checks: → summary (with ``_models``)."""
     mt = machine
-    truth = make_mt_truth(machine, seed, effects=effects)
-    checks = MTChecks.from_columns(mt, truth.check_measurements(N_CHECKS, NOISE_UM, spawn_seeds(seed, 1)[0]))
+    truth = make_chain_truth(machine, seed, effects=effects)
+    checks = ChainChecks.from_columns(mt, truth.check_measurements(N_CHECKS, NOISE_UM, spawn_seeds(seed, 1)[0]))
     return closed_loop_chain(mt, chain_elements(truth.elements, mt), checks, cov=None)
 
 
@@ -110,7 +110,7 @@ def _terms_on(grinder, effects, base):
 
 @pytest.mark.slow
 def test_terms_on_a_network_need_their_conditions(grinder):
-    base = ChainField(grinder, make_mt_truth(grinder, SEED).elements)
+    base = ChainField(grinder, make_chain_truth(grinder, SEED).elements)
     cf = _terms_on(grinder, ["reversal"], base)
     assert cf.needs == ("dir_z",)
     axes = np.array([[50.0, 20.0, 30.0], [120.0, 10.0, 200.0]])
@@ -123,7 +123,7 @@ def test_terms_on_a_network_need_their_conditions(grinder):
 
 @pytest.mark.slow
 def test_learned_retrain_hook_gets_feature_points_plus_terms(grinder):
-    base = ChainField(grinder, make_mt_truth(grinder, SEED).elements)
+    base = ChainField(grinder, make_chain_truth(grinder, SEED).elements)
     corrected = _terms_on(grinder, ["worm"], base)
     fp = make_feature_points(grinder, base, n=5)
     seen = {}
@@ -151,7 +151,7 @@ def test_learned_retrain_hook_gets_feature_points_plus_terms(grinder):
 def test_grid_aliasing_of_terms_is_detected(grinder):
     """A 40/rev worm harmonic on the 11-point A grid (every 36°) aliases to a constant: the learned retrain must
     not pretend feature points carry it; a 10 mm pitch on the 11-point X grid (20 mm apart) aliases too."""
-    base = ChainField(grinder, make_mt_truth(grinder, SEED).elements)
+    base = ChainField(grinder, make_chain_truth(grinder, SEED).elements)
     fp = make_feature_points(grinder, base, n=11)
     for effect in ("worm", "pitch"):
         a = grid_aliasing(fp, _terms_on(grinder, [effect], base))
@@ -159,7 +159,7 @@ def test_grid_aliasing_of_terms_is_detected(grinder):
 
 
 def test_cli_writes_report_and_json(grinder, tmp_path, capsys):
-    truth = make_mt_truth(grinder, 3, effects=["worm"])
+    truth = make_chain_truth(grinder, 3, effects=["worm"])
     el = truth.elements.save(tmp_path / "el.json")
     write_csv(tmp_path / "checks.csv", truth.check_measurements(N_CHECKS, NOISE_UM, 3))
     out = tmp_path / "out"
@@ -186,11 +186,11 @@ BAD = {
 @pytest.mark.parametrize("case", sorted(BAD))
 def test_bad_input_names_row_and_column_and_writes_nothing(grinder, tmp_path, capsys, case):
     cols = {k: np.array(v, dtype=float) for k, v in
-            make_mt_truth(grinder, 3).check_measurements(60, NOISE_UM, 3).items()}
+            make_chain_truth(grinder, 3).check_measurements(60, NOISE_UM, 3).items()}
     change, row, col = BAD[case]
     change(cols)
     write_csv(tmp_path / "checks.csv", cols)
-    el = make_mt_truth(grinder, 3).elements.save(tmp_path / "el.json")
+    el = make_chain_truth(grinder, 3).elements.save(tmp_path / "el.json")
     out = tmp_path / "out"
     assert main(["diagnose", str(tmp_path / "checks.csv"), "--model", str(el), "--out", str(out)]) == 2
     err = capsys.readouterr().err
@@ -199,7 +199,7 @@ def test_bad_input_names_row_and_column_and_writes_nothing(grinder, tmp_path, ca
 
 
 def test_missing_column_and_unit_mistake(grinder, tmp_path, capsys):
-    truth = make_mt_truth(grinder, 3)
+    truth = make_chain_truth(grinder, 3)
     el = truth.elements.save(tmp_path / "el.json")
     cols = truth.check_measurements(60, NOISE_UM, 3)
     cols.pop("dz_um")
@@ -217,8 +217,8 @@ def test_missing_column_and_unit_mistake(grinder, tmp_path, capsys):
 def test_retrain_options_with_an_element_set_are_refused(grinder, tmp_path, capsys):
     """--featurepoints and the retrain's limits retrain a trained network; with an element set they are refused in
     one line, nothing written."""
-    el = make_mt_truth(grinder, 3).elements.save(tmp_path / "el.json")
-    write_csv(tmp_path / "c.csv", make_mt_truth(grinder, 3).check_measurements(60, NOISE_UM, 3))
+    el = make_chain_truth(grinder, 3).elements.save(tmp_path / "el.json")
+    write_csv(tmp_path / "c.csv", make_chain_truth(grinder, 3).check_measurements(60, NOISE_UM, 3))
     out = tmp_path / "out"
     assert main(["diagnose", str(tmp_path / "c.csv"), "--model", str(el), "--out", str(out), "--seed", "3"]) == 2
     err = capsys.readouterr().err
@@ -238,7 +238,7 @@ def test_retrain_limits_are_checked_before_any_work(tmp_path, capsys, opt, value
 def test_cli_diagnoses_a_trained_network_and_refuses_track_with_it(grinder, tmp_path, capsys):
     """A trained network as the model (the grinder's, a folder): identified + effects on it, diagnosis.json only;
     --track (a kept learned residual) is refused in one line, nothing written."""
-    truth = make_mt_truth(grinder, 3, effects=["worm"])
+    truth = make_chain_truth(grinder, 3, effects=["worm"])
     el = truth.elements.save(tmp_path / "el.json")
     write_csv(tmp_path / "checks.csv", truth.check_measurements(N_CHECKS, NOISE_UM, 3))
     assert main(["featurepoints", "--elements", str(el), "--grid", "5", "--out", str(tmp_path / "fp.csv")]) == 0

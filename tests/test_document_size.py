@@ -67,10 +67,10 @@ def test_every_reader_sizes_first(tmp_path):
     from errormap.diagnosis.drift_models import DriftModel
     from errormap.chain_elements import ChainElementSet
     from errormap.machine import load_machine
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     from errormap.chain_covariance import read_chain_covariance
     grinder = load_machine("grinder")
-    el = make_mt_truth(grinder, 3).elements
+    el = make_chain_truth(grinder, 3).elements
     loaders = {"elements.json": lambda p: ChainElementSet.load(p, grinder), "drift.json": DriftModel.load, "fleet.toml": read_fleet,
                "diag.json": read_json, "e.cov.npz": lambda p: read_chain_covariance(p, el)}
     for name, load in loaders.items():

@@ -11,10 +11,10 @@ def fp_and_machine(tmp_path_factory):
     from errormap.featurepoints import make_feature_points
     from errormap.chain_field import ChainField
     from errormap.machine import load_machine
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     tmp = tmp_path_factory.mktemp("patience")
     m = load_machine()
-    el = make_mt_truth(m, 5).elements
+    el = make_chain_truth(m, 5).elements
     el_path = el.save(tmp / "el.json")
     return make_feature_points(m, ChainField(m, el), n=4, meta={"elements_file": str(el_path)}), m
 

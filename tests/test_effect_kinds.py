@@ -12,7 +12,7 @@ from errormap import effect_kinds as ek
 from errormap.diagnosis import effects as fx
 from errormap.chain_elements import ChainElementSet
 from errormap.elements import IDX
-from errormap.chain_truth import (CHAIN_TRUTH_ONLY as OUT_OF_CATALOGUE, EFFECT_DEFAULTS, MTTruth as TruthGrinder,
+from errormap.chain_truth import (CHAIN_TRUTH_ONLY as OUT_OF_CATALOGUE, EFFECT_DEFAULTS, ChainTruth as TruthGrinder,
                                   independent_effect_parameters, random_axes)
 from errormap.effect_kinds import SIMULATOR_NAMES as EFFECT_NAMES
 

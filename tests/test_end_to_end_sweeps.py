@@ -12,7 +12,7 @@ import pytest
 from compensation.app.cli import main
 from errormap.io import read_table
 from errormap.machine import load_machine
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 
 SEED = 3
 TRAIN_ITERATIONS = 120
@@ -53,7 +53,7 @@ def test_identify_featurepoints_train_compensate_from_sweeps(tmp_path):
     commanded = np.stack([t.float(c) for c in ("x_mm", "z_mm", "a_deg")], axis=1)
 
     from errormap.chain_kernel import forward
-    truth = make_mt_truth(machine, SEED)
+    truth = make_chain_truth(machine, SEED)
     target = forward(machine, axes)
     before = np.linalg.norm(truth.tool_point(axes) - target, axis=1) * 1e3
     after = np.linalg.norm(truth.tool_point(commanded) - target, axis=1) * 1e3

@@ -41,11 +41,11 @@ def _identification():
 
 
 def _identification_grinder():
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     from errormap.chain_sweeps import simulated_sweeps
     from errormap.sweeps import sweeps_from_columns
     g = load_machine()
-    sweeps = sweeps_from_columns(simulated_sweeps(make_mt_truth(g, seed=3), noise_um=1.0, seed=4))
+    sweeps = sweeps_from_columns(simulated_sweeps(make_chain_truth(g, seed=3), noise_um=1.0, seed=4))
     axes = np.array([[10.0, 20.0, 30.0], [40.0, 60.0, 200.0]])
     return Identification(g), (sweeps,), (axes,), ("elements_", "covariance_", "field_")
 

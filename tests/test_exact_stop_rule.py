@@ -9,7 +9,7 @@ from compensation.solvers.exact import ROUNDOFF_ULPS
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import forward
 from errormap.machine import load_machine
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 
 N_POINTS = 2000
 SEED = 4
@@ -28,7 +28,7 @@ def problem():
     m = load_machine()
     rng = np.random.default_rng(SEED)
     ax = rng.uniform(m.stroke_lo, m.stroke_hi, (N_POINTS, 3))
-    return m, ChainField(m, make_mt_truth(m, SEED).elements), forward(m, ax), ax
+    return m, ChainField(m, make_chain_truth(m, SEED).elements), forward(m, ax), ax
 
 
 def test_default_is_the_documented_stop(problem):

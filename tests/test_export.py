@@ -9,7 +9,7 @@ from compensation.app.cli import main
 from compensation.toolpath import flute_path
 from errormap.chain_elements import ChainElementSet
 from errormap.io import InputError, read_table
-from errormap.chain_truth import MTTruth, make_mt_truth
+from errormap.chain_truth import ChainTruth, make_chain_truth
 
 # the tolerance the tables are sized to in the round trips: the check must meet it
 TOL_UM = 1.0
@@ -81,7 +81,7 @@ def test_grid_exact_for_a_field_linear_in_x_and_z(grinder):
 def test_round_trip_meets_the_stated_tolerance(grinder, small_sets, tmp_path, fmt):
     """export → files → read back → the re-simulated controller leaves at most the tolerance the
     table was sized for, and at least 100× less than no compensation, on flute and volume."""
-    truth = make_mt_truth(grinder, 11)
+    truth = make_chain_truth(grinder, 11)
     model = ex.ModelError(grinder, truth.elements)
     table, sizing = ex.build_table(fmt, model, grinder, TOL_UM, small_sets)
     assert sizing["interpolation_error_um"] <= TOL_UM
@@ -97,7 +97,7 @@ def test_round_trip_meets_the_stated_tolerance(grinder, small_sets, tmp_path, fm
 
 def test_linuxcnc_diagnosed_backlash_removes_the_reversal(grinder, small_sets, tmp_path):
     el = linear_elements(grinder)
-    truth = MTTruth(grinder, el, {"reversal": {"backlash_um": BACKLASH_UM}})
+    truth = ChainTruth(grinder, el, {"reversal": {"backlash_um": BACKLASH_UM}})
     diag = tmp_path / "diagnosis.json"
     diag.write_text(json.dumps({"effects": [
         {"kind": "reversal", "axis": "z", "element": "dz_z", "parameters": {"backlash_um": {"value": BACKLASH_UM}}},
@@ -122,7 +122,7 @@ def test_linuxcnc_diagnosed_backlash_removes_the_reversal(grinder, small_sets, t
 
 
 def test_cli_refuses_then_forces(grinder, tmp_path, capsys):
-    el_path = make_mt_truth(grinder, 2).elements.save(tmp_path / "el.json")
+    el_path = make_chain_truth(grinder, 2).elements.save(tmp_path / "el.json")
     out = tmp_path / "lc"
     args = ["export", str(el_path), "--format", "linuxcnc", "--out", str(out), "--tolerance-um", "1",
             "--check-points", "100", "--points", "64"]
@@ -137,7 +137,7 @@ def test_cli_refuses_then_forces(grinder, tmp_path, capsys):
 
 
 def test_cli_grid_writes_and_records(grinder, tmp_path):
-    el_path = make_mt_truth(grinder, 2).elements.save(tmp_path / "el.json")
+    el_path = make_chain_truth(grinder, 2).elements.save(tmp_path / "el.json")
     out = tmp_path / "g"
     assert main(["export", str(el_path), "--format", "grid", "--out", str(out), "--tolerance-um", "2",
                  "--check-points", "100"]) == 0
@@ -149,7 +149,7 @@ def test_cli_grid_writes_and_records(grinder, tmp_path):
 
 
 def test_bad_files_name_the_place(grinder, tmp_path):
-    model = ex.ModelError(grinder, make_mt_truth(grinder, 2).elements)
+    model = ex.ModelError(grinder, make_chain_truth(grinder, 2).elements)
     g = ex.grid_from_model(model, (3, 3, 5))
     p = ex.write_grid(g, tmp_path, grinder, "test")
     lines = p.read_text().splitlines()
@@ -177,7 +177,7 @@ def test_bad_files_name_the_place(grinder, tmp_path):
 
 
 def test_iso_table_header_states_reference_and_sign(grinder, tmp_path):
-    t = ex.iso_tables_from_model(make_mt_truth(grinder, 2).elements, grinder, 5)
+    t = ex.iso_tables_from_model(make_chain_truth(grinder, 2).elements, grinder, 5)
     ex.write_iso_tables(t, tmp_path, grinder, "test")
     head = read_table(tmp_path / "iso_X.csv").comments   # its provenance sidecar
     assert any(h.startswith("reference point: the origin of the X body's frame") for h in head)
@@ -186,7 +186,7 @@ def test_iso_table_header_states_reference_and_sign(grinder, tmp_path):
 
 
 def test_cli_refuses_a_model_of_another_machine(grinder, tmp_path, capsys):
-    el = make_mt_truth(grinder, 2).elements
+    el = make_chain_truth(grinder, 2).elements
     el.machine_sha256 = "0" * 64
     p = el.save(tmp_path / "el.json")
     assert main(["export", str(p), "--format", "iso-tables", "--out", str(tmp_path / "o")]) == 2

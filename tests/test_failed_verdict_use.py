@@ -41,9 +41,9 @@ def _verdict(status):
 def diagnosed(tmp_path_factory):
     """A diagnose folder of the grinder: updated_elements.json with a failed diagnosis.json beside it."""
     from errormap.machine import load_machine
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     d = tmp_path_factory.mktemp("diag")
-    el = make_mt_truth(load_machine("grinder"), 3).elements.save(d / "updated_elements.json")
+    el = make_chain_truth(load_machine("grinder"), 3).elements.save(d / "updated_elements.json")
     (d / "diagnosis.json").write_text(json.dumps({"verdict": _verdict("failed")}))
     (d / "pts.csv").write_text("x_mm,z_mm,a_deg\n10,20,30\n11,21,31\n12,22,32\n")
     return d, el
@@ -54,10 +54,10 @@ def chain_model(tmp_path_factory):
     """A mill's diagnosed model.json that carries its own failed verdict (no diagnosis.json beside)."""
     from errormap.diagnosis.loop_model import save_chain_model
     from errormap.machine import load_machine
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     mill = load_machine("mill-xyz")
     d = tmp_path_factory.mktemp("chain")
-    el = make_mt_truth(mill, 3, family="independent").elements.save(d / "updated_elements.json")
+    el = make_chain_truth(mill, 3, family="independent").elements.save(d / "updated_elements.json")
     model = save_chain_model(d / "model.json", mill, el, [], "elements", {"verdict": _verdict("failed")})
     (d / "pts.csv").write_text("x_mm,y_mm,z_mm\n10,20,-30\n11,21,-31\n")
     return d, model
@@ -157,9 +157,9 @@ def test_a_real_failed_diagnosis_stops_predict_and_compensate(tmp_path):
     given to predict and compensate is refused (exit 2), naming model.json and the baseline it loses to."""
     from errormap.io import write_csv
     from errormap.machine import load_machine
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     noise_um, offset_um = 1.0, 20.0
-    t = make_mt_truth(load_machine("mill-xyz"), 3, family="independent")
+    t = make_chain_truth(load_machine("mill-xyz"), 3, family="independent")
     t.elements.save(tmp_path / "elements.json")
     ck = t.check_measurements(200, noise_um=noise_um, seed=4)
     checks = write_csv(tmp_path / "checks.csv", {**ck, "dx_um": ck["dx_um"] + offset_um},

@@ -10,7 +10,7 @@ from errormap.field import (CAPABILITIES, GRINDER_AXES, JACOBIAN, OFFSET_FITNESS
                             check_field)
 from errormap.chain_field import ChainField
 from errormap.machine import load_machine
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 from errormap.threads import limit_threads
 
 COLUMNS_NUMPY_TOL = 0.0  # the numpy column path wraps the torch one: the same numbers, bit for bit
@@ -35,7 +35,7 @@ def test_the_fields_implement_the_protocol(machine):
     from errormap.diagnosis.corrected import CorrectedField
     from training.model import MLPField
     from training.pose_field import PoseMLP
-    htm = ChainField(machine, make_mt_truth(machine, 0).elements)
+    htm = ChainField(machine, make_chain_truth(machine, 0).elements)
     net, axes = small_network()
     for f in (htm, net, CorrectedField(machine, htm, []), TableField(htm.predict)):
         assert check_field(f) is f and isinstance(f, ErrorField)

@@ -69,11 +69,11 @@ def test_a_fleet_runs_in_process_without_ray(tmp_path, grinder, capsys):
 
     from compensation.app.cli import main
     from errormap.io import write_csv
-    from errormap.chain_truth import MTTruth, make_mt_truth
+    from errormap.chain_truth import ChainTruth, make_chain_truth
     from errormap.chain_sweeps import simulated_sweeps
     from errormap.sweeps import write_sweeps
-    truth = make_mt_truth(grinder, 3)
-    write_sweeps(tmp_path / "sweeps.csv", simulated_sweeps(MTTruth(grinder, truth.elements, {}), seed=3))
+    truth = make_chain_truth(grinder, 3)
+    write_sweeps(tmp_path / "sweeps.csv", simulated_sweeps(ChainTruth(grinder, truth.elements, {}), seed=3))
     write_csv(tmp_path / "checks.csv", truth.check_measurements(n=150, seed=13),
               header_comments=["format: volcomp-checks/1"])
     (tmp_path / "fleet.toml").write_text('format = "volcomp-fleet/1"\n[[machine]]\nname = "only"\n'

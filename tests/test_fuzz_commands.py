@@ -182,7 +182,7 @@ def test_fuzz_register_poses(files, data):
 def test_fuzz_diagnose_chain_checks(files, data):
     """diagnose --machine mill-xyz on mangled checks: exit 0 with a passed verdict, exit 1 with a failed one
     (written in diagnosis.json), each with the check count the library reads from the same file; or one line."""
-    from errormap.diagnosis.chain_loop import load_mt_checks
+    from errormap.diagnosis.chain_loop import load_chain_checks
     mill = load_machine("mill-xyz")
     raw = data.draw(hostile_bytes(_head(files / "m" / "checks.csv", 60), table=True))
     with tempfile.TemporaryDirectory() as d:
@@ -198,7 +198,7 @@ def test_fuzz_diagnose_chain_checks(files, data):
             failed = False
         if _tally_outcome(argv, rc, err, [str(p)]):
             doc = json.loads((Path(d) / "o" / "diagnosis.json").read_text())
-            n = len(load_mt_checks(p, mill).axes)
+            n = len(load_chain_checks(p, mill).axes)
             _check_output("diagnose", doc["verdict"]["status"] == ("failed" if failed else "passed")
                           and doc["n_fit"] + doc["n_held_out"] == n, argv)
 

@@ -100,9 +100,9 @@ def _head(path: Path, n_data: int) -> str:
 @FUZZ
 @given(data=st.data())
 def test_fuzz_checks_reader(sim, machine, data):
-    from errormap.diagnosis.chain_checks import load_mt_checks
+    from errormap.diagnosis.chain_checks import load_chain_checks
     raw = data.draw(mangled(_head(sim / "sim" / "checks.csv", 30)))
-    reads_or_refuses(lambda p: load_mt_checks(p, machine), raw, ".csv")
+    reads_or_refuses(lambda p: load_chain_checks(p, machine), raw, ".csv")
 
 
 @FUZZ

@@ -9,7 +9,7 @@ from compensation.solvers._converge import RETRY_MIN_RADIUS_UM, RETRY_RADIUS_GRO
 from compensation.solvers.ga import DEFAULT_TOL_UM
 from compensation.toolpath import flute_path
 from errormap.chain_field import ChainField
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 
 SHORT_GENERATIONS = 30
 """Far fewer than the paper's 400: most points end above the 0.265 μm tolerance (measured: 39 of
@@ -18,7 +18,7 @@ SHORT_GENERATIONS = 30
 
 @pytest.fixture(scope="module")
 def case(grinder):
-    field = ChainField(grinder, make_mt_truth(grinder, 0).elements)
+    field = ChainField(grinder, make_chain_truth(grinder, 0).elements)
     fp = flute_path(turns=1, points_per_turn=40)
     return field, fp.targets_mm, fp.axes(grinder)
 
@@ -86,7 +86,7 @@ def test_compensate_records_the_retry_in_its_summary(tmp_path, grinder, capsys):
 
     from compensation.app.cli import main
     from compensation.pathio import write_axes_gcode
-    el = make_mt_truth(grinder, 3).elements.save(tmp_path / "elements.json")
+    el = make_chain_truth(grinder, 3).elements.save(tmp_path / "elements.json")
     src = write_axes_gcode(tmp_path / "flute.nc", flute_path(turns=1, points_per_turn=20).axes(grinder))
     rc = main(["compensate", "--work-offsets", "machine",
                str(src), "--model", str(el), "--method", "batched-ga", "--out", str(tmp_path / "o"),

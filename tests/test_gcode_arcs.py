@@ -1,6 +1,6 @@
 """A linearised, compensated arc stays within the chord tolerance of the true arc.
 
-The error field is the simulated truth itself (an HTM field from ``random_truth``), so the
+The error field is the simulated truth itself (the chain field of ``make_chain_truth``), so the
 machine driven with the written commands reaches ``forward(q) + E(q)``: the TRUE residual.
 It is sampled densely along every written chord (what the controller interpolates: linear
 in the axes between consecutive vertices), not only at the vertices, and measured as the
@@ -14,7 +14,7 @@ from compensation.pathio import read_path, replan
 from compensation.solvers import solve
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import forward
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 
 MCS = read_work_offsets(MACHINE)
 """The G-code programs here are written in machine coordinates (the grinder's axes): read with
@@ -41,7 +41,7 @@ def _distance_to_arc_um(machine, points_mm, centre_xz, radius_mm, a_deg):
 @pytest.mark.parametrize("radius_mm", [2.0, 20.0])
 @pytest.mark.parametrize("segments", ["auto", "none"])
 def test_compensated_arc_within_chord_tolerance_along_the_chords(tmp_path, grinder, radius_mm, segments):
-    truth = ChainField(grinder, make_mt_truth(grinder, 11).elements)
+    truth = ChainField(grinder, make_chain_truth(grinder, 11).elements)
     x0, z0, a = 80.0, 5.0, 30.0
     src = tmp_path / "arc.nc"
     # a half circle (G3, counter-clockwise), centre (x0, z0 + r), from (x0, z0) to (x0, z0 + 2r)

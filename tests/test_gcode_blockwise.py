@@ -15,7 +15,7 @@ from compensation import pathio
 from compensation.nc_state import MACHINE, read_work_offsets
 from errormap.chain_field import ChainField
 from errormap.io import InputError
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 
 CORPUS = sorted((Path(__file__).parent / "data" / "gcode_corpus").glob("*.nc"))
 OPTIONS = [{}, {"rapids": "compensate"}, {"block_delete": "on"}, {"block_delete": "off"}]
@@ -25,7 +25,7 @@ LINES_PER_PROGRAM = 600
 
 @pytest.fixture(scope="module")
 def field(grinder):
-    return ChainField(grinder, make_mt_truth(grinder, 3).elements)
+    return ChainField(grinder, make_chain_truth(grinder, 3).elements)
 
 
 @pytest.fixture(autouse=True)

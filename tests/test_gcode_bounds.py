@@ -12,7 +12,7 @@ from compensation.pathio import (MAX_PATH_POINTS, MAX_VERTICES_PER_MOVE, read_pa
                                  stroke_diagonal_mm)
 from errormap.io import InputError
 from errormap.machine import load_machine
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 
 MCS = read_work_offsets(MACHINE)
 """The G-code programs here are written in machine coordinates (the grinder's axes): read with
@@ -125,7 +125,7 @@ def test_too_many_points_per_file_are_refused_with_the_limit(tmp_path, machine):
 
 
 def test_compensate_refuses_the_typo_in_one_line_exit_2(tmp_path, machine, capsys):
-    el = make_mt_truth(machine, 3).elements.save(tmp_path / "elements.json")
+    el = make_chain_truth(machine, 3).elements.save(tmp_path / "elements.json")
     src = _write(tmp_path, "G21 G90 G18\nG1 X100. Z0.3 A0 F100\nG01 X110000 Z35000 A30000\n", "typo.nc")
     rc = main(["compensate", "--work-offsets", "machine",
                str(src), "--model", str(el), "--method", "traditional", "--out", str(tmp_path / "o")])
@@ -146,4 +146,4 @@ def test_compensate_refuses_the_typo_in_one_line_exit_2(tmp_path, machine, capsy
 
 def _field(machine):
     from errormap.chain_field import ChainField
-    return ChainField(machine, make_mt_truth(machine, 3).elements)
+    return ChainField(machine, make_chain_truth(machine, 3).elements)

@@ -24,7 +24,7 @@ from compensation.solvers import solve
 from errormap.chain_field import ChainField
 from errormap.io import InputError
 from errormap.chain_kernel import forward
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 
 CORPUS = Path(__file__).parent / "data" / "gcode_corpus"
 AXES = ("X", "Z", "A")
@@ -64,7 +64,7 @@ def read_options(exp: dict) -> dict:
 
 @pytest.fixture(scope="module")
 def field(grinder):
-    return ChainField(grinder, make_mt_truth(grinder, 7).elements)
+    return ChainField(grinder, make_chain_truth(grinder, 7).elements)
 
 
 def test_corpus_is_large_and_mixed():
@@ -140,7 +140,7 @@ def _reread(text, path, grinder, opts):
 
 
 def test_cli_batch_over_the_corpus(tmp_path, grinder, capsys):
-    el = make_mt_truth(grinder, 7).elements.save(tmp_path / "el.json")
+    el = make_chain_truth(grinder, 7).elements.save(tmp_path / "el.json")
     plain = [str(p) for p in PROGRAMS if p.name.startswith("c") and "expect: compensate)" in p.read_text("latin-1")]
     assert len(plain) >= 10
     out = tmp_path / "out"

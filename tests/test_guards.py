@@ -15,7 +15,7 @@ from errormap.field import CalibratedVolume
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import forward
 from errormap.machine import load_machine
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 
 
 @pytest.fixture(scope="module")
@@ -104,7 +104,7 @@ def test_volume_guard_folds_a_on_a_partial_calibrated_turn():
 
 def test_calibrated_volume_contract(machine):
     """One form: the field's ``calibrated_volume`` (errormap.field.CalibratedVolume) or None."""
-    truth = make_mt_truth(machine, 0)
+    truth = make_chain_truth(machine, 0)
     lo, hi = calibrated_volume(ChainField(machine, truth.elements))  # the element stations' range
     np.testing.assert_allclose(lo, machine.stroke_lo)
     np.testing.assert_allclose(hi, machine.stroke_hi)

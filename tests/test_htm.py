@@ -9,7 +9,7 @@ from errormap.chain_elements import ChainElementSet
 from errormap.elements import ELEMENT_NAMES
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import error_jacobian, spatial_error
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 
 TOL_ZERO_UM = 1e-9
 TOL_FIRST_ORDER_UM = 1e-6      # for 1 μm / 1 μrad elements, second-order terms are ~1e-9 μm
@@ -107,14 +107,14 @@ def test_jacobian_matches_finite_differences(grinder, axes, rng):
 
 
 def test_element_set_round_trip(tmp_path, grinder, axes):
-    el = make_mt_truth(grinder, 7).elements
+    el = make_chain_truth(grinder, 7).elements
     path = el.save(tmp_path / "el.json")
     back = ChainElementSet.load(path, grinder)
     np.testing.assert_array_equal(back.values(axes), el.values(axes))
 
 
 def test_element_splines_interpolate_and_are_periodic_in_a(grinder):
-    el = make_mt_truth(grinder, 3).elements
+    el = make_chain_truth(grinder, 3).elements
     st = el.stations
     at_stations = el.values(np.c_[st["x_mm"], st["z_mm"], st["a_deg"]])
     np.testing.assert_allclose(at_stations[:, ELEMENT_NAMES.index("dy_x")], el.functions["dy_x"], atol=1e-12)

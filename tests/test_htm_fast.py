@@ -14,7 +14,7 @@ from errormap.chain_elements import ChainElementSet
 from errormap.elements import AXIS_OF, CONSTANT_ELEMENTS, ELEMENT_NAMES, FUNCTION_ELEMENTS
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import spatial_error
-from errormap.chain_truth import make_mt_truth, random_axes
+from errormap.chain_truth import make_chain_truth, random_axes
 
 TOL_CLOSED_FORM_UM = 1e-9
 """Both forms compute tool points of ~0.5 m and subtract the nominal one: one ulp of 500 mm is
@@ -58,7 +58,7 @@ def _element_spline(el, k):
 @pytest.mark.parametrize("case", ["truth", "truth_x100", "independent"])
 def test_closed_form_equals_matrix_chain(grinder, case):
     el = (_independent_elements(grinder, 7) if case == "independent"
-          else make_mt_truth(grinder, 3).elements.scaled(100.0 if case == "truth_x100" else 1.0))
+          else make_chain_truth(grinder, 3).elements.scaled(100.0 if case == "truth_x100" else 1.0))
     axes = _axes_multi_turn(grinder, 4000, 11)
     v = el.values(axes)
     ref = grinder.spatial_error(axes, v)
@@ -68,7 +68,7 @@ def test_closed_form_equals_matrix_chain(grinder, case):
 
 
 def test_axis_splines_equal_per_element_splines(grinder):
-    for el in (make_mt_truth(grinder, 5).elements, _independent_elements(grinder, 8)):
+    for el in (make_chain_truth(grinder, 5).elements, _independent_elements(grinder, 8)):
         axes = _axes_multi_turn(grinder, 3000, 12)
         cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": el.wrap("a_deg", axes[:, 2])}
         ref = np.stack([_element_spline(el, k)(cols[AXIS_OF[k]]) for k in FUNCTION_ELEMENTS], axis=1)
@@ -81,7 +81,7 @@ def test_axis_splines_equal_per_element_splines(grinder):
 
 
 def test_field_equals_reference_pipeline_and_periodic_in_a(grinder):
-    el = make_mt_truth(grinder, 9).elements
+    el = make_chain_truth(grinder, 9).elements
     axes = _axes_multi_turn(grinder, 2000, 13)
     cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": el.wrap("a_deg", axes[:, 2])}
     v_ref = np.stack([_element_spline(el, k)(cols[AXIS_OF[k]]) for k in FUNCTION_ELEMENTS]
@@ -114,7 +114,7 @@ of the chain (a spline slope through a lever arm, a product of two element angle
 @pytest.mark.parametrize("case", ["truth", "truth_x100", "independent"])
 def test_closed_form_jacobian_matches_finite_differences(grinder, case):
     el = (_independent_elements(grinder, 7) if case == "independent"
-          else make_mt_truth(grinder, 3).elements.scaled(100.0 if case == "truth_x100" else 1.0))
+          else make_chain_truth(grinder, 3).elements.scaled(100.0 if case == "truth_x100" else 1.0))
     field = ChainField(grinder, el)
     axes = _axes_multi_turn(grinder, 3000, 11)
     E, J = field.predict_and_jacobian(axes)
@@ -130,6 +130,6 @@ def test_closed_form_jacobian_matches_finite_differences(grinder, case):
 
 
 def test_jacobian_is_float64_only(grinder):
-    el = make_mt_truth(grinder, 0).elements
+    el = make_chain_truth(grinder, 0).elements
     with pytest.raises(ValueError, match="float64"):
         ChainField(grinder, el).predict_and_jacobian(np.zeros((2, 3)), dtype=np.float32)

@@ -166,7 +166,7 @@ def reference_error_jacobian(m, axes):
 def random_elements(machine, seed, scale_um=60.0):
     """Random element values (not the simulator's): normal ±scale at 21 stations, closed A
     profiles, non-zero constants (the chain tests' generator)."""
-    from tests.test_mt_chain import _grinder_elements
+    from tests.test_chain_chain import _grinder_elements
     return _grinder_elements(machine, seed, scale_um)
 
 

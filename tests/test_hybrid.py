@@ -10,7 +10,7 @@ from compensation.solvers import solve
 from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN, check_field
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import forward
-from errormap.chain_truth import make_mt_truth, random_axes
+from errormap.chain_truth import make_chain_truth, random_axes
 from training.gp import GP_KERNELS
 
 SEED = 0
@@ -93,7 +93,7 @@ def test_learned_stage_declines_pure_noise(grinder):
 @pytest.mark.slow
 def test_hybrid_field_value_jacobian_and_taper(grinder, staged):
     axes, learned, _ = staged
-    truth = make_mt_truth(grinder, SEED)
+    truth = make_chain_truth(grinder, SEED)
     field = check_field(HybridField(ChainField(grinder, truth.elements), learned))
     assert {JACOBIAN, PREDICT_AND_JACOBIAN} <= field.capabilities
     P = random_axes(grinder, 9, np.random.default_rng(3))
@@ -113,7 +113,7 @@ def test_hybrid_field_value_jacobian_and_taper(grinder, staged):
 @pytest.mark.slow
 def test_model_json_round_trip_and_solvers(grinder, staged, tmp_path):
     _, learned, _ = staged
-    truth = make_mt_truth(grinder, SEED)
+    truth = make_chain_truth(grinder, SEED)
     truth.elements.save(tmp_path / "updated_elements.json")
     (tmp_path / "model.json").write_text(json.dumps({
         "format": "volcomp-diagnosed-model/1", "elements": "updated_elements.json", "terms": [],
@@ -137,7 +137,7 @@ def test_model_json_round_trip_and_solvers(grinder, staged, tmp_path):
 
 def test_bad_learned_residual_is_refused_naming_the_key(grinder, tmp_path):
     from errormap.io import InputError
-    truth = make_mt_truth(grinder, SEED)
+    truth = make_chain_truth(grinder, SEED)
     truth.elements.save(tmp_path / "updated_elements.json")
     (tmp_path / "model.json").write_text(json.dumps({
         "format": "volcomp-diagnosed-model/1", "elements": "updated_elements.json", "terms": [],
@@ -154,13 +154,13 @@ OOC_MIN_RMS_UM = 1.5
 @pytest.mark.parametrize("family", ["default", "independent"])
 def test_out_of_catalogue_effects_are_seeded_and_visible(grinder, family):
     from errormap.effect_kinds import TRUTH_ONLY as OUT_OF_CATALOGUE
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     P = random_axes(grinder, 500, np.random.default_rng(0))
-    base = make_mt_truth(grinder, 1, family=family).spatial_error(P)
+    base = make_chain_truth(grinder, 1, family=family).spatial_error(P)
     for eff in OUT_OF_CATALOGUE:
-        d = make_mt_truth(grinder, 1, effects=[eff], family=family).spatial_error(P) - base
+        d = make_chain_truth(grinder, 1, effects=[eff], family=family).spatial_error(P) - base
         assert np.sqrt(np.mean(np.sum(d**2, axis=1))) >= OOC_MIN_RMS_UM
-        again = make_mt_truth(grinder, 1, effects=[eff], family=family).spatial_error(P) - base
+        again = make_chain_truth(grinder, 1, effects=[eff], family=family).spatial_error(P) - base
         np.testing.assert_array_equal(d, again)
 
 
@@ -179,8 +179,8 @@ def test_squareness_xz_is_not_separable_in_x_and_z(grinder):
     lo = np.array([grinder.strokes["x_mm"][0], grinder.strokes["z_mm"][0]])
     mid = lo + 0.5 * np.array([np.ptp(grinder.strokes["x_mm"]), np.ptp(grinder.strokes["z_mm"])])
     corners = np.array([[lo[0], lo[1], 0.0], [lo[0], mid[1], 0.0], [mid[0], lo[1], 0.0], [mid[0], mid[1], 0.0]])
-    base = make_mt_truth(grinder, SEED)
-    with_eff = make_mt_truth(grinder, SEED, effects=["squareness_xz"])
+    base = make_chain_truth(grinder, SEED)
+    with_eff = make_chain_truth(grinder, SEED, effects=["squareness_xz"])
     s = with_eff.element_values(corners)[:, IDX["s_xz"]] - base.element_values(corners)[:, IDX["s_xz"]]
     mixed = s[0] - s[1] - s[2] + s[3]
     np.testing.assert_allclose(mixed, EFFECT_DEFAULTS["squareness_xz"]["k_urad"], rtol=MIXED_DIFF_RTOL)
@@ -198,7 +198,7 @@ def test_hybrid_calibrated_volume_is_the_checks_box_and_the_guard_refuses_outsid
     axes[:, 1] = 10.0 + 40.0 * rng.random(60)
     reg = ResidualRegressor(seed=SEED).fit(axis_features(axes)[0], NOISE_UM * rng.standard_normal((60, 3)))
     lo, hi = axes[:, :2].min(0), axes[:, :2].max(0)
-    base = ChainField(grinder, make_mt_truth(grinder, SEED).elements)
+    base = ChainField(grinder, make_chain_truth(grinder, SEED).elements)
     hyb = HybridField(base, LearnedResidual(reg, lo, hi))
     vol = hyb.calibrated_volume
     assert vol.lo[:2] == tuple(lo) and vol.hi[:2] == tuple(hi)
@@ -224,7 +224,7 @@ def test_hybrid_total_band_is_learned_band_plus_element_band(grinder):
     axes = random_axes(grinder, 80, rng)
     r = _bump(grinder, axes) + NOISE_UM * rng.standard_normal(axes.shape)
     reg = ResidualRegressor(seed=SEED, margin_se=0.0).fit(axis_features(axes)[0], r)
-    el = make_mt_truth(grinder, SEED).elements
+    el = make_chain_truth(grinder, SEED).elements
     p = len(theta_layout(el))
     cov = theta_covariance(el, 0.25 * np.eye(p))
     hyb = HybridField(ChainField(grinder, el), LearnedResidual(reg, axes[:, :2].min(0), axes[:, :2].max(0)))
@@ -281,7 +281,7 @@ def test_predict_on_a_diagnosed_model_without_covariance_writes_no_band(grinder,
     """Elements + no learned part: the prediction is the model's; no covariance beside the elements →
     no band columns (a zero band would be a false claim) and --band is refused naming the file."""
     from compensation.app.cli import main
-    truth = make_mt_truth(grinder, SEED)
+    truth = make_chain_truth(grinder, SEED)
     truth.elements.save(tmp_path / "updated_elements.json")
     (tmp_path / "model.json").write_text(json.dumps({
         "format": "volcomp-diagnosed-model/1", "elements": "updated_elements.json", "terms": [], "stage": "updated"}))
@@ -361,7 +361,7 @@ def test_solvers_on_a_hybrid_with_the_ensemble_family(grinder):
     reg = ResidualRegressor(families=("ensemble",), seed=SEED).fit(f, r, groups=np.repeat(np.arange(10), 48))
     assert reg.chosen_ == "ensemble"
     learned = LearnedResidual(reg, axes[:, :2].min(0), axes[:, :2].max(0))
-    field = HybridField(ChainField(grinder, make_mt_truth(grinder, SEED).elements), learned)
+    field = HybridField(ChainField(grinder, make_chain_truth(grinder, SEED).elements), learned)
     check_field(field)
     P = random_axes(grinder, 60, np.random.default_rng(5))
     inside = np.all((P[:, :2] >= learned.lo) & (P[:, :2] <= learned.hi), axis=1)

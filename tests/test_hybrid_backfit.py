@@ -88,7 +88,7 @@ def test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt(t
     profiles, part of the tilt that the learned part would then have to learn minus that part): the stage
     reports it, ships the backfitted base, writes the loop alone's own elements beside it, and the hybrid's
     model error against the hidden truth is a small fraction of the loop alone's."""
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     m = load_machine()
     s = _user_path(tmp_path, 0, "a_tilt")
     lr = s["learned_residual"]
@@ -103,7 +103,7 @@ def test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt(t
     alone.update(elements=model["loop_alone"]["elements"], kept_stage=model["base_stage"],
                  terms=model["loop_alone"]["terms"] + model.get("base_terms_replaced", []))
     (tmp_path / "d" / "alone.json").write_text(json.dumps(alone))
-    truth = make_mt_truth(m, 0, effects=["a_tilt"], family="default")
+    truth = make_chain_truth(m, 0, effects=["a_tilt"], family="default")
     P = random_axes(m, 2000, np.random.default_rng(2))
     cond = truth.default_conditions(len(P))
     e_true = truth.spatial_error(P, **cond)

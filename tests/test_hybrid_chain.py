@@ -47,15 +47,15 @@ def _bump(machine, axes):
 def _bump_truth(machine, seed, bump: bool):
     """The seeded independent-family truth, with the bump added to the first linear axis's positioning
     element (an out-of-catalogue effect: each element is a profile of one axis)."""
-    from errormap.chain_truth import MTTruth, make_mt_truth
-    base = make_mt_truth(machine, seed, family="independent")
+    from errormap.chain_truth import ChainTruth, make_chain_truth
+    base = make_chain_truth(machine, seed, family="independent")
     if not bump:
         return base
     a1 = next(a for a in machine.axes if a.kind == "linear")
     k = machine.slot_names.index(f"d{'xyz'[a1.along]}_{a1.word.lower()}")
 
     @dataclasses.dataclass
-    class Bumped(MTTruth):
+    class Bumped(ChainTruth):
         def element_values(self, axes, **conditions):
             axes = np.atleast_2d(np.asarray(axes, dtype=float))
             v = super().element_values(axes, **conditions)
@@ -267,12 +267,12 @@ RMS, above the 1 μm check noise) left in the residual, which a stand-in thermal
 def _warming_checks(m, n, seed):
     """n checks of the mill in time order, the machine warming as the simulator's (20 + 4·(1 − e^(−t/2400 s)),
     15 s apart), and the chain's two thermal terms' unit columns (X on dx_x, Y on dy_y) at them."""
-    from errormap.diagnosis.chain_loop import MTChecks, effect_columns
+    from errormap.diagnosis.chain_loop import ChainChecks, effect_columns
     rng = np.random.default_rng(seed)
     axes = m.stroke_lo + (m.stroke_hi - m.stroke_lo) * rng.random((n, len(m.axes)))
     temp = 20.0 + 4.0 * (1.0 - np.exp(-np.arange(n) * 15.0 / 2400.0))
     cols = [effect_columns(m, "thermal", (w,), axes, {"temp_c": temp})[0][:, :, 0] for w in ("X", "Y")]
-    return axes, temp, cols, MTChecks
+    return axes, temp, cols, ChainChecks
 
 
 def _thermal_term(word, coef):
@@ -289,8 +289,8 @@ def test_chain_learned_stage_hands_each_condition_term_to_the_rule_and_keeps_the
     from errormap.diagnosis.chain_loop import EffectTerm
     m = load_machine(MACHINE)
     n = 60
-    axes, temp, (cx, cy), MTChecks = _warming_checks(m, n, SEED)
-    checks = MTChecks(axes, np.random.default_rng(1).standard_normal((n, 3)), {"temp_c": temp})
+    axes, temp, (cx, cy), ChainChecks = _warming_checks(m, n, SEED)
+    checks = ChainChecks(axes, np.random.default_rng(1).standard_normal((n, 3)), {"temp_c": temp})
     static = EffectTerm("interaction", ("X", "Y"), "dx_x", {}, np.array([2.0]))
     terms = [static, _thermal_term("X", 0.004), _thermal_term("Y", -0.002)]
     seen = {}
@@ -326,7 +326,7 @@ def test_chain_real_thermal_term_stays_beside_a_replaced_stand_in():
     from compensation.hybrid import TERM_CONSISTENT_Z, TERM_KEEP_Z
     m = load_machine(MACHINE)
     n, n_fit = 800, 480
-    axes, temp, (cx, cy), MTChecks = _warming_checks(m, n, SEED + 2)
+    axes, temp, (cx, cy), ChainChecks = _warming_checks(m, n, SEED + 2)
     j = m.axis_columns.index("y_mm")
     scale = np.zeros((n, 3))
     scale[:, 1] = CHAIN_SLOPE_UM_PER_MM * (axes[:, j] - m.stroke_lo[j])
@@ -334,7 +334,7 @@ def test_chain_real_thermal_term_stays_beside_a_replaced_stand_in():
     meas = real + scale + np.random.default_rng(SEED + 3).standard_normal((n, 3))
     beta = np.sum(cy[:n_fit] * scale[:n_fit]) / np.sum(cy[:n_fit] ** 2)   # the stand-in, fitted as the search would
     terms = [_thermal_term("X", CHAIN_THERMAL_UM_PER_MM_C), _thermal_term("Y", beta)]
-    learned, stage, kept, _ = chain_learned_stage(m, MTChecks(axes, meas, {"temp_c": temp}), ChainElementSet.zeros(m),
+    learned, stage, kept, _ = chain_learned_stage(m, ChainChecks(axes, meas, {"temp_c": temp}), ChainElementSet.zeros(m),
                                                terms, {"n_fit": n_fit}, seed=SEED, families=("gp",))
     alt = stage["learned"]["condition_terms_vs_static"]
     assert alt["term_z_from_one"] >= TERM_CONSISTENT_Z     # the joint coefficient alone would replace both terms

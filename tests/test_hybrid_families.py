@@ -11,7 +11,7 @@ from compensation.solvers import solve
 from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN, check_field
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import forward
-from errormap.chain_truth import make_mt_truth, random_axes
+from errormap.chain_truth import make_chain_truth, random_axes
 from training.residual import ResidualRegressor
 
 SEED = 0
@@ -58,7 +58,7 @@ def learned(request, grinder):
 
 @pytest.mark.slow
 def test_new_family_in_the_hybrid_field_jacobian_taper_round_trip_and_solvers(grinder, learned, tmp_path):
-    truth = make_mt_truth(grinder, SEED)
+    truth = make_chain_truth(grinder, SEED)
     field = check_field(HybridField(ChainField(grinder, truth.elements), learned))
     assert {JACOBIAN, PREDICT_AND_JACOBIAN} <= field.capabilities
     P = random_axes(grinder, 9, np.random.default_rng(3))

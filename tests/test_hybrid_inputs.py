@@ -10,7 +10,7 @@ from compensation.hybrid import INPUT_SETS, LearnedResidual, input_features, wor
 from compensation.hybrid.stage import _fit_inputs
 from errormap.chain_kernel import forward
 from errormap.grinder_file import rho0_mm
-from errormap.chain_truth import make_mt_truth, random_axes
+from errormap.chain_truth import make_chain_truth, random_axes
 from training.residual import ResidualRegressor
 
 SEED = 0
@@ -129,8 +129,8 @@ def test_input_set_choice_is_the_lowest_cv_rms_on_the_same_folds(grinder):
 def test_a_lobe_x_is_not_a_sum_of_one_axis_profiles(grinder):
     """The round-5 effect: zero mean over A, and no f(x) + g(a) takes up more than 1 % of it."""
     from errormap.elements import IDX
-    with_ = make_mt_truth(grinder, SEED, effects=["a_lobe_x"])
-    without = make_mt_truth(grinder, SEED)
+    with_ = make_chain_truth(grinder, SEED, effects=["a_lobe_x"])
+    without = make_chain_truth(grinder, SEED)
     xs = np.linspace(*grinder.strokes["x_mm"], 81)
     a_s = np.arange(72) * 5.0
     X, A = np.meshgrid(xs, a_s, indexing="ij")
@@ -158,7 +158,7 @@ def test_xz_saddle_is_outside_the_linearised_element_model(grinder):
     X, Z, A = np.meshgrid(xs, zs, np.arange(24) * 15.0, indexing="ij")
     P = np.stack([X.ravel(), Z.ravel(), A.ravel()], axis=1)
     J = error_jacobian(grinder, P)
-    truth = make_mt_truth(grinder, SEED)
+    truth = make_chain_truth(grinder, SEED)
     nominal = ChainElementSet.zeros(grinder, truth.elements.stations["x_mm"].size)   # linearised at nominal
     slots, stations, _ = theta_covariance(nominal, None)
     M = parameter_matrix(grinder, nominal, P, slots, stations).reshape(3 * P.shape[0], -1)
@@ -166,7 +166,7 @@ def test_xz_saddle_is_outside_the_linearised_element_model(grinder):
     without = truth.element_values(P)
     shares = {}
     for name in ("xz_saddle", "squareness"):
-        dv = make_mt_truth(grinder, SEED, effects=[name]).element_values(P) - without
+        dv = make_chain_truth(grinder, SEED, effects=[name]).element_values(P) - without
         if name == "xz_saddle":
             assert np.all(np.delete(dv, IDX["dy_z"], axis=1) == 0.0)
             assert np.abs(dv[:, IDX["dy_z"]]).max() > 7.0            # A = 8 μm at its peak (sampled grid)

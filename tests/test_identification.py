@@ -17,7 +17,7 @@ from errormap.chain_sweeps import simulated_sweeps
 from errormap.identification import ChainIdentification, layout_problem, rigid_fit
 from errormap.io import InputError
 from errormap.machine import load_machine
-from errormap.chain_truth import MTTruth, make_mt_truth, random_axes
+from errormap.chain_truth import ChainTruth, make_chain_truth, random_axes
 from errormap.uncertainty import smooth_identify
 
 SPATIAL_TOL_UM = 0.01          # the issue's noise-free target on the tool-point error
@@ -41,7 +41,7 @@ def points(machine):
 
 @pytest.fixture(scope="module")
 def truth(machine):
-    return make_mt_truth(machine, 3)
+    return make_chain_truth(machine, 3)
 
 
 def identify(cols, machine, gauge="first-station"):
@@ -108,7 +108,7 @@ def test_injected_element_is_recovered(machine, points, name):
     else:
         constants[name] = 40.0
     el = ChainElementSet(machine, z.stations, functions, constants, machine.name, machine.sha256)
-    truth = MTTruth(machine, el, {})
+    truth = ChainTruth(machine, el, {})
     res = identify(simulated_sweeps(truth, noise_um=0.0, seed=3), machine)
     j = ELEMENT_NAMES.index(name)
     got, want = res.elements_.values(points), el.values(points)
@@ -119,7 +119,7 @@ def test_injected_element_is_recovered(machine, points, name):
 
 def test_worm_harmonic_aliases_to_a_constant(machine, truth):
     """40 teeth at 18° stations: sin(40·a + φ) is the same at every station -> ex_a offset."""
-    tw = make_mt_truth(machine, 3, effects=["worm"])
+    tw = make_chain_truth(machine, 3, effects=["worm"])
     got = identify(simulated_sweeps(tw, noise_um=0.0, seed=1), machine).elements_.functions["ex_a"]
     p = tw.parameters("worm")
     alias = p["amplitude_urad"] * np.sin(p["phase_rad"])
@@ -137,20 +137,20 @@ def test_noisy_identification_is_bounded_and_seeded(machine, truth, points):
 
 
 def test_bidirectional_runs_are_averaged_and_reported(machine):
-    tr = make_mt_truth(machine, 4, effects=["reversal"])
+    tr = make_chain_truth(machine, 4, effects=["reversal"])
     res = identify(simulated_sweeps(tr, noise_um=0.0, seed=1, bidirectional=True), machine)
     backlash = tr.parameters("reversal")["backlash_um"]
     assert res.reversal_um["Z"].max() == pytest.approx(backlash, rel=1e-6)  # a pure dz_z shift
     assert res.reversal_um["X"].max() < ELEMENT_TOL
     # the average of ±b/2 is the reversal-free Z positioning
-    plain = identify(simulated_sweeps(make_mt_truth(machine, 4), noise_um=0.0, seed=1), machine)
+    plain = identify(simulated_sweeps(make_chain_truth(machine, 4), noise_um=0.0, seed=1), machine)
     assert np.abs(res.elements_.functions["dz_z"] - plain.elements_.functions["dz_z"]).max() < ELEMENT_TOL
 
 
 def test_degenerate_target_layout_is_refused(machine, truth):
     """Collinear mounts in the machine file: refused before any fitting, naming key and axis."""
     bad = grinder_variant(targets={"X": [[0.0, 0.0, 40.0], [50.0, 0.0, 40.0], [100.0, 0.0, 40.0]]})
-    cols = simulated_sweeps(MTTruth(bad, truth.elements, {}), noise_um=0.0, seed=1)
+    cols = simulated_sweeps(ChainTruth(bad, truth.elements, {}), noise_um=0.0, seed=1)
     with pytest.raises(InputError, match=r"targets\.X.*collinear"):
         identify(cols, bad)
 
@@ -249,11 +249,11 @@ def test_rotary_direction_comes_from_the_chain(machine, points):
     """The identification turns A as the chain file says: on a grinder whose chain turns A
     about -x, sweeps simulated through that chain are identified to the noise-free tolerance in
     every gauge (with RotX(a) written into the method they would not be)."""
-    plain_truth = make_mt_truth(machine, 3)
+    plain_truth = make_chain_truth(machine, 3)
     plain = simulated_sweeps(plain_truth, noise_um=0.0, seed=1)
     rev = grinder_variant(edit=_a_reversed, sha_suffix="-a-reversed")
     assert next(a for a in rev.axes if a.word == "A").direction == -1.0
-    truth = make_mt_truth(rev, 3)
+    truth = make_chain_truth(rev, 3)
     sweeps = simulated_sweeps(truth, noise_um=0.0, seed=1)
     a = np.asarray(sweeps["axis"]) == "A"
     moved = np.hypot.reduce([np.asarray(sweeps[c])[a] - np.asarray(plain[c])[a] for c in ("x_mm", "y_mm", "z_mm")])
@@ -275,11 +275,11 @@ def test_chain_gauges_agree_and_the_default_measures_better():
     axis' errors sum to zero; with 2 μm noise the default (station-mean, smoothed) is closer to the hidden truth
     than the interpolating first-station set."""
     from errormap.identification import smooth_chain
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     from errormap.chain_sweeps import simulated_sweeps, swept_words
     from errormap.sweeps import sweeps_from_columns
     m = load_machine("mill-xyz")
-    truth = make_mt_truth(m, 0)
+    truth = make_chain_truth(m, 0)
     sweeps = lambda noise, seed: sweeps_from_columns(simulated_sweeps(truth, noise_um=noise, seed=seed),  # noqa: E731
                                                     source="<sim>", axes=swept_words(m))
     free, noisy = sweeps(0.0, 0), sweeps(2.0, 100)

@@ -9,7 +9,7 @@ from compensation.app.cli import main
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import ChainField
 from errormap.machine import load_machine
-from errormap.chain_truth import make_mt_truth, random_axes
+from errormap.chain_truth import make_chain_truth, random_axes
 
 SPATIAL_TOL_UM = 0.01
 
@@ -18,7 +18,7 @@ def test_sweeps_then_identify(tmp_path, capsys):
     sw = tmp_path / "sweeps.csv"
     assert main(["sweeps", "--seed", "5", "--out", str(sw), "--noise-um", "0"]) == 0
     out = tmp_path / "el.json"
-    truth_path = make_mt_truth(load_machine(), 5).elements.save(tmp_path / "truth.json")
+    truth_path = make_chain_truth(load_machine(), 5).elements.save(tmp_path / "truth.json")
     assert main(["identify", str(sw), "--out", str(out), "--plot", str(tmp_path / "fig"),
                  "--truth", str(truth_path)]) == 0
     text = capsys.readouterr().out

@@ -67,8 +67,8 @@ def test_sweeps_on_a_chain_machine_file_without_targets(tmp_path):
 
 @pytest.mark.parametrize("bad", [float("nan"), None, float("inf")])
 def test_nan_in_an_element_set_names_element_and_station(tmp_path, grinder, points, bad):
-    from errormap.chain_truth import make_mt_truth
-    el = make_mt_truth(grinder, 3).elements.save(tmp_path / "el.json")
+    from errormap.chain_truth import make_chain_truth
+    el = make_chain_truth(grinder, 3).elements.save(tmp_path / "el.json")
     d = json.loads(el.read_text())
     d["functions"]["ex_x"][4] = bad
     el.write_text(json.dumps(d))
@@ -80,8 +80,8 @@ def test_nan_in_an_element_set_names_element_and_station(tmp_path, grinder, poin
 
 def test_nan_in_a_chain_element_set(tmp_path):
     from errormap.machine import load_machine
-    from errormap.chain_truth import make_mt_truth
-    el = make_mt_truth(load_machine("mill-xyz"), 3).elements.save(tmp_path / "el.json")
+    from errormap.chain_truth import make_chain_truth
+    el = make_chain_truth(load_machine("mill-xyz"), 3).elements.save(tmp_path / "el.json")
     d = json.loads(el.read_text())
     name = next(iter(d["functions"]))
     d["functions"][name][2] = None
@@ -94,8 +94,8 @@ def test_nan_in_a_chain_element_set(tmp_path):
 
 @pytest.fixture
 def model(tmp_path, grinder):
-    from errormap.chain_truth import make_mt_truth
-    return make_mt_truth(grinder, 3).elements.save(tmp_path / "model.json")
+    from errormap.chain_truth import make_chain_truth
+    return make_chain_truth(grinder, 3).elements.save(tmp_path / "model.json")
 
 
 def _compensate(tmp_path, model, src):

@@ -15,7 +15,7 @@ from compensation.fields import resolve_model
 from errormap.chain_elements import ChainElementSet
 from errormap.io import InputError, read_table, write_csv
 from errormap.machine import load_machine
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 from errormap.chain_sweeps import simulated_sweeps
 from errormap.sweeps import write_sweeps
 from errormap.chain_covariance import covariance_path
@@ -43,7 +43,7 @@ def _one_line(capsys) -> str:
 
 
 def _checks(machine, tmp_path, name="checks.csv", **change) -> Path:
-    cols = make_mt_truth(machine, SEED).check_measurements(n=60, seed=1)
+    cols = make_chain_truth(machine, SEED).check_measurements(n=60, seed=1)
     cols = {k: np.asarray(v) for k, v in cols.items()}
     for k, f in change.items():
         cols[k] = f(cols[k])
@@ -122,7 +122,7 @@ def test_identify_out_without_suffix_then_diagnose_runs_the_closed_loop(machine,
 
 @pytest.mark.slow
 def test_diagnose_without_covariance_says_it_skips_the_update(machine, tmp_path, capsys):
-    el = make_mt_truth(machine, SEED).elements.save(tmp_path / "truth")
+    el = make_chain_truth(machine, SEED).elements.save(tmp_path / "truth")
     checks = _checks(machine, tmp_path)
     assert main(["diagnose", str(checks), "--model", str(el), "--out", str(tmp_path / "d")]) == 0
     err = capsys.readouterr().err
@@ -232,7 +232,7 @@ def test_a_path_in_mm_near_zero_passes_with_units_as_written(machine, tmp_path, 
 
 # -- point 8: messages that misled -------------------------------------------------------------------------
 def test_sweeps_in_metres_name_the_unit_not_coinciding_targets(machine, tmp_path, capsys):
-    cols = simulated_sweeps(make_mt_truth(machine, SEED), noise_um=0.0, seed=0)
+    cols = simulated_sweeps(make_chain_truth(machine, SEED), noise_um=0.0, seed=0)
     for k in ("x_mm", "y_mm", "z_mm"):
         cols[k] = np.asarray(cols[k]) / 1000
     sw = write_sweeps(tmp_path / "sw_m.csv", cols)
@@ -243,7 +243,7 @@ def test_sweeps_in_metres_name_the_unit_not_coinciding_targets(machine, tmp_path
 
 
 def test_sweep_axis_typo_is_quoted_as_written(machine, tmp_path, capsys):
-    cols = simulated_sweeps(make_mt_truth(machine, SEED), noise_um=0.0, seed=0)
+    cols = simulated_sweeps(make_chain_truth(machine, SEED), noise_um=0.0, seed=0)
     cols["axis"] = np.where(np.asarray(cols["axis"]) == "Z", "Y", np.asarray(cols["axis"]))
     sw = write_sweeps(tmp_path / "sw.csv", cols)
     assert main(["identify", str(sw), "--out", str(tmp_path / "e.json")]) == 2
@@ -274,8 +274,8 @@ def test_identify_truth_overlay_is_in_the_identified_gauge(machine):
     from errormap.sweeps import sweeps_from_columns
     from errormap.uncertainty import smooth_identify
     from compensation.app.workflows.measurement import truth_in_gauge
-    truth = make_mt_truth(machine, SEED).elements
-    sweeps = sweeps_from_columns(simulated_sweeps(make_mt_truth(machine, SEED), noise_um=0.0, seed=3), "<sweeps>")
+    truth = make_chain_truth(machine, SEED).elements
+    sweeps = sweeps_from_columns(simulated_sweeps(make_chain_truth(machine, SEED), noise_um=0.0, seed=3), "<sweeps>")
     # the interpolating identification (--raw): on noise-free sweeps it is the truth in its gauge exactly
     ident = smooth_identify(sweeps, machine, noise_um=0.5, smooth=False, gauge="station-mean").elements_
     pts = np.zeros((300, 3))
@@ -358,7 +358,7 @@ def test_a_stale_covariance_companion_is_refused(machine, tmp_path):
     checked by content."""
     from errormap.chain_covariance import read_chain_covariance
     from errormap.uncertainty import theta_from_elements, theta_layout
-    el = make_mt_truth(machine, SEED).elements
+    el = make_chain_truth(machine, SEED).elements
     lay = theta_layout(el)
     np.savez(tmp_path / "E.cov.npz", theta=theta_from_elements(el), cov=np.eye(len(lay)),
              layout_element=np.array([k for k, _ in lay]), layout_station=np.array([i for _, i in lay]))

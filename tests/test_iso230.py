@@ -147,8 +147,8 @@ def test_round_trip(grinder):
 
 def test_identify_summary_shows_iso_names(grinder):
     from compensation.app.reports.identification import iso_summary_lines
-    from errormap.chain_truth import make_mt_truth
-    el = make_mt_truth(grinder, 4).elements
+    from errormap.chain_truth import make_chain_truth
+    el = make_chain_truth(grinder, 4).elements
     lines = iso_summary_lines(el)
     assert len(lines) == 24
     assert lines[1].split()[:2] == ["dx_x", "(EXX)"]

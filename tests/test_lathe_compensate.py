@@ -15,7 +15,7 @@ from compensation.solvers.chain_exact import solve_exact_chain, solved_and_kept
 from errormap.machine import load_machine
 from errormap.chain_field import ChainField
 
-from test_mt_compensate import TOL_MODEL_RESIDUAL_UM, chain_elements, solve_and_check
+from test_chain_compensate import TOL_MODEL_RESIDUAL_UM, chain_elements, solve_and_check
 
 LATHE = "lathe-xzc"
 SPINDLE_CLEARANCE_MM = 5.0

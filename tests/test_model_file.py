@@ -10,7 +10,7 @@ import pytest
 
 from compensation.app.cli import main
 from compensation.model_file import Model, read_model
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 from errormap.diagnosis.chain_loop import EffectTerm
 from errormap.diagnosis.loop_model import save_chain_model
 from errormap.io import InputError, read_table, write_csv
@@ -29,7 +29,7 @@ def _points(mt, n=40, seed=5):
 
 def _model_json(tmp_path, mt, seed=4, fmt=None):
     """A model.json of ``mt``: a seeded element set beside it and one periodic term (no conditions needed)."""
-    el = make_mt_truth(mt, seed, family="independent").elements.save(tmp_path / "updated_elements.json")
+    el = make_chain_truth(mt, seed, family="independent").elements.save(tmp_path / "updated_elements.json")
     word = mt.axes[0].word
     own = next(s for s in mt.slot_names if s == f"d{word.lower()}_{word.lower()}")
     term = EffectTerm("periodic", (word,), own, {"period_mm": 7.3}, np.array([3.0, -2.0]))
@@ -117,7 +117,7 @@ def test_a_model_made_on_the_built_in_grinders_earlier_file_loads_and_another_ma
 def test_an_element_set_loads_as_a_model_of_elements(tmp_path):
     from errormap.chain_field import ChainField
     mt = load_machine("mill-xyz")
-    el = make_mt_truth(mt, 2, family="independent").elements
+    el = make_chain_truth(mt, 2, family="independent").elements
     p = el.save(tmp_path / "E.json")
     m = read_model(p, mt)
     assert m.format == "volcomp-elements/1" and m.elements_only and m.covariance_path is None
@@ -129,9 +129,9 @@ def test_the_grinders_old_closed_loop_model_loads(tmp_path):
     """``volcomp-diagnosed-model/1`` (the grinder's closed loop before the chain loop): its elements, the grinder's
     effect terms with the conditions they need, per point."""
     from errormap.chain_field import ChainField
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     g = load_machine(None)
-    el = make_mt_truth(g, 3).elements
+    el = make_chain_truth(g, 3).elements
     el.save(tmp_path / "updated_elements.json")
     term = {"kind": "thermal", "axis": "x", "element": "dx_x", "coefficients": [0.01],
             "reference": {"ref_temp_c": 20.0, "ref_time_s": 0.0}}
@@ -218,7 +218,7 @@ def test_identify_writes_a_model_file_naming_its_elements_and_covariance(tmp_pat
     from errormap.chain_sweeps import simulated_sweeps
     from errormap.sweeps import write_sweeps
     m = load_machine("mill-xyz")
-    write_sweeps(tmp_path / "sw.csv", simulated_sweeps(make_mt_truth(m, 0), noise_um=1.0, seed=1))
+    write_sweeps(tmp_path / "sw.csv", simulated_sweeps(make_chain_truth(m, 0), noise_um=1.0, seed=1))
     assert main(["identify", str(tmp_path / "sw.csv"), "--machine", "mill-xyz", "--out", str(tmp_path / "E.json")]) == 0
     assert f"wrote model: {tmp_path / 'E.model.json'}" in capsys.readouterr().out
     named, bare = read_model(tmp_path / "E.model.json", m), read_model(tmp_path / "E.json", m)
@@ -241,9 +241,9 @@ def test_diagnose_starts_from_a_model_file_of_elements_and_refuses_one_with_term
 
 def test_export_refuses_the_grinders_old_closed_loop_model_naming_its_element_set(tmp_path):
     from compensation.export.sources import load_model as export_model
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     g = load_machine(None)
-    make_mt_truth(g, 3).elements.save(tmp_path / "updated_elements.json")
+    make_chain_truth(g, 3).elements.save(tmp_path / "updated_elements.json")
     term = {"kind": "thermal", "axis": "x", "element": "dx_x", "coefficients": [0.01],
             "reference": {"ref_temp_c": 20.0, "ref_time_s": 0.0}}
     (tmp_path / "model.json").write_text(json.dumps({"format": "volcomp-diagnosed-model/1", "stage": "updated",

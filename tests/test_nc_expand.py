@@ -155,7 +155,7 @@ def test_haas_m97_local_subprogram_and_g65_arguments():
 
 def test_a_guard_refusal_inside_a_call_names_the_source_line(tmp_path, capsys):
     from compensation.app.cli import main
-    from test_mt_compensate import chain_elements
+    from test_chain_compensate import chain_elements
     el = chain_elements(load_machine("mill-xyz"), 5).save(tmp_path / "el.json")
     p = tmp_path / "sub.nc"  # the second call's incremental move leaves the X stroke [0, 600]
     p.write_text("O1\nG21 G90 G17\nG0 X100. Y100. Z-300.\nM98 P2 L2\nM30\nO2\nG91 G1 X300. F100.\nG90\nM99\n")

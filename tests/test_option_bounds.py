@@ -18,8 +18,8 @@ ARC = "G21 G90 G18\nG1 X100. Z0.3 A0 F100\nG2 X110. Z10.3 A0 I0 K10.\n"
 
 @pytest.fixture
 def arc_job(tmp_path, grinder):
-    from errormap.chain_truth import make_mt_truth
-    el = make_mt_truth(grinder, 3).elements.save(tmp_path / "elements.json")
+    from errormap.chain_truth import make_chain_truth
+    el = make_chain_truth(grinder, 3).elements.save(tmp_path / "elements.json")
     src = tmp_path / "arc.nc"
     src.write_text(ARC)
     return src, el

@@ -31,9 +31,9 @@ def run_cli(argv):
 @pytest.fixture(scope="module")
 def elements(tmp_path_factory):
     from errormap.machine import load_machine
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     d = tmp_path_factory.mktemp("el")
-    return make_mt_truth(load_machine("grinder"), 3).elements.save(d / "elements.json")
+    return make_chain_truth(load_machine("grinder"), 3).elements.save(d / "elements.json")
 
 
 @pytest.fixture

@@ -43,9 +43,9 @@ def one_line(rc, err, *needles):
 
 @pytest.fixture(scope="module")
 def elements(tmp_path_factory, grinder):
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     d = tmp_path_factory.mktemp("el")
-    return make_mt_truth(grinder, 3).elements.save(d / "elements.json")
+    return make_chain_truth(grinder, 3).elements.save(d / "elements.json")
 
 
 @pytest.fixture

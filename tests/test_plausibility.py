@@ -17,7 +17,7 @@ from errormap.diagnosis.plausibility import (AXIS_FIT_RATIO, UNIT_RATIO, check_d
 from errormap.io import InputError, write_csv
 from errormap.machine import load_machine
 from errormap.chain_field import ChainField
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 
 SEED = 3
 NOISE_UM = 1.0
@@ -35,7 +35,7 @@ def mill():
 def mill_case(mill, tmp_path_factory):
     """The mill's truth (seed 3, independent family) saved as the model, and its checks as simulate writes them."""
     d = tmp_path_factory.mktemp("mill")
-    t = make_mt_truth(mill, SEED, family="independent")
+    t = make_chain_truth(mill, SEED, family="independent")
     t.elements.save(d / "model.json")
     ck = t.check_measurements(N_CHECKS, noise_um=NOISE_UM, seed=SEED + 1)
     return d, ck
@@ -105,7 +105,7 @@ def test_no_false_alarm_on_correct_checks_of_three_chains():
     for name in ("mill-xyz", "five-axis-ac", "lathe-xzc"):
         m = load_machine(name)
         for seed in range(3):
-            t = make_mt_truth(m, seed, family="independent")
+            t = make_chain_truth(m, seed, family="independent")
             ck = t.check_measurements(N_CHECKS, noise_um=NOISE_UM, seed=seed + 10)
             axes = np.stack([ck[c] for c in m.axis_columns], 1)
             meas = np.stack([ck[c] for c in ("dx_um", "dy_um", "dz_um")], 1)
@@ -120,9 +120,9 @@ def test_no_false_alarm_on_correct_checks_of_three_chains():
 
 
 def test_grinder_checks_with_swapped_headers_are_refused(tmp_path, capsys):
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     g = load_machine(None)
-    truth = make_mt_truth(g, SEED)
+    truth = make_chain_truth(g, SEED)
     el = truth.elements.save(tmp_path / "el.json")
     cols = truth.check_measurements(60, NOISE_UM, SEED)
     write_csv(tmp_path / "ok.csv", cols)
@@ -220,7 +220,7 @@ def test_the_reported_cases_through_identify(tmp_path, capsys):
                      "--out", str(tmp_path / f"o_{name}")]) == 2
         line = _one_line(capsys)
         assert name in line and ("mm rather than μm" if name == "mm.csv" else "headers exchanged") in line
-    truth = make_mt_truth(load_machine("mill-xyz"), SEED, family="independent")
+    truth = make_chain_truth(load_machine("mill-xyz"), SEED, family="independent")
     write_csv(tmp_path / "noisy.csv", truth.check_measurements(300, noise_um=5.0, seed=SEED + 1),
               header_comments=["noise_um: 1.0"])
     assert main(["diagnose", str(tmp_path / "noisy.csv"), "--machine", "mill-xyz", "--model", str(tmp_path / "E.json"),
@@ -250,20 +250,20 @@ def _grinder_loop(g, t, cols, stated=None):
     """The machine tools' loop on the grinder's chain: the truth's elements as the identified model, a prior of
     0.5 μm / μrad on every element parameter (as an identification would give), the checks ``cols``."""
     from errormap.chain_elements import ChainElementSet
-    from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain, full_parameters
+    from errormap.diagnosis.chain_loop import ChainChecks, closed_loop_chain, full_parameters
     mt = g
     el = ChainElementSet.load(t.elements.save(Path(tempfile.mkdtemp()) / "el.json"), mt)
     slots, stations = full_parameters(el)
-    checks = MTChecks.from_columns(mt, cols)
+    checks = ChainChecks.from_columns(mt, cols)
     checks.stated_noise_um = stated
     return closed_loop_chain(mt, el, checks, cov=(slots, stations, 0.25 * np.eye(len(slots))))
 
 
 @pytest.mark.slow   # two grinder closed loops: 20–80 s on the shared machine
 def test_grinder_closed_loop_verdict_fails_when_the_plain_baseline_wins():
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     g = load_machine(None)
-    t = make_mt_truth(g, SEED)
+    t = make_chain_truth(g, SEED)
     cols = t.check_measurements(150, NOISE_UM, SEED + 1)
     good = _grinder_loop(g, t, cols)
     assert diagnosis_verdict(good)["status"] == "passed"
@@ -283,7 +283,7 @@ def test_sweeps_with_two_ball_columns_exchanged_are_refused_before_identificatio
     from errormap.chain_sweeps import simulated_sweeps, swept_words
     from errormap.sweeps import sweeps_from_columns
     m = load_machine(name)
-    cols = simulated_sweeps(make_mt_truth(m, SEED, family="independent"), noise_um=2.0, seed=SEED)
+    cols = simulated_sweeps(make_chain_truth(m, SEED, family="independent"), noise_um=2.0, seed=SEED)
     ok = sweeps_from_columns(cols, axes=swept_words(m))
     ChainIdentification()._check_handedness(ok, m, swept_words(m), "ok.csv")   # no refusal
     bad = sweeps_from_columns(dict(cols, x_mm=cols["y_mm"], y_mm=cols["x_mm"]), axes=swept_words(m))
@@ -302,9 +302,9 @@ UNDERSTATED = 4.0
 @pytest.mark.slow   # two grinder closed loops
 def test_grinder_loop_judges_its_noise_estimate_against_the_stated_noise():
     from errormap.diagnosis.plausibility import NOISE_EXCESS
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     g = load_machine(None)
-    t = make_mt_truth(g, SEED)
+    t = make_chain_truth(g, SEED)
     cols = t.check_measurements(150, NOISE_UM, SEED + 1)
     s = _grinder_loop(g, t, cols, stated=NOISE_UM)
     assert abs(s["noise_sigma_estimated_um"] / NOISE_UM - 1) < GRINDER_SIGMA_TOL
@@ -319,9 +319,9 @@ def test_grinder_loop_judges_its_noise_estimate_against_the_stated_noise():
 def test_grinder_diagnose_reads_the_stated_noise_and_exits_1_when_contradicted(tmp_path, capsys):
     """Without a covariance (effects on the model as it is) the verdict still judges the noise (the kept model's
     held-out residual per coordinate): the file's '# noise_um:' line, or --noise-um over it."""
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     g = load_machine(None)
-    truth = make_mt_truth(g, SEED)
+    truth = make_chain_truth(g, SEED)
     truth.elements.save(tmp_path / "model.json")
     cols = truth.check_measurements(60, NOISE_UM, SEED)
     write_csv(tmp_path / "c.csv", cols, header_comments=[f"noise_um: {NOISE_UM / UNDERSTATED}"])

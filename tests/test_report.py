@@ -17,7 +17,7 @@ from compensation.toolpath import flute_path
 from errormap.io import InputError
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import NominalChain
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 
 TOL_UM = 1e-6
 MIN_TURN_CORRELATION = 0.95  # between the traditional residual's profiles on successive turns
@@ -26,7 +26,7 @@ METRIC_KEYS = {"model_max_um", "model_mean_sq_um2", "true_max_um", "seconds", "p
 
 @pytest.fixture(scope="module")
 def truth(grinder):
-    return make_mt_truth(grinder, 11)
+    return make_chain_truth(grinder, 11)
 
 
 def HTMField(machine, elements):
@@ -183,7 +183,7 @@ def test_a_truth_effect_the_chain_does_not_carry_is_refused_naming_file_and_key(
     """A truth.json without a format key (a grinder file's simulate folder) is read on the grinder's chain, its
     effects as the chain's kinds (worm = harmonic on A, the stroke fractions renamed); an effect the chain's truth
     cannot carry (``drift``: not simulated) is refused naming the file and the key, never dropped."""
-    t = make_mt_truth(grinder, 4)
+    t = make_chain_truth(grinder, 4)
     t.elements.save(tmp_path / "truth_elements.json")
     (tmp_path / "truth.json").write_text(json.dumps(
         {"seed": 4, "effects": {"worm": {"amplitude_urad": 90.0, "teeth": 40, "phase_rad": 1.1},

@@ -40,8 +40,8 @@ def _comparison(grinder):
     from compensation.app.workflows.compare import compare_methods
     from compensation.toolpath import flute_path
     from errormap.chain_field import ChainField
-    from errormap.chain_truth import make_mt_truth
-    truth = make_mt_truth(grinder, 11)
+    from errormap.chain_truth import make_chain_truth
+    truth = make_chain_truth(grinder, 11)
     flute = flute_path(turns=1, points_per_turn=40)
     return compare_methods(ChainField(grinder, truth.elements), flute.targets_mm, grinder,
                            methods=("traditional", "exact"), truth=truth)
@@ -53,8 +53,8 @@ def _report(root, grinder):
 
 
 def _diagnose(root, grinder):
-    from errormap.chain_truth import make_mt_truth
-    truth = make_mt_truth(grinder, 3, effects=["worm"])
+    from errormap.chain_truth import make_chain_truth
+    truth = make_chain_truth(grinder, 3, effects=["worm"])
     el = truth.elements.save(root / "el.json")
     write_csv(root / "checks.csv", truth.check_measurements(N_CHECKS, CHECK_NOISE_UM, 3))
     assert main(["diagnose", str(root / "checks.csv"), "--model", str(el), "--out", str(root / "diag")]) == 0
@@ -116,7 +116,7 @@ def _demo(root, grinder, request):
 
 def _diagnose_chain(root, grinder, request):
     """A machine-tool chain's diagnose run (mill-xyz, reversal:Z, against the truth's elements; the run
-    tests/test_mt_report.py asserts on, tests/shared_runs.py) → volcomp report RUN on a copy of it."""
+    tests/test_chain_report.py asserts on, tests/shared_runs.py) → volcomp report RUN on a copy of it."""
     run = private_copy(request.getfixturevalue("mill_reversal").root / "diag", root / "mt-diag")
     assert main(["report", str(run)]) == 0
     return run / "report.html"

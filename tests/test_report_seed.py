@@ -11,7 +11,7 @@ from compensation.app.workflows.compensate import CompensateSettings, solve_path
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import forward
 from errormap.machine import load_machine
-from errormap.chain_truth import make_mt_truth, random_axes
+from errormap.chain_truth import make_chain_truth, random_axes
 
 SEED = 5
 
@@ -19,7 +19,7 @@ SEED = 5
 @pytest.mark.parametrize("method,points", [("batched-ga", 40), ("ga", 2)])  # the per-point GA: ~1 s a point
 def test_report_and_compensate_give_the_same_ga_commands(tmp_path, method, points):
     m = load_machine()
-    field = ChainField(m, make_mt_truth(m, 1).elements)
+    field = ChainField(m, make_chain_truth(m, 1).elements)
     axes = random_axes(m, points, np.random.default_rng(3))
     targets = forward(m, axes)
     path = SimpleNamespace(targets_mm=targets, axes=axes, path="p.csv", tool_mm=None, turning=None)

@@ -5,7 +5,7 @@ import numpy as np
 from errormap.grinder_file import rho0_mm
 import pytest
 
-from errormap.chain_truth import EFFECT_DEFAULTS, make_mt_truth, random_axes, volume_grid
+from errormap.chain_truth import EFFECT_DEFAULTS, make_chain_truth, random_axes, volume_grid
 from errormap.effect_kinds import SIMULATOR_NAMES as EFFECT_NAMES
 
 MAX_ERROR_BAND_UM = (150.0, 230.0)
@@ -18,7 +18,7 @@ TOL_NOISE_REL = 0.1      # σ estimated from 1,200 samples
 
 @pytest.mark.parametrize("seed", range(8))
 def test_magnitudes_in_band(grinder, seed):
-    truth = make_mt_truth(grinder, seed)
+    truth = make_chain_truth(grinder, seed)
     pts = np.vstack([volume_grid(grinder), random_axes(grinder, 20_000, np.random.default_rng(seed))])
     e = truth.spatial_error(pts)
     norm_max = np.linalg.norm(e, axis=1).max()
@@ -29,14 +29,14 @@ def test_magnitudes_in_band(grinder, seed):
 
 
 def test_same_seed_same_numbers(grinder):
-    a = make_mt_truth(grinder, 11).check_measurements(n=50, noise_um=1.0, seed=4)
-    b = make_mt_truth(grinder, 11).check_measurements(n=50, noise_um=1.0, seed=4)
+    a = make_chain_truth(grinder, 11).check_measurements(n=50, noise_um=1.0, seed=4)
+    b = make_chain_truth(grinder, 11).check_measurements(n=50, noise_um=1.0, seed=4)
     for k in a:
         np.testing.assert_array_equal(a[k], b[k])
 
 
 def test_check_schema_and_noise(grinder):
-    truth = make_mt_truth(grinder, 2)
+    truth = make_chain_truth(grinder, 2)
     ck = truth.check_measurements(n=400, noise_um=2.0, seed=9)
     assert {"x_mm", "z_mm", "a_deg", "dx_um", "dy_um", "dz_um", "time_s", "temp_c",
             "dir_x", "dir_z", "dir_a", "seq"} <= set(ck)
@@ -49,8 +49,8 @@ def test_check_schema_and_noise(grinder):
 
 
 def effect_difference(grinder, name, seed=5):
-    with_effect = make_mt_truth(grinder, seed, effects=[name]).check_measurements(n=300, noise_um=0.0, seed=1)
-    without = make_mt_truth(grinder, seed).check_measurements(n=300, noise_um=0.0, seed=1)
+    with_effect = make_chain_truth(grinder, seed, effects=[name]).check_measurements(n=300, noise_um=0.0, seed=1)
+    without = make_chain_truth(grinder, seed).check_measurements(n=300, noise_um=0.0, seed=1)
     d = np.c_[with_effect["dx_um"], with_effect["dy_um"], with_effect["dz_um"]] - \
         np.c_[without["dx_um"], without["dy_um"], without["dz_um"]]
     return with_effect, d
@@ -106,11 +106,11 @@ def test_interaction_effect(grinder):
 
 
 def test_effects_need_their_conditions(grinder):
-    truth = make_mt_truth(grinder, 0, effects=["thermal"])
+    truth = make_chain_truth(grinder, 0, effects=["thermal"])
     with pytest.raises(ValueError, match="temp_c"):
         truth.spatial_error(np.array([[10.0, 10.0, 10.0]]))
     with pytest.raises(ValueError, match="unknown"):
-        make_mt_truth(grinder, 0, effects=["gravity"])
+        make_chain_truth(grinder, 0, effects=["gravity"])
     assert set(EFFECT_NAMES) == {"thermal", "reversal", "pitch", "worm", "interaction",
                                  "bump", "a_tilt", "squareness", "squareness_xz", "a_lobe_x",
                                  "xz_saddle"}  # the last six: out of the effect catalogue

@@ -7,7 +7,7 @@ from compensation.solvers import solve
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import forward
 from errormap.machine import load_machine
-from errormap.chain_truth import make_mt_truth, random_axes
+from errormap.chain_truth import make_chain_truth, random_axes
 
 EXACT_TOL_UM = 1e-6
 """As tests/test_solvers.py: both solves iterate to float precision (|F| ≤ 1e-9 μm or round-off)."""
@@ -32,7 +32,7 @@ class FiniteDifferenceOnly:
 @pytest.mark.parametrize("truth_seed", [2, 5])
 def test_closed_form_jacobian_solve_equals_finite_differences(truth_seed):
     m = load_machine()
-    field = ChainField(m, make_mt_truth(m, truth_seed).elements)
+    field = ChainField(m, make_chain_truth(m, truth_seed).elements)
     rng = np.random.default_rng(21)
     axes = random_axes(m, 3000, rng)
     axes[:, 2] += 360.0 * rng.integers(-2, 3, len(axes))

@@ -13,7 +13,7 @@ from compensation.batch import LocalExecutor, solve_batch
 from compensation.pathio import write_axes_gcode
 from compensation.toolpath import flute_path
 from errormap.chain_field import ChainField
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -41,7 +41,7 @@ def _cpu_s(pid: int) -> float:
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc to read the child's CPU time")
 @pytest.mark.parametrize("chunks", ["one chunk (main thread)", "two chunks (worker threads)"])
 def test_ctrl_c_during_batched_ga_exits_130_promptly(tmp_path, grinder, chunks):
-    el = make_mt_truth(grinder, 5).elements.save(tmp_path / "elements.json")
+    el = make_chain_truth(grinder, 5).elements.save(tmp_path / "elements.json")
     src = write_axes_gcode(tmp_path / "flute.nc", flute_path().axes(grinder))
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "compensation.app.cli", "compensate", str(src), "--model", str(el),
@@ -98,7 +98,7 @@ def _interrupt_after(main_ident: int, cpu_s: float, at: dict):
 @pytest.mark.parametrize("chunk_points", [2800, 1400], ids=["one chunk", "two chunks in threads"])
 def test_batched_ga_raises_keyboard_interrupt_within_the_bound(grinder, chunk_points):
     import threading
-    field = ChainField(grinder, make_mt_truth(grinder, 5).elements)
+    field = ChainField(grinder, make_chain_truth(grinder, 5).elements)
     fp = flute_path()
     path = _Path(fp.targets_mm, fp.axes(grinder))
     at = {}

@@ -5,7 +5,7 @@ import pytest
 
 from errormap.io import InputError
 from errormap.machine import load_machine
-from errormap.chain_truth import make_mt_truth, random_axes
+from errormap.chain_truth import make_chain_truth, random_axes
 from errormap.chain_sweeps import simulated_sweeps
 from errormap.sweeps import read_sweeps, sweeps_from_columns, write_sweeps
 from errormap.transforms import apply, compose, invert
@@ -22,7 +22,7 @@ def machine():
 
 @pytest.fixture(scope="module")
 def truth(machine):
-    return make_mt_truth(machine, 11)
+    return make_chain_truth(machine, 11)
 
 
 def test_body_frames_reproduce_the_htm_tool_point(machine, truth):
@@ -146,9 +146,9 @@ def test_a_chain_set_up_over_several_files_reads_as_one(tmp_path):
     """One reader for every machine tool: a mill's set-up split over files that name the same set-up reads as
     the one file would (its axis words from the machine)."""
     from errormap.chain_sweeps import simulated_sweeps
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     mill = load_machine("mill-xyz")
-    cols = simulated_sweeps(make_mt_truth(mill, 2), noise_um=1.0, seed=3)
+    cols = simulated_sweeps(make_chain_truth(mill, 2), noise_um=1.0, seed=3)
     whole = read_sweeps(write_sweeps(tmp_path / "all.csv", cols, comments=["setup: s1"]), mill)
     parts = [write_sweeps(tmp_path / f"{w}.csv", {k: v[cols["axis"] == w] for k, v in cols.items()},
                           comments=["setup: s1"]) for w in ("X", "Y", "Z")]

@@ -37,8 +37,8 @@ def test_noise_seed_follows_the_seed(tmp_path, capsys, machine):
 
 def test_truth_file_without_noise_seed_uses_zero(tmp_path, capsys):
     from errormap.machine import load_machine
-    from errormap.chain_truth import make_mt_truth
-    el = make_mt_truth(load_machine(), 1).elements.save(tmp_path / "el.json")
+    from errormap.chain_truth import make_chain_truth
+    el = make_chain_truth(load_machine(), 1).elements.save(tmp_path / "el.json")
     assert main(["sweeps", "--truth", str(el), "--out", str(tmp_path / "s.csv")]) == 0
     assert "noise seed 0 (default with --truth)" in capsys.readouterr().out
     assert _noise_seed(text_and_provenance(tmp_path / "s.csv")) == 0

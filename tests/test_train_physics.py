@@ -11,7 +11,7 @@ from errormap.featurepoints import FeaturePoints, grid_axes
 from errormap.chain_field import ChainField
 from errormap.io import InputError
 from errormap.machine import load_machine
-from errormap.chain_truth import make_mt_truth, random_axes
+from errormap.chain_truth import make_chain_truth, random_axes
 from training.model import MLPField, PhysicsMLPField
 from training.physics import fit_physics_elements, grid_stations
 from training.trainers import TrainSettings, fit_field
@@ -50,7 +50,7 @@ def machine():
 @pytest.fixture(scope="module")
 def data(machine):
     """Feature points of a seeded truth (GRID stations) on the GRID³ grid, and 2,000 random points."""
-    truth = ChainField(machine, make_mt_truth(machine, SIM_SEED, n_stations=GRID).elements)
+    truth = ChainField(machine, make_chain_truth(machine, SIM_SEED, n_stations=GRID).elements)
     axes = grid_axes(machine, GRID)
     val = random_axes(machine, 2000, np.random.default_rng(11))
     fp = FeaturePoints(axes, truth.predict(axes), {"machine": machine.name, "machine_sha256": machine.sha256})

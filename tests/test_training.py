@@ -361,8 +361,8 @@ def test_fit_metrics_per_axis():
 
 
 def test_validation_points_are_off_grid_and_from_the_model(machine):
-    from errormap.chain_truth import make_mt_truth
-    truth = make_mt_truth(machine, 0)
+    from errormap.chain_truth import make_chain_truth
+    truth = make_chain_truth(machine, 0)
     axes, e = validation_points(machine, truth.elements, n=200, seed=3)
     assert axes.shape == (200, 3) and e.shape == (200, 3)
     assert np.all(axes >= machine.stroke_lo) and np.all(axes <= machine.stroke_hi)
@@ -483,12 +483,12 @@ def test_selection_keeps_the_iterate_best_off_grid(tmp_path):
     from errormap.featurepoints import make_feature_points
     from errormap.chain_field import ChainField
     from errormap.machine import load_machine
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     from training import fit_field
     from errormap.seeds import spawn_seeds
     from training.trainers import SELECTION_STREAM, validation_points
     m = load_machine()
-    el = make_mt_truth(m, 5).elements
+    el = make_chain_truth(m, 5).elements
     el_path = el.save(tmp_path / "el.json")
     fp = make_feature_points(m, ChainField(m, el), n=5, meta={"elements_file": str(el_path)})
     kw = dict(max_time_s=120, max_iter=60, seed=0, track=False, quiet=True, threads=1, n_validation=2000,

@@ -1,7 +1,7 @@
 """Turning mode on lathe-xzc (compensation/turning.py): while the spindle turns, X and Z compensate the
 tool point against the surface of revolution and C is never written; C is solved only in C-axis mode.
 
-The truth is a seeded element set of the lathe's chain (±10 μm / μrad, tests/test_mt_compensate.py); the
+The truth is a seeded element set of the lathe's chain (±10 μm / μrad, tests/test_chain_compensate.py); the
 model is the truth with seeded noise (``ESTIMATE_NOISE_UM``, as the mill's test) and, for the oracle, the
 truth itself. TRUE residual: the truth machine's tool tip at the written axes, radial and axial deviation
 from the programmed surface of revolution, mean over one spindle turn."""
@@ -16,7 +16,7 @@ from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import ChainField
 
-from test_mt_compensate import chain_elements
+from test_chain_compensate import chain_elements
 
 LATHE = "lathe-xzc"
 ESTIMATE_NOISE_UM = 0.3

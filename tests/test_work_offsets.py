@@ -23,7 +23,7 @@ DATA = Path(__file__).resolve().parent / "data" / "controller"
 TOL_NOMINAL_MM = 1e-9
 """Nominal tool tip of two tool lengths with the Z shift: round-off on ~1000 mm."""
 ELEMENT_SCALE_UM = 10.0
-"""Truth elements of ±10 μm / μrad (1 σ), a real mill's size (tests/test_mt_compensate.py)."""
+"""Truth elements of ±10 μm / μrad (1 σ), a real mill's size (tests/test_chain_compensate.py)."""
 IGNORED_MIN_UM = 2.0
 """The same compensation computed with the tables ignored (G55 as machine zero, the file's 120 mm tool)
 must leave more than this at the true tool point: the check above has teeth (observed 5-40 μm)."""
@@ -190,8 +190,8 @@ def test_the_grinder_reads_a_g54_program_with_its_offsets(tmp_path, grinder, cap
     """The grinder (on its chain) reads a G54 program as every machine tool does: refused without
     --work-offsets; with a table, placed by it; with --work-offsets machine, compensated, recorded in the summary
     and as the output's first comment."""
-    from errormap.chain_truth import make_mt_truth
-    el = make_mt_truth(grinder, 7).elements.save(tmp_path / "elements.json")
+    from errormap.chain_truth import make_chain_truth
+    el = make_chain_truth(grinder, 7).elements.save(tmp_path / "elements.json")
     prog = Path(__file__).resolve().parent / "data" / "gcode_corpus" / "c01_linuxcnc_basic.ngc"
     base = ["compensate", str(prog), "--model", str(el), "--method", "exact"]
     assert main([*base, "--out", str(tmp_path / "a")]) == 2
@@ -233,10 +233,10 @@ def test_a_program_with_no_work_system_word_is_not_read_at_machine_zero(tmp_path
     """No G54 word and no table: refused at the first move naming the options (no assumed zero, on the
     grinder as on the chains); with --work-offsets machine: compensated, and the summary and the
     output's first comment record it."""
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     prog = tmp_path / "part.nc"
     prog.write_text(text, encoding="ascii")
-    model = truth_file if machine_name else make_mt_truth(grinder, 7).elements.save(tmp_path / "elements.json")
+    model = truth_file if machine_name else make_chain_truth(grinder, 7).elements.save(tmp_path / "elements.json")
     base = ["compensate", str(prog), "--model", str(model), "--method", "exact"]
     base += ["--machine", machine_name] if machine_name else []
     assert main([*base, "--out", str(tmp_path / "a")]) == 2
@@ -275,8 +275,8 @@ def test_a_program_placing_itself_with_g10_needs_no_table(tmp_path, truth_file):
 def test_report_reads_a_gcode_path_only_with_its_frame(tmp_path, grinder, capsys):
     """volcomp report --path: the same rule as compensate (refused at the first move without
     --work-offsets machine; with it the report records it in metrics.json)."""
-    from errormap.chain_truth import make_mt_truth
-    el = make_mt_truth(grinder, 7).elements.save(tmp_path / "elements.json")
+    from errormap.chain_truth import make_chain_truth
+    el = make_chain_truth(grinder, 7).elements.save(tmp_path / "elements.json")
     prog = tmp_path / "part.nc"
     prog.write_text(GRINDER_NO_SYSTEM, encoding="ascii")
     base = ["report", "--model", str(el), "--path", str(prog), "--methods", "traditional"]

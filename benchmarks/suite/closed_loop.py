@@ -28,7 +28,7 @@ FLUTE_CONDITIONS = ["--temp-c", "20", "--time-s", "0", "--dir-x", "1", "--dir-z"
 
 
 TRUTH_ELEMENT = {"thermal": "dx_x", "reversal": "dz_z", "pitch": "dx_x", "worm": "ex_a", "interaction": "dx_x"}
-"""The element each simulated effect acts on (errormap.chain_truth.MTTruth.element_values)."""
+"""The element each simulated effect acts on (errormap.chain_truth.ChainTruth.element_values)."""
 
 
 def _implied_sign(machine, truth_element: str, found_element: str):
@@ -116,13 +116,13 @@ def run_case(family: str, seed: int, effect: str, flute: bool = False, also=None
     from errormap.chain_field import ChainField
     from errormap.machine import load_machine
     from errormap.seeds import spawn_seeds
-    from errormap.chain_truth import make_mt_truth, random_axes
+    from errormap.chain_truth import make_chain_truth, random_axes
     from errormap.chain_covariance import band_sd, covariance_path, read_chain_covariance
     t_cpu = time.process_time()
     eff = [] if effect == "none" else [effect]
     m = load_machine()
     noise_ss, probe_ss = spawn_seeds(seed, 2)  # the sweep noise (a CLI integer from its child) and the probe points
-    truth = make_mt_truth(m, seed, effects=eff, family=family)
+    truth = make_chain_truth(m, seed, effects=eff, family=family)
     with tempfile.TemporaryDirectory() as td:
         td = Path(td)
         ea = sum((["--effect", e] for e in eff), [])

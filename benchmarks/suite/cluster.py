@@ -1,7 +1,7 @@
 """Batch compensation throughput: one process, threads, and a local Ray cluster, side by side.
 
 A batch of paths (axis points uniform over the grinder's strokes, 1 mm / 0.5 mm inside X / Z) on an element-set
-(HTM) field of ``make_mt_truth(seed)``, solved through :func:`compensation.batch.solve_batch` (the chunk plan every
+(HTM) field of ``make_chain_truth(seed)``, solved through :func:`compensation.batch.solve_batch` (the chunk plan every
 run uses) serially, with threads, and on Ray's warm actors (full run, Ray installed); every mode's commands are
 checked equal bit for bit to the serial run's. Only the solve stage is timed.
 
@@ -20,7 +20,7 @@ import numpy as np
 from compensation.batch import CHUNK_POINTS, LocalExecutor, solve_batch
 from errormap.chain_field import ChainField
 from errormap.machine import load_machine
-from errormap.chain_truth import make_mt_truth, random_axes
+from errormap.chain_truth import make_chain_truth, random_axes
 from errormap.chain_kernel import forward
 
 HERE = Path(__file__).resolve().parent
@@ -46,7 +46,7 @@ def make_batch(machine, n_files, file_points, big_points, seed):
 
 TITLE = "Batch compensation: one process, threads and a local Ray cluster, commands bytes-identical"
 DATA = ("8 paths of 25,000 points and one of 1,000,000 (quick: 2 × 2,000 and 20,000), axis points uniform over the "
-        "grinder's strokes, element-set field of `make_mt_truth(seed)`, `--method exact`, 2 workers; Ray in the full run")
+        "grinder's strokes, element-set field of `make_chain_truth(seed)`, `--method exact`, 2 workers; Ray in the full run")
 
 
 def _time(method, field, machine, paths, seed, ex):
@@ -58,7 +58,7 @@ def _time(method, field, machine, paths, seed, ex):
 def run(quick: bool, seed: int, workers: int = 2, method: str = "exact") -> dict:
     """Median-free single timings (one repeat): serial, threads, and (full run, Ray installed) Ray's warm actors."""
     machine = load_machine()
-    field = ChainField(machine, make_mt_truth(machine, seed).elements)
+    field = ChainField(machine, make_chain_truth(machine, seed).elements)
     paths = make_batch(machine, 2, 2_000, 20_000, seed) if quick else make_batch(machine, 8, 25_000, 1_000_000, seed)
     n = sum(len(p.axes) for p in paths)
     solve_batch(method, field, machine, make_batch(machine, 1, 100, 100, seed), executor=LocalExecutor(1))  # warm-up

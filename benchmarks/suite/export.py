@@ -1,6 +1,6 @@
 """What each controller table leaves, against the identified model and against the simulated truth.
 
-Machine: the default grinder; truth ``make_mt_truth(100 + seed, effects=(reversal, interaction))`` (8 μm Z
+Machine: the default grinder; truth ``make_chain_truth(100 + seed, effects=(reversal, interaction))`` (8 μm Z
 backlash; X positioning that grows with Z: a coupling no per-axis table and no 23-element model holds);
 model = the 23 elements identified from simulated tracker sweeps (2 μm noise, seed ``seed``); backlash and
 axis-only terms diagnosed from 400 simulated check measurements (1 μm noise) against that model. Never the
@@ -20,7 +20,7 @@ from compensation import export as ex
 from errormap.chain_sweeps import simulated_sweeps
 from errormap.io import write_json
 from errormap.machine import load_machine
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 from errormap.uncertainty import smooth_identify
 
 FLUTE_REGION = {"x_mm": (90.0, 116.0), "z_mm": (0.3, 0.3)}
@@ -31,7 +31,7 @@ CHECK_POINTS = (2000, 200)
 """Random volume points checked: full, quick."""
 
 TITLE = "Controller tables (grid, ISO component tables, LinuxCNC per-joint): what each leaves on the flute and the volume"
-DATA = ("default grinder; truth `make_mt_truth(100 + seed, effects=(reversal, interaction))`; model = 23 elements "
+DATA = ("default grinder; truth `make_chain_truth(100 + seed, effects=(reversal, interaction))`; model = 23 elements "
         "identified from simulated sweeps (2 μm noise); diagnosis from 400 simulated checks (1 μm); default flute "
         "(2,800 points) + 2,000 random volume points")
 
@@ -39,8 +39,8 @@ DATA = ("default grinder; truth `make_mt_truth(100 + seed, effects=(reversal, in
 def _diagnosis(m, truth, el, seed):
     """The user's path: check measurements -> closed loop on the identified model -> diagnosed terms."""
     from errormap.chain_elements import ChainElementSet
-    from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain
-    checks = MTChecks.from_columns(m, truth.check_measurements(n=400, noise_um=1.0, seed=seed))
+    from errormap.diagnosis.chain_loop import ChainChecks, closed_loop_chain
+    checks = ChainChecks.from_columns(m, truth.check_measurements(n=400, noise_um=1.0, seed=seed))
     with tempfile.TemporaryDirectory() as tmp:
         el_chain = ChainElementSet.load(el.save(Path(tmp) / "el.json"), m)
     d = closed_loop_chain(m, el_chain, checks, cov=None)
@@ -62,7 +62,7 @@ def run_seed(seed: int, tolerances, n_volume: int) -> tuple[dict, list[str]]:
     """Every table on one truth: ``{label: (check, values)}`` and notes."""
     from errormap.diagnosis.loop_model import ChainModelField
     m = load_machine()
-    truth = make_mt_truth(m, 100 + seed, effects=("reversal", "interaction"))
+    truth = make_chain_truth(m, 100 + seed, effects=("reversal", "interaction"))
     el = smooth_identify(simulated_sweeps(truth, noise_um=2.0, seed=seed), m, smooth=False,
                          gauge="first-station").raw.elements_
     model = ex.ModelError(m, el)

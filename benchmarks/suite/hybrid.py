@@ -71,10 +71,10 @@ def run_case(family: str, seed: int, effect: str, checks: int = N_CHECKS) -> dic
     from errormap.chain_kernel import forward
     from errormap.machine import load_machine
     from errormap.seeds import spawn_seeds
-    from errormap.chain_truth import make_mt_truth, random_axes
+    from errormap.chain_truth import make_chain_truth, random_axes
     m = load_machine()
     noise_ss, probe_ss = spawn_seeds(seed, 2)
-    truth = make_mt_truth(m, seed, effects=[effect], family=family)
+    truth = make_chain_truth(m, seed, effects=[effect], family=family)
     row = {"seed": seed, "effect": effect}
     with tempfile.TemporaryDirectory() as td:
         td = Path(td)

@@ -1,6 +1,6 @@
 """Identification from laser-tracker sweeps: noise-free exactness and the propagation of tracker noise.
 
-Truth: ``make_mt_truth(builtin grinder, seed 3 + seed)``; 10,000 random axis points. Noise-free sweeps in both
+Truth: ``make_chain_truth(builtin grinder, seed 3 + seed)``; 10,000 random axis points. Noise-free sweeps in both
 gauges; then σ = 2 μm tracker noise over ``draws`` noise draws. TRUE residual: identified HTM field minus the
 truth field, ‖Δe‖ (μm). Anchor: the truth field itself (what an uncompensated machine shows).
 """
@@ -12,13 +12,13 @@ import numpy as np
 
 from errormap.chain_field import ChainField
 from errormap.machine import load_machine
-from errormap.chain_truth import make_mt_truth, random_axes
+from errormap.chain_truth import make_chain_truth, random_axes
 from errormap.stats import residual_stats
 from errormap.chain_sweeps import simulated_sweeps
 from errormap.uncertainty import smooth_identify
 
 TITLE = "Identification: tracker sweeps → 23 elements of the grinder"
-DATA = ("simulated grinder (`random_truth` seed 3), 21 stations per axis, 3 balls per body, 10,000 random axis "
+DATA = ("simulated grinder (`make_chain_truth` seed 3), 21 stations per axis, 3 balls per body, 10,000 random axis "
         "points; σ = 2 μm tracker noise over 100 draws (quick: 5)")
 NOISE_UM = 2.0
 
@@ -29,7 +29,7 @@ def _identify(sweeps, machine, gauge="first-station"):
 
 def run(quick: bool, seed: int) -> dict:
     m = load_machine()
-    truth = make_mt_truth(m, 3 + seed)
+    truth = make_chain_truth(m, 3 + seed)
     pts = random_axes(m, 2_000 if quick else 10_000, np.random.default_rng(2024 + seed))
     e_true = ChainField(m, truth.elements).predict(pts)
     field_max = float(np.linalg.norm(e_true, axis=1).max())

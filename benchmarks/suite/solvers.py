@@ -1,6 +1,6 @@
 """Solvers on the grinder's flute: residual and speed of ``exact`` and the batched GA beside the paper's GA.
 
-The 23-element HTM field of ``make_mt_truth(grinder, seed)`` is the model and the truth (so the MODEL and the TRUE
+The 23-element HTM field of ``make_chain_truth(grinder, seed)`` is the model and the truth (so the MODEL and the TRUE
 residual agree: what the solver leaves). ``exact`` and ``batched-ga`` solve the whole flute path (2,800 points;
 quick 280), ``ga`` (PyGAD, the paper's per-point GA) a few points spread along it, each timed alone; one-time
 costs (imports, numba compilation) run before any timing. Speed: wall seconds per point, one process.
@@ -13,10 +13,10 @@ from compensation.solvers import solve
 from compensation.toolpath import flute_path
 from errormap.chain_field import ChainField
 from errormap.machine import load_machine
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 
 TITLE = "Exact and GA solves on the grinder's flute: residual and speed"
-DATA = ("the default flute (2,800 points over 7 turns; quick: 280), HTM field of `make_mt_truth(grinder, seed 0)` as "
+DATA = ("the default flute (2,800 points over 7 turns; quick: 280), HTM field of `make_chain_truth(grinder, seed 0)` as "
         "model and truth; `ga` on 10 points spread along it (quick: 3), `batched-ga` on 280 (quick: 40)")
 
 
@@ -28,7 +28,7 @@ def _true_max_um(truth, r) -> float:
 
 def run(quick: bool, seed: int) -> dict:
     m = load_machine()
-    truth = make_mt_truth(m, seed)
+    truth = make_chain_truth(m, seed)
     field = ChainField(m, truth.elements)
     fp = flute_path(points_per_turn=40) if quick else flute_path()
     targets, axes = fp.targets_mm, fp.axes(m)

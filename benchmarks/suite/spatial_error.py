@@ -14,7 +14,7 @@ import numpy as np
 
 from errormap.chain_field import ChainField
 from errormap.machine import load_machine
-from errormap.chain_truth import make_mt_truth, random_axes
+from errormap.chain_truth import make_chain_truth, random_axes
 
 
 def measure(field, axes, repeats=3):
@@ -31,12 +31,12 @@ def measure(field, axes, repeats=3):
 
 
 TITLE = "Spatial error of the exact HTM field: throughput and memory"
-DATA = "default grinder, `random_truth` seed 0, 1,000,000 random axis points (quick: 100,000), chunks of 200,000"
+DATA = "default grinder, `make_chain_truth` seed 0, 1,000,000 random axis points (quick: 100,000), chunks of 200,000"
 
 
 def run(quick: bool, seed: int) -> dict:
     m = load_machine()
-    truth = make_mt_truth(m, seed)
+    truth = make_chain_truth(m, seed)
     n = 100_000 if quick else 1_000_000
     axes = random_axes(m, n, np.random.default_rng(seed))
     t_ex, mem = measure(ChainField(m, truth.elements, chunk=200_000), axes)

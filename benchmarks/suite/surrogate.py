@@ -1,6 +1,6 @@
 """The paper's path: the surrogate network on feature points, on the grid and between its nodes.
 
-A simulated grinder's element set (``make_mt_truth(seed)``) gives feature points on an N³ grid (what ``volcomp
+A simulated grinder's element set (``make_chain_truth(seed)``) gives feature points on an N³ grid (what ``volcomp
 featurepoints`` writes); ``fit_field`` (what ``volcomp train`` runs) fits the paper's 3-10-15-25-15-10-3 network
 with LM, the iterate best on 5,000 off-grid selection points kept. MODEL residual (surrogate − the element-set
 field the feature points came from), largest |component|: on the feature points (the paper's 0.0267 μm) and on
@@ -15,7 +15,7 @@ from errormap.featurepoints import make_feature_points
 from errormap.chain_field import ChainField
 from errormap.machine import load_machine
 from errormap.seeds import spawn_rngs
-from errormap.chain_truth import make_mt_truth, random_axes
+from errormap.chain_truth import make_chain_truth, random_axes
 from training.trainers import TrainSettings, fit_field
 
 PAPER_UM = 0.0267
@@ -26,7 +26,7 @@ QUICK = {"best": {"grid": 11, "physics": "first-order", "max_iter": 5},
          "paper": {"grid": 11, "physics": "none", "max_iter": 5}}
 
 TITLE = "Surrogate network on feature points: on the grid and off it"
-DATA = ("simulated grinder (`random_truth` seed 0), feature points of its element set; 10,000 random off-grid "
+DATA = ("simulated grinder (`make_chain_truth` seed 0), feature points of its element set; 10,000 random off-grid "
         "validation points; best: 21³ grid, `--physics first-order`, 40 LM iterations; paper: 11³, 300 iterations "
         "(quick: 11³ and 5 iterations each — smoke figures only)")
 
@@ -44,7 +44,7 @@ def fit_one(machine, field, cfg: dict, seed: int, n_val: int):
 
 def run(quick: bool, seed: int) -> dict:
     m = load_machine()
-    field = ChainField(m, make_mt_truth(m, seed).elements)
+    field = ChainField(m, make_chain_truth(m, seed).elements)
     res = {k: fit_one(m, field, cfg, seed, 2_000 if quick else 10_000) for k, cfg in (QUICK if quick else CONFIGS).items()}
     (best, cpu), (paper, cpu_p) = res["best"], res["paper"]
     fig = lambda what, v, anchor, av: {"what": what, "value": v, "unit": "μm", "residual": "model",  # noqa: E731

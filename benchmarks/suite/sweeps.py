@@ -91,10 +91,10 @@ def loop_sweeps(family: str, seed: int):
     from errormap.chain_field import ChainField
     from errormap.machine import load_machine
     from errormap.seeds import spawn_seeds
-    from errormap.chain_truth import make_mt_truth, random_axes
+    from errormap.chain_truth import make_chain_truth, random_axes
     m = load_machine()
     noise_ss, probe_ss = spawn_seeds(seed, 2)
-    truth = make_mt_truth(m, seed, family=family)
+    truth = make_chain_truth(m, seed, family=family)
     P = random_axes(m, N_PROBE, np.random.default_rng(probe_ss))
     et = ChainField(m, truth.elements).predict(P)
     with tempfile.TemporaryDirectory() as td:
@@ -137,11 +137,11 @@ def mc_case(args) -> dict:
     from compensation.app.cli import main
     from errormap.chain_field import ChainField
     from errormap.machine import load_machine
-    from errormap.chain_truth import make_mt_truth, random_axes
+    from errormap.chain_truth import make_chain_truth, random_axes
     from errormap.chain_covariance import band_sd
     from errormap.uncertainty import smooth_identify
     m = load_machine()
-    truth = make_mt_truth(m, seed, family=family)
+    truth = make_chain_truth(m, seed, family=family)
     P = random_axes(m, 3000, np.random.default_rng(123))
     with tempfile.TemporaryDirectory() as td:
         sw = _sweeps(main, Path(td), family, seed, 1000 + k)

@@ -1,7 +1,7 @@
 """True residual ALONG long moves, with and without segment splitting.
 
 What the controller runs between two written vertices is a straight line in the axes; the compensation
-is exact only at the vertices. A simulated truth machine (default grinder, ``make_mt_truth(seed)``) is
+is exact only at the vertices. A simulated truth machine (default grinder, ``make_chain_truth(seed)``) is
 driven along every written move, densely (17 points per written segment), and the TRUE residual is taken
 against the target at the same parameter of the program's own move. The solver (``exact``) is given the
 truth's own error (its 23 elements plus the undeclared effects ``pitch``, ``worm``, ``interaction``, at
@@ -32,7 +32,7 @@ SAMPLES = 17
 """Samples per written segment, ends included."""
 
 TITLE = "Tool paths: true residual along long moves, compensated at the program's points vs split segments"
-DATA = ("default grinder, `make_mt_truth(seed)` for 3 seeds, elements alone and + pitch, worm, interaction; the "
+DATA = ("default grinder, `make_chain_truth(seed)` for 3 seeds, elements alone and + pitch, worm, interaction; the "
         "solver given the truth's own error; the flute at 400 / 40 / 10 points per turn, 20 mm straight G1 moves")
 
 
@@ -100,12 +100,12 @@ def run_seed(seed: int, quick: bool) -> list[dict]:
     from compensation.pathio import read_path, replan
     from compensation.solvers import solve
     from errormap.machine import load_machine
-    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_truth import make_chain_truth
     machine, rows = load_machine(), []
     with tempfile.TemporaryDirectory() as d:
         progs = programs(machine, Path(d), quick)
         for shape, effects in (("elements", ()),) + ((() if quick else (("elements + effects", EFFECTS),))):
-            truth = make_mt_truth(machine, seed, effects=effects)
+            truth = make_chain_truth(machine, seed, effects=effects)
             field = TruthField(truth)
             for name, path in progs.items():
                 base = read_path(path, machine, work_offsets=read_work_offsets(MACHINE))

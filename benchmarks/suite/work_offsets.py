@@ -2,7 +2,7 @@
 tool length are ignored vs used.
 
 Machine: built-in ``mill-xyz``; truth: a seeded element set (±10 μm / μrad, 1 σ; seed 101); model: the
-truth plus 0.3 μm / μrad noise per station and constant (seed 102; the estimate tests/test_mt_compensate.py
+truth plus 0.3 μm / μrad noise per station and constant (seed 102; the estimate tests/test_chain_compensate.py
 uses). Program: ``tests/data/controller/g55_tool_linuxcnc.ngc`` (G55, G43 H1, a pocket with an arc),
 offset G55 = (200, 100, −150) mm, tool 1 of length 0 and 150 mm (or no G43: the file's 120 mm tool).
 

@@ -93,7 +93,7 @@ def chain_truth_tool_points(truth, machine):
 
 def truth_tool_points(truth, machine):
     """``tool(axes (n, k), dirs (n, k)) -> (n, 3)`` mm of a simulated truth machine with ``tool_point(axes,
-    temp_c=, dir_<w>=)`` (:class:`errormap.chain_truth.MTTruth`), at the tables' reference
+    temp_c=, dir_<w>=)`` (:class:`errormap.chain_truth.ChainTruth`), at the tables' reference
     temperature and the given approach directions."""
     words = [a.word.lower() for a in machine.axes]
 

@@ -1,6 +1,6 @@
 """Check measurements of a machine-tool chain for the closed loop (``docs/reference/file-formats.md``): the machine's axis columns,
 ``dx_um, dy_um, dz_um`` and the optional conditions (``time_s``, ``temp_c``, ``dir_<w>``, ``seq``), read and
-checked (:func:`load_mt_checks`)."""
+checked (:func:`load_chain_checks`)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -20,7 +20,7 @@ MIN_CHECKS = 10
 
 
 @dataclass
-class MTChecks:
+class ChainChecks:
     """Checks of a machine tool in ``seq`` order: ``axes`` (n, k), ``measured_um`` (n, 3),
     ``conditions`` (name -> (n,)), ``seq`` (n,), ``rows`` (n,) file lines."""
 
@@ -46,7 +46,7 @@ class MTChecks:
         return len(self.axes)
 
     @classmethod
-    def from_columns(cls, machine: MachineTool, cols: dict, path: str = "<checks>") -> "MTChecks":
+    def from_columns(cls, machine: MachineTool, cols: dict, path: str = "<checks>") -> "ChainChecks":
         axes = np.stack([np.asarray(cols[c], float) for c in machine.axis_columns], axis=1)
         meas = np.stack([np.asarray(cols[c], float) for c in ERROR_COLUMNS], axis=1)
         cond = {k: np.asarray(v, float) for k, v in cols.items() if k in condition_columns(machine)}
@@ -57,7 +57,7 @@ def condition_columns(machine: MachineTool) -> tuple:
     return ("time_s", "temp_c") + tuple(f"dir_{a.word.lower()}" for a in machine.axes)
 
 
-def load_mt_checks(path, machine: MachineTool, units: str = "check") -> MTChecks:
+def load_chain_checks(path, machine: MachineTool, units: str = "check") -> ChainChecks:
     """Read and validate a machine tool's check CSV (module doc); errors name file, row, column."""
     t = read_table(path, "checks")
     t.require(*machine.axis_columns, *ERROR_COLUMNS)
@@ -108,7 +108,7 @@ def load_mt_checks(path, machine: MachineTool, units: str = "check") -> MTChecks
         if u.size != seq.size:
             dup = np.setdiff1d(np.arange(seq.size), first)[0]
             raise InputError(f"{path}: row {rows[dup]}, column 'seq': duplicated value {seq[dup]}")
-    return MTChecks(axes, meas, cond, seq, rows, str(path), stated_noise(path, t.comments))
+    return ChainChecks(axes, meas, cond, seq, rows, str(path), stated_noise(path, t.comments))
 
 
 # -- the update ---------------------------------------------------------------------------------

@@ -319,7 +319,7 @@ def _paired_z(r_before, r_after) -> float:
     return paired_z(r_before, r_after)
 
 
-def effect_search(machine: MachineTool, checks: MTChecks, residual, fit_idx, hold_idx, max_effects: int = 4,
+def effect_search(machine: MachineTool, checks: ChainChecks, residual, fit_idx, hold_idx, max_effects: int = 4,
                   exclude=(), response=None, bands=None):
     """Forward search (module doc): ``(accepted terms, rejected (kind, axes, z) list, residual after)``.
     ``exclude``: ``(kind, words)`` not tried (found, or represented by the slots); ``response``: when the

@@ -17,7 +17,7 @@ from ..chain_elements import ChainElementSet
 from ..stats import residual_stats
 # the loop's parts, also read from here by callers (chain_checks, chain_update, chain_effects)
 from .chain_checks import (  # noqa: F401
-    ERROR_COLUMNS, MAX_ERROR_UM, MIN_CHECKS, STROKE_TOL, MTChecks, condition_columns, load_mt_checks)
+    ERROR_COLUMNS, MAX_ERROR_UM, MIN_CHECKS, STROKE_TOL, ChainChecks, condition_columns, load_chain_checks)
 from .chain_update import (  # noqa: F401
     OLS_RCOND, SIGMA_ITERATIONS, SMOOTH_GRID, ChainUpdate, apply_parameters, check_smoothing, fitting_gcv,
     ols_update, parameter_matrix, parameter_values, second_differences, spline_basis, update_elements)
@@ -57,7 +57,7 @@ class _Run:
                 "fitting": residual_stats(r[self.fit_idx], ERROR_COLUMNS)}
 
 
-def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: MTChecks, cov=None,
+def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: ChainChecks, cov=None,
                       fit_fraction: float = 0.6, noise_um: float | None = None, effects: bool = True,
                       max_effects: int = 4, smoothing="gcv", units: str = "check", base=None) -> dict:
     """Run the stages (module doc) and return the summary dict (``stages`` with held-out/fitting

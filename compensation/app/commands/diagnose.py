@@ -106,9 +106,9 @@ def _run_checks(args) -> int:
             raise UsageError("--track: logs a kept learned residual; the loop on a trained network has no such stage "
                              "(its retrain is tracked as a child run with --tracking-uri): leave it out")
         print(f"diagnosing {args.checks} against {args.model} on {machine.name} ...", file=sys.stderr)
-        from errormap.diagnosis.chain_loop import load_mt_checks
+        from errormap.diagnosis.chain_loop import load_chain_checks
         from compensation.app.workflows.network_diagnosis import diagnose_network
-        summary, paths = diagnose_network(load_mt_checks(args.checks, machine, units=args.units), machine, src, args.out,
+        summary, paths = diagnose_network(load_chain_checks(args.checks, machine, units=args.units), machine, src, args.out,
                                           base=model.field,
                                           fit_fraction=args.fit_fraction, noise_um=args.noise_um,
                                           max_effects=args.max_effects, units=args.units,

@@ -6,7 +6,7 @@ import sys
 from errormap.chain_elements import ChainElementSet
 from errormap.machine import load_machine
 from errormap.seeds import spawn_seeds
-from errormap.chain_truth import MTTruth
+from errormap.chain_truth import ChainTruth
 from errormap.chain_sweeps import simulated_sweeps, write_sweeps
 from compensation.app.validate import UsageError
 
@@ -87,11 +87,11 @@ def _run_grinder(machine, args) -> int:
     if args.truth is not None:
         if args.effect:
             raise UsageError("--effect needs --seed (a truth element file carries no effects)")
-        truth = MTTruth(machine, ChainElementSet.load(args.truth, machine), {})
+        truth = ChainTruth(machine, ChainElementSet.load(args.truth, machine), {})
         what = f"truth {args.truth}"
     else:
-        from errormap.chain_truth import make_mt_truth
-        truth = make_mt_truth(machine, args.seed, effects=args.effect, family=getattr(args, "family", "default"))
+        from errormap.chain_truth import make_chain_truth
+        truth = make_chain_truth(machine, args.seed, effects=args.effect, family=getattr(args, "family", "default"))
         what = f"truth seed {args.seed} ({getattr(args, 'family', 'default')} family)"
     print(f"simulating tracker sweeps of {what} (noise {args.noise_um} um, seed {args.seed_noise}) ...",
           file=sys.stderr)

@@ -132,8 +132,8 @@ def grinder_test_points(machine, s: BenchmarkSettings) -> GrinderTestPoints:
 
 def grinder_truth(machine, s: BenchmarkSettings, effect=None):
     """The simulated truth grinder of ``s.truth_seed``, with the undeclared ``effect`` if given."""
-    from errormap.chain_truth import make_mt_truth
-    return make_mt_truth(machine, s.truth_seed, effects=(effect,) if effect else ())
+    from errormap.chain_truth import make_chain_truth
+    return make_chain_truth(machine, s.truth_seed, effects=(effect,) if effect else ())
 
 
 def condition_sweeps(s: BenchmarkSettings, truth, c: GrinderCondition) -> dict:
@@ -309,11 +309,11 @@ class GrinderBench:
         ``bases``: on an out-of-catalogue condition the parametric base runs the user's path
         (:meth:`user_loop_rows`: the parametric loop and the hybrid), every other base the effect
         search on its field (:meth:`closed_loop_row`)."""
-        from errormap.diagnosis.chain_loop import MTChecks
+        from errormap.diagnosis.chain_loop import ChainChecks
         s = self.s
         n_checks = c.n_checks or s.n_checks
         cols = truth.check_measurements(n=n_checks, noise_um=s.check_noise_um, seed=rng_streams(s.seed)["checks"])
-        checks = MTChecks.from_columns(self.m, cols, path=f"<simulated checks, {c.name}>")
+        checks = ChainChecks.from_columns(self.m, cols, path=f"<simulated checks, {c.name}>")
         label = f"{c.name} (after closed loop)"
         for base_row, base in bases:
             if base_row["path"] == "parametric" and c.group == "out-of-catalogue":

@@ -208,7 +208,7 @@ def run_chain(machine, s, log, out_dir) -> list:
     :class:`RowLog`). Returns the skipped conditions (``[{"machine", "why"}]``)."""
     from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
-    from errormap.chain_truth import MTTruth
+    from errormap.chain_truth import ChainTruth
     from .measurement import identify_chain_files, simulate_chain, sweeps_chain
     streams, skipped = rng_streams(s.seed), []
     try:
@@ -230,7 +230,7 @@ def run_chain(machine, s, log, out_dir) -> list:
             info = simulate_chain(machine, s.truth_seed, d / "sim", effects=() if eff is None else (eff,),
                                   noise_um=s.check_noise_um, checks=s.n_checks)
             # scoring only: the hidden truth, read back from the files the simulation wrote
-            truth = MTTruth(machine, ChainElementSet.load(d / "sim" / info["elements"], machine), info["effects"])
+            truth = ChainTruth(machine, ChainElementSet.load(d / "sim" / info["elements"], machine), info["effects"])
             unc = compensate_chain_true(machine, truth, None, path)
             common.update(uncompensated_rms_um=unc["true_rms_um"], uncompensated_max_um=unc["true_max_um"])
             if volume is not None:

@@ -100,7 +100,7 @@ def validate_inputs(machines) -> None:
     """Read every machine file, sweep set and check file (raises InputError / MachineFileError
     naming file, row and column) — before any work starts."""
     from errormap.sweeps import read_sweeps
-    from errormap.diagnosis.chain_checks import load_mt_checks
+    from errormap.diagnosis.chain_checks import load_chain_checks
     from errormap.machine import load_machine
     from ..families import family_of
     for m in machines:
@@ -110,7 +110,7 @@ def validate_inputs(machines) -> None:
             raise InputError(f"{m['fleet_file']}: key '{m['key']}.sweeps': a machine-tool chain ({machine.name!r}) is "
                              f"identified from one sweep file (one tracker set-up), got {len(m['sweeps'])}")
         read_sweeps(m["sweeps"], machine)   # the sweep reader of every machine (the grinder's chain among them)
-        load_mt_checks(m["checks"], machine)   # the reader the loop itself uses (diagnose_chain)
+        load_chain_checks(m["checks"], machine)   # the reader the loop itself uses (diagnose_chain)
 
 
 def check_tracking_uri(uri: str, n_machines: int, on_cluster: bool) -> None:

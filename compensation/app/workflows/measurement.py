@@ -41,8 +41,8 @@ def load_chain_truth(path, machine):
     if not made_on(machine, d.get("machine_sha256")):
         raise InputError(f"{p}: key 'machine_sha256': the truth belongs to machine {d.get('machine')!r}, "
                          f"not {machine.name!r}")
-    from errormap.chain_truth import MTTruth
-    truth = MTTruth(machine, ChainElementSet.load(p.parent / str(d.get("elements")), machine), d.get("effects") or {})
+    from errormap.chain_truth import ChainTruth
+    truth = ChainTruth(machine, ChainElementSet.load(p.parent / str(d.get("elements")), machine), d.get("effects") or {})
     return _TruthAtReference(truth)
 
 
@@ -70,8 +70,8 @@ def parse_effects(machine, effects) -> list:
 
 
 def make_truth(machine, seed: int, effects=(), family: str = "default"):
-    from errormap.chain_truth import make_mt_truth
-    return make_mt_truth(machine, seed, effects=parse_effects(machine, effects), family=family)
+    from errormap.chain_truth import make_chain_truth
+    return make_chain_truth(machine, seed, effects=parse_effects(machine, effects), family=family)
 
 
 def simulate_chain(machine, seed: int, out, effects=(), noise_um: float = 1.0, checks: int = 400,
@@ -106,12 +106,12 @@ def sweeps_chain(machine, out, seed=None, truth_file=None, effects=(), family="d
                  bidirectional=False, warmup_c=0.0, setup="setup-1") -> tuple:
     """Simulate and write a sweep file of a truth (seeded, or an element-set file); ``(path, rows)``."""
     from errormap.chain_elements import ChainElementSet
-    from errormap.chain_truth import MTTruth
+    from errormap.chain_truth import ChainTruth
     from errormap.chain_sweeps import simulated_sweeps, write_sweeps
     if truth_file is not None:
         if effects:
             raise UsageError("--effect needs --seed (a truth element file carries no effects)")
-        truth = MTTruth(machine, ChainElementSet.load(truth_file, machine), {})
+        truth = ChainTruth(machine, ChainElementSet.load(truth_file, machine), {})
         what = f"truth {truth_file}"
     else:
         truth = make_truth(machine, seed, effects, family)
@@ -157,12 +157,12 @@ def truth_in_gauge(machine, truth, gauge: str = "station-mean", stations: dict |
     in ``gauge`` with its squareness split, at ``stations`` (per axis column, the identified set's; None: the
     sweep default), so that a plot overlays like with like. The two frames differ by a rigid frame change, so
     the truth's noise-free sweeps are identified in ``gauge`` (tool points to 1e-6 μm,
-    ``tests/test_mt_loop.py``)."""
+    ``tests/test_chain_loop.py``)."""
     from errormap.identification import ChainIdentification
-    from errormap.chain_truth import MTTruth
+    from errormap.chain_truth import ChainTruth
     from errormap.chain_sweeps import simulated_sweeps, swept_words
     from errormap.sweeps import sweeps_from_columns
-    cols = simulated_sweeps(MTTruth(machine, truth, {}), noise_um=0.0, seed=0, stations=stations)
+    cols = simulated_sweeps(ChainTruth(machine, truth, {}), noise_um=0.0, seed=0, stations=stations)
     sw = sweeps_from_columns(cols, "<noise-free sweeps of the truth>", axes=swept_words(machine))
     return ChainIdentification(gauge=gauge).fit(sw, machine).elements_
 
@@ -282,11 +282,11 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
     :mod:`compensation.chain_hybrid`). ``machine``: a machine-tool chain or a grinder file (its chain).
     ``track``: a kept learned residual is also logged as an MLflow run (``tracking_uri``; its id recorded in
     diagnosis.json and model.json)."""
-    from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain, load_mt_checks, ship_on_all_checks
+    from errormap.diagnosis.chain_loop import ChainChecks, closed_loop_chain, load_chain_checks, ship_on_all_checks
     el, cov, cov_path = load_chain_model(model, machine, prior=True)
-    checks = (checks_path if isinstance(checks_path, MTChecks)   # checks in memory (the benchmark's)
-              else load_mt_checks(checks_path, machine, units=units))
-    checks_path = checks.path if isinstance(checks_path, MTChecks) else checks_path
+    checks = (checks_path if isinstance(checks_path, ChainChecks)   # checks in memory (the benchmark's)
+              else load_chain_checks(checks_path, machine, units=units))
+    checks_path = checks.path if isinstance(checks_path, ChainChecks) else checks_path
     try:
         summary = closed_loop_chain(machine, el, checks, cov=cov if update else None, fit_fraction=fit_fraction,
                                     noise_um=noise_um, effects=effects, max_effects=max_effects, units=units)

@@ -123,7 +123,7 @@ def diagnose_network(checks, machine, source, out, *, base=None, fit_fraction=0.
                      units="check", tracking_uri=None, featurepoints=None, retrain=None, fit_field=None) -> tuple:
     """The loop on the trained network ``source`` (:class:`compensation.fields.ModelSource`; ``base``: the field
     already loaded) over the machine tool ``machine`` (its chain) and the read ``checks``
-    (:class:`errormap.diagnosis.chain_loop.MTChecks`); ``featurepoints``: a feature-point file for the retrain
+    (:class:`errormap.diagnosis.chain_loop.ChainChecks`); ``featurepoints``: a feature-point file for the retrain
     (``retrain``: its :class:`training.TrainSettings`). → ``(summary, [diagnosis.json])``."""
     from compensation.model_file import read_model
     from errormap.chain_elements import ChainElementSet

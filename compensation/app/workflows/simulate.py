@@ -8,7 +8,7 @@ import numpy as np
 from errormap.featurepoints import make_feature_points
 from errormap.chain_field import ChainField
 from errormap.io import sha256_file, write_csv, write_json
-from errormap.chain_truth import make_mt_truth, volume_grid
+from errormap.chain_truth import make_chain_truth, volume_grid
 from errormap.effect_kinds import SIMULATOR_NAMES, effect_kind, simulator_name
 from errormap.seeds import spawn_seeds
 
@@ -16,13 +16,13 @@ from errormap.seeds import spawn_seeds
 def simulate_truth(machine, seed: int, out, effects=(), noise_um: float = 1.0, checks: int = 400,
                    family: str = "default", check_noise_seed=None) -> dict:
     """Write ``out/truth_elements.json``, ``featurepoints.csv``, ``checks.csv`` and ``truth.json``
-    for the truth grinder of ``seed`` (:func:`errormap.chain_truth.make_mt_truth`); returns the
+    for the truth grinder of ``seed`` (:func:`errormap.chain_truth.make_chain_truth`); returns the
     ``truth.json`` document (``files``: the paths written, ``max_spatial_error_um`` over the volume).
     ``check_noise_seed``: None (default) the checks' noise from the seed's own stream; an int redraws
     only the checks' noise (same machine, same points and conditions)."""
     out = Path(out)
     effects = list(effects)
-    truth = make_mt_truth(machine, seed, effects=effects, family=family)
+    truth = make_chain_truth(machine, seed, effects=effects, family=family)
     el_path = truth.elements.save(out / "truth_elements.json")
     fp = make_feature_points(machine, ChainField(machine, truth.elements),
                              meta={"elements_file": str(el_path), "source": f"simulate seed={seed}"})

@@ -14,7 +14,7 @@ from compensation.app.cli import main
 from errormap.io import read_table, write_csv
 from errormap.machine import load_machine
 from errormap.identification import load_covariance
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 from errormap.chain_sweeps import simulated_sweeps
 from errormap.sweeps import write_sweeps
 
@@ -37,7 +37,7 @@ GAUGE_ZERO = 1e-12
 
 def _sweeps(tmp_path):
     m = load_machine("mill-xyz")
-    write_sweeps(tmp_path / "sw.csv", simulated_sweeps(make_mt_truth(m, 0), noise_um=NOISE_UM, seed=1))
+    write_sweeps(tmp_path / "sw.csv", simulated_sweeps(make_chain_truth(m, 0), noise_um=NOISE_UM, seed=1))
     return m
 
 
@@ -107,7 +107,7 @@ def test_smoothing_lowers_the_true_error_of_the_chain(tmp_path):
     from errormap.sweeps import sweeps_from_columns
     m = load_machine("mill-xyz")
     for seed in SMOOTH_SEEDS:
-        truth = make_mt_truth(m, seed)
+        truth = make_chain_truth(m, seed)
         sw = sweeps_from_columns(simulated_sweeps(truth, noise_um=NOISE_UM, seed=100 + seed), source="<sim>",
                                  axes=swept_words(m))
         raw = ChainIdentification().fit(sw, m).result_

@@ -19,7 +19,7 @@ from training.chain_model import ChainMLPField, check_machine
 from training.model import MLPField
 
 from chain_fixtures import central_jacobian
-from test_mt_compensate import MILL_PROGRAM, chain_elements
+from test_chain_compensate import MILL_PROGRAM, chain_elements
 
 TOL_JACOBIAN_REL = 1e-6
 """Forward-mode Jacobian vs central differences (step 1e-4 mm / deg) of a smooth ~1-unit network:

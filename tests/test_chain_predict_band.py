@@ -8,7 +8,7 @@ from compensation.app.cli import main
 from errormap.io import read_table, write_csv
 from errormap.machine import load_machine
 from errormap.identification import COV_FORMAT
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 
 FD_STEP = 1e-3
 """Central-difference step on each element parameter (μm or μrad): the tool-point error is linear in the
@@ -60,7 +60,7 @@ def test_band_is_the_finite_difference_jacobian_through_the_covariance(tmp_path)
     element parameter (nominal-free: the element set's own spatial error), Σ of random correlations."""
     from errormap.diagnosis.chain_loop import apply_parameters
     m = load_machine("mill-xyz")
-    el = make_mt_truth(m, 3).elements
+    el = make_chain_truth(m, 3).elements
     slots, stations = _parameters(m, el)
     rng = np.random.default_rng(4)   # Σ over a subset (every constant, 2 stations of every slot) keeps it fast
     sub = np.sort(np.concatenate([np.flatnonzero(stations < 0)] + [
@@ -86,7 +86,7 @@ def test_band_is_the_finite_difference_jacobian_through_the_covariance(tmp_path)
 
 def test_refusals_are_one_line(tmp_path, capsys):
     m = load_machine("mill-xyz")
-    el = make_mt_truth(m, 0).elements
+    el = make_chain_truth(m, 0).elements
     el.save(tmp_path / "E.json")
     _points_csv(tmp_path / "p.csv", m, el, 5, 0)
     base = ["predict", "--machine", "mill-xyz", str(tmp_path / "p.csv"), "--band", "95"]

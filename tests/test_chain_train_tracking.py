@@ -11,14 +11,14 @@ from compensation.app.cli import main
 from errormap.io import read_table
 from training.chain_model import ChainMLPField
 
-from test_mt_compensate import MILL_PROGRAM
-from test_mt_train import smooth_mill  # noqa: F401  (fixture: a smooth mill's truth and 7x7x7 feature points)
+from test_chain_compensate import MILL_PROGRAM
+from test_chain_train import smooth_mill  # noqa: F401  (fixture: a smooth mill's truth and 7x7x7 feature points)
 
 CSV_REL = 1e-8
 """The network loaded from the MLflow run and from the run folder are the same files; the predictions CSV
 holds 9 significant digits (%.9g: at most 5e-9 relative per value)."""
 TOL_MODEL_RESIDUAL_EXACT_UM = 1e-6
-"""As tests/test_mt_train.py: the exact chain solver on a network field reaches round-off."""
+"""As tests/test_chain_train.py: the exact chain solver on a network field reaches round-off."""
 
 
 @pytest.mark.slow

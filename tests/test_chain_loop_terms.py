@@ -11,7 +11,7 @@ import pytest
 import scipy.linalg
 
 from errormap.diagnosis.chain_effects import _fit_shape
-from errormap.diagnosis.chain_loop import (HARMONIC_ORDERS, HELD_OUT_Z, PERIOD_GRID_MM, PERIOD_REFINE, MTChecks,
+from errormap.diagnosis.chain_loop import (HARMONIC_ORDERS, HELD_OUT_Z, PERIOD_GRID_MM, PERIOD_REFINE, ChainChecks,
                                         effect_columns, effect_search, joint_threshold,
                                         parameter_matrix, shape_band, update_elements, EffectTerm, full_parameters)
 from errormap.diagnosis.chain_update import _cho_inverse
@@ -55,7 +55,7 @@ def _checks(machine, values_fn):
     r_pts, r_noise = spawn_rngs(np.random.SeedSequence(SEED), 2)
     axes = machine.stroke_lo + (machine.stroke_hi - machine.stroke_lo) * r_pts.random((N_CHECKS, len(machine.axes)))
     resid = values_fn(axes) + NOISE_UM * r_noise.standard_normal((N_CHECKS, 3))
-    return MTChecks(axes, resid)
+    return ChainChecks(axes, resid)
 
 
 def _harmonic_residual(machine, order):

@@ -6,14 +6,14 @@ import json
 import numpy as np
 import pytest
 
-from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain, parameter_matrix
+from errormap.diagnosis.chain_loop import ChainChecks, closed_loop_chain, parameter_matrix
 from errormap.chain_field import ChainField
 from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
 from errormap.identification import ChainIdentification, root_axis
-from errormap.chain_truth import FAMILIES, TARGET_MAX_RANGE_UM, MTTruth, make_mt_truth, volume_grid
+from errormap.chain_truth import FAMILIES, TARGET_MAX_RANGE_UM, ChainTruth, make_chain_truth, volume_grid
 from errormap.chain_sweeps import simulated_sweeps, swept_words
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 from errormap.sweeps import read_sweeps, sweeps_from_columns, write_sweeps
 from errormap.uncertainty import smooth_identify
 
@@ -52,20 +52,20 @@ def five():
 
 @pytest.mark.parametrize("family", FAMILIES)
 def test_truth_band_gauge_and_reproducible(mill, family):
-    t = make_mt_truth(mill, 4, family=family)
+    t = make_chain_truth(mill, 4, family=family)
     g = volume_grid(mill)
     e = np.linalg.norm(t.spatial_error(g), axis=1).max()
     lo, hi = TARGET_MAX_RANGE_UM[family]
     assert lo <= e <= hi
     for s in mill.function_slots:
         assert t.elements.functions[s][0] == 0.0        # zero at the first station (the gauge)
-    t2 = make_mt_truth(mill, 4, family=family)          # same seed, same truth; another seed, another
+    t2 = make_chain_truth(mill, 4, family=family)          # same seed, same truth; another seed, another
     assert t2.elements.functions["dx_x"].tolist() == t.elements.functions["dx_x"].tolist()
-    assert make_mt_truth(mill, 5, family=family).elements.functions["dx_x"].tolist() != t.elements.functions["dx_x"].tolist()
+    assert make_chain_truth(mill, 5, family=family).elements.functions["dx_x"].tolist() != t.elements.functions["dx_x"].tolist()
 
 
 def test_full_turn_axis_is_closed(five):
-    t = make_mt_truth(five, 4, family="independent")
+    t = make_chain_truth(five, 4, family="independent")
     full = [a for a in five.axes if a.full_turn]
     assert [a.word for a in full] == ["C"]
     for s in five.slots_of("C"):
@@ -75,7 +75,7 @@ def test_full_turn_axis_is_closed(five):
 
 
 def test_effects_generic_by_axis(mill):
-    t = make_mt_truth(mill, 1, effects=["periodic:Y", "reversal:Z", "thermal:X", "interaction:X*Y"])
+    t = make_chain_truth(mill, 1, effects=["periodic:Y", "reversal:Z", "thermal:X", "interaction:X*Y"])
     q = np.array([[300.0, 200.0, -100.0]])
     cond = {"temp_c": np.array([24.0]), "dir_x": np.ones(1), "dir_y": np.ones(1), "dir_z": -np.ones(1)}
     v = t.element_values(q, **cond)
@@ -88,18 +88,18 @@ def test_effects_generic_by_axis(mill):
     assert v[0, i["dx_x"]] - v0[0, i["dx_x"]] == pytest.approx(
         p["thermal:X"]["k_um_per_mm_c"] * 4.0 * 300.0 + p["interaction:X*Y"]["corner_um"] * 300 * 200 / (600 * 400))
     with pytest.raises(ValueError, match="harmonic acts on"):
-        make_mt_truth(mill, 1, effects=["harmonic"])
+        make_chain_truth(mill, 1, effects=["harmonic"])
     with pytest.raises(ValueError, match="unknown effect kind"):
-        make_mt_truth(mill, 1, effects=["wobble:X"])
+        make_chain_truth(mill, 1, effects=["wobble:X"])
 
 
 def test_chain_sweeps_equal_grinder_sweeps():
     """The built-in grinder's truth and the grinder-chain file's (errormap.chain_truth) of the same elements
     give the same sweeps through the one simulator."""
     g, gc = load_machine(None), load_machine("grinder-chain")
-    tg = make_mt_truth(g, 1)
+    tg = make_chain_truth(g, 1)
     el = tg.elements
-    tc = MTTruth(gc, ChainElementSet(gc, el.stations, el.functions, el.constants), {})
+    tc = ChainTruth(gc, ChainElementSet(gc, el.stations, el.functions, el.constants), {})
     a = simulated_sweeps(tg, noise_um=0.0, seed=3)
     b = simulated_sweeps(tc, noise_um=0.0, seed=3)
     assert (a["axis"] == b["axis"]).all() and (a["station"] == b["station"]).all()
@@ -111,7 +111,7 @@ def test_chain_sweeps_equal_grinder_sweeps():
 @pytest.mark.parametrize("name", ["mill-xyz", "five-axis-ac"])
 def test_identification_noise_free_is_exact(name):
     m = load_machine(name)
-    t = make_mt_truth(m, 2, family="default")
+    t = make_chain_truth(m, 2, family="default")
     sw = sweeps_from_columns(simulated_sweeps(t, noise_um=0.0, seed=7), axes=swept_words(m))
     res = ChainIdentification().fit(sw, m).result_
     assert not res.unobservable
@@ -129,7 +129,7 @@ def test_root_axis(mill, five):
 @pytest.mark.parametrize("noise", [0.0, 2.0])
 def test_generic_identification_agrees_with_grinder(noise):
     g, gc = load_machine(None), load_machine("grinder-chain")
-    tg = make_mt_truth(g, 1)
+    tg = make_chain_truth(g, 1)
     cols = simulated_sweeps(tg, noise_um=noise, seed=3)
     eg = smooth_identify(cols, g, smooth=False, gauge="first-station").raw.elements_
     ec = ChainIdentification().fit(sweeps_from_columns(cols, axes=swept_words(gc)), gc).elements_
@@ -142,7 +142,7 @@ def test_generic_identification_agrees_with_grinder(noise):
 
 @pytest.mark.slow
 def test_mill_identification_within_its_noise_band(mill):
-    t = make_mt_truth(mill, 6, family="independent")
+    t = make_chain_truth(mill, 6, family="independent")
     sw = sweeps_from_columns(simulated_sweeps(t, noise_um=2.0, seed=11), axes=swept_words(mill))
     res = ChainIdentification().fit(sw, mill).result_
     assert res.sigma_um == pytest.approx(2.0, rel=0.2)   # the ball residual gives the tracker noise back
@@ -154,8 +154,8 @@ def test_mill_identification_within_its_noise_band(mill):
 
 
 def test_loop_with_truth_model_is_at_the_floor_and_clean(mill):
-    t = make_mt_truth(mill, 8, family="independent")
-    ck = MTChecks.from_columns(mill, t.check_measurements(400, noise_um=1.0, seed=9))
+    t = make_chain_truth(mill, 8, family="independent")
+    ck = ChainChecks.from_columns(mill, t.check_measurements(400, noise_um=1.0, seed=9))
     s = closed_loop_chain(mill, t.elements, ck, cov=None, noise_um=1.0)
     assert s["effects"] == []
     assert s["held_out_over_floor"] < FLOOR_RATIO_TRUTH
@@ -182,7 +182,7 @@ def test_cli_refusals(tmp_path, capsys, mill):
                     "--effect", "harmonic")
     _one_line_exit2(capsys, ["simulate", "--effect", "periodic:X", "--out", str(tmp_path / "g")], "grinder")
     # a sweep file with an axis the mill does not have
-    t = make_mt_truth(mill, 0)
+    t = make_chain_truth(mill, 0)
     cols = simulated_sweeps(t, noise_um=1.0, seed=0)
     cols["axis"] = np.where(cols["axis"] == "Z", "A", cols["axis"])
     write_sweeps(tmp_path / "bad.csv", cols)
@@ -191,7 +191,7 @@ def test_cli_refusals(tmp_path, capsys, mill):
     assert "row" in line
     # a grinder element set is no model of the mill
     g = load_machine(None)
-    make_mt_truth(g, 0).elements.save(tmp_path / "grinder.json")
+    make_chain_truth(g, 0).elements.save(tmp_path / "grinder.json")
     ck = t.check_measurements(20, seed=1)
     from errormap.io import write_csv
     write_csv(tmp_path / "checks.csv", ck)
@@ -232,7 +232,7 @@ def test_cli_closed_loop_on_the_mill(tmp_path, capsys, mill):
 
 
 def test_cli_refuses_options_the_chain_path_does_not_use(tmp_path, capsys, mill):
-    t = make_mt_truth(mill, 0)
+    t = make_chain_truth(mill, 0)
     from errormap.io import write_csv
     write_csv(tmp_path / "checks.csv", t.check_measurements(20, seed=1))
     t.elements.save(tmp_path / "mill.json")
@@ -241,17 +241,17 @@ def test_cli_refuses_options_the_chain_path_does_not_use(tmp_path, capsys, mill)
 
 
 def test_chain_checks_refuse_radians_and_metres(tmp_path, five):
-    from errormap.diagnosis.chain_loop import load_mt_checks
+    from errormap.diagnosis.chain_loop import load_chain_checks
     from errormap.io import InputError, write_csv
-    t = make_mt_truth(five, 0)
+    t = make_chain_truth(five, 0)
     ck = t.check_measurements(40, seed=1)
-    assert len(load_mt_checks(write_csv(tmp_path / "ok.csv", ck), five)) == 40
+    assert len(load_chain_checks(write_csv(tmp_path / "ok.csv", ck), five)) == 40
     bad = dict(ck, c_deg=np.deg2rad(ck["c_deg"]))
     with pytest.raises(InputError, match=r"column 'c_deg'.*radians"):
-        load_mt_checks(write_csv(tmp_path / "rad.csv", bad), five)
+        load_chain_checks(write_csv(tmp_path / "rad.csv", bad), five)
     bad = dict(ck, x_mm=ck["x_mm"] / 1000)
     with pytest.raises(InputError, match=r"column 'x_mm'.*metres"):
-        load_mt_checks(write_csv(tmp_path / "m.csv", bad), five)
+        load_chain_checks(write_csv(tmp_path / "m.csv", bad), five)
 
 
 def test_chain_sweep_reader_shares_the_grinder_readers_row_checks(tmp_path, mill):
@@ -259,7 +259,7 @@ def test_chain_sweep_reader_shares_the_grinder_readers_row_checks(tmp_path, mill
     beyond the maximum and a command unit that does not fit the axis are refused naming row and column."""
     from errormap.io import InputError, write_csv
     from errormap.chain_sweeps import write_sweeps
-    cols = simulated_sweeps(make_mt_truth(mill, 0), noise_um=1.0, seed=0)
+    cols = simulated_sweeps(make_chain_truth(mill, 0), noise_um=1.0, seed=0)
     write_sweeps(tmp_path / "ok.csv", cols)
     assert sorted(read_sweeps(tmp_path / "ok.csv", mill).axes) == ["X", "Y", "Z"]
     bad = {k: np.array(v).copy() for k, v in cols.items()}
@@ -287,7 +287,7 @@ def test_identify_noise_um_scales_the_covariance_as_on_the_grinder(tmp_path, mil
     """``identify --noise-um`` on a chain (as on the grinder): the known tracker σ scales the covariance; the
     elements are the same as without it."""
     import json
-    t = make_mt_truth(mill, 0)
+    t = make_chain_truth(mill, 0)
     write_sweeps(tmp_path / "sw.csv", simulated_sweeps(t, noise_um=1.0, seed=0))
     sw = read_sweeps(tmp_path / "sw.csv", mill)   # what the command reads
     est = ChainIdentification().fit(sw, mill).result_
@@ -314,7 +314,7 @@ def test_identify_plot_and_truth_on_a_chain(tmp_path, mill):
     """``identify --plot PREFIX --truth ELEMENTS`` on a chain (as on the grinder): one figure per swept axis, the
     truth overlaid in the identified gauge (the identification of its noise-free sweeps: the same tool points)."""
     from compensation.app.workflows.measurement import truth_in_gauge
-    t = make_mt_truth(mill, 0)
+    t = make_chain_truth(mill, 0)
     write_sweeps(tmp_path / "sw.csv", simulated_sweeps(t, noise_um=1.0, seed=0))
     truth_file = t.elements.save(tmp_path / "truth.json")
     assert _main(["identify", str(tmp_path / "sw.csv"), "--machine", "mill-xyz", "--out", str(tmp_path / "E.json"),
@@ -340,10 +340,10 @@ def test_truth_only_effects_on_a_chain_are_the_grinders(grinder_name, chain_effe
     element values equal the grinder simulator's ``bump`` / ``xz_saddle``, on that element and no other."""
     g, gc = load_machine(None), load_machine("grinder-chain")
     axes = np.random.default_rng(5).uniform(g.stroke_lo, g.stroke_hi, (400, 3))
-    el = make_mt_truth(g, 0).elements
-    d_g = MTTruth(g, el, {grinder_name: {}}).element_values(axes) - MTTruth(g, el, {}).element_values(axes)
+    el = make_chain_truth(g, 0).elements
+    d_g = ChainTruth(g, el, {grinder_name: {}}).element_values(axes) - ChainTruth(g, el, {}).element_values(axes)
     cel = ChainElementSet.zeros(gc)
-    d_c = MTTruth(gc, cel, {chain_effect: {}}).element_values(axes) - MTTruth(gc, cel, {}).element_values(axes)
+    d_c = ChainTruth(gc, cel, {chain_effect: {}}).element_values(axes) - ChainTruth(gc, cel, {}).element_values(axes)
     from errormap.elements import ELEMENT_NAMES
     k = list(gc.slot_names).index(element)
     assert np.abs(d_c[:, k]).max() > 1.0                         # the effect is there (μm or μrad)
@@ -371,10 +371,10 @@ def test_rotary_by_linear_effects_on_any_rotary_axis(five, effect, element):
     axis first is refused naming the order."""
     el = ChainElementSet.zeros(five)
     axes = five.stroke_lo + (five.stroke_hi - five.stroke_lo) * np.random.default_rng(3).random((200, 5))
-    d = np.abs(MTTruth(five, el, {effect: {}}).element_values(axes)).max(axis=0)
+    d = np.abs(ChainTruth(five, el, {effect: {}}).element_values(axes)).max(axis=0)
     assert [five.slot_names[i] for i in np.flatnonzero(d)] == [element] and d.max() > 1.0
     with pytest.raises(ValueError, match="rotary axis of"):
-        MTTruth(five, el, {"a_tilt:X*C": {}})
+        ChainTruth(five, el, {"a_tilt:X*C": {}})
 
 
 def test_truth_recipe_of_a_machine_file_is_checked(mill):
@@ -385,5 +385,5 @@ def test_truth_recipe_of_a_machine_file_is_checked(mill):
                        ({"independent": {"scale": {"dq_q": [1.0, 2.0]}}}, "truth.independent.scale.dq_q"),
                        ({"grid": [3, 3]}, "truth.grid")):
         with pytest.raises(MachineFileError, match=key.replace(".", r"\.")):
-            make_mt_truth(dataclasses.replace(mill, truth=table), 0, family="independent" if "independent" in table
+            make_chain_truth(dataclasses.replace(mill, truth=table), 0, family="independent" if "independent" in table
                           else "default")

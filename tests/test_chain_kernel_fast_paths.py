@@ -17,11 +17,11 @@ from chain_fixtures import axes_beyond_strokes, grinder_variant
 
 TOL_KERNEL_UM = 1e-9
 """The kernel against the numpy reference field: same transforms, different operation order (as
-tests/test_mt_kernel.py): one ulp of a 1 m tool point is 1.1e-10 μm; observed ≤ 3.2e-10 μm on these
+tests/test_chain_kernel.py): one ulp of a 1 m tool point is 1.1e-10 μm; observed ≤ 3.2e-10 μm on these
 uneven element sets (errors up to ~800 μm beyond the strokes), the same before this kernel's
 interval search."""
 TOL_KERNEL_JAC = 1e-9
-"""Axis Jacobians against the numpy reference: round-off only (as tests/test_mt_kernel.py)."""
+"""Axis Jacobians against the numpy reference: round-off only (as tests/test_chain_kernel.py)."""
 TOL_INVERSE_MM = 1e-11
 """Compiled closed-form inverse vs the numpy one: the same closed form with the two roots by the
 angle-addition rule instead of acos/cos/sin. Compared where it is well conditioned: the linear axes

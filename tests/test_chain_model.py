@@ -15,7 +15,7 @@ from errormap.diagnosis.loop_model import ChainModelField, load_chain_model_file
 from errormap.io import InputError
 from errormap.machine import load_machine
 from errormap.chain_field import ChainField
-from errormap.chain_truth import make_mt_truth
+from errormap.chain_truth import make_chain_truth
 
 DATA = Path(__file__).resolve().parent / "data"
 MILL_PROGRAM = DATA / "mill_pocket.nc"
@@ -49,7 +49,7 @@ def _terms(mt):
 
 
 def _model(mt, seed=4):
-    return ChainModelField(mt, make_mt_truth(mt, seed, family="independent").elements, _terms(mt))
+    return ChainModelField(mt, make_chain_truth(mt, seed, family="independent").elements, _terms(mt))
 
 
 def _points(mt, n, seed):
@@ -183,9 +183,9 @@ def test_whole_path_on_the_mill_true_residual(tmp_path, capsys):
     assert model["format"] == "volcomp-model/1" and len(model["terms"]) == 1
     # the file is the model the loop judged, re-estimated on all checks (the held-out ones included) once chosen: on the
     # held-out checks it is at least as close as the figure the loop judged it by (diagnosis.json's)
-    from errormap.diagnosis.chain_loop import load_mt_checks
+    from errormap.diagnosis.chain_loop import load_chain_checks
     mt = load_machine("mill-xyz")
-    ck = load_mt_checks(d / "sim" / "checks.csv", mt)
+    ck = load_chain_checks(d / "sim" / "checks.csv", mt)
     f = load_chain_model_file(d / "diag" / "model.json", mt)
     f = f.with_conditions({c: ck.conditions[c] for c in f.needs})
     r = ck.measured_um - f.predict(ck.axes)
