@@ -44,7 +44,7 @@ def held_moves(program) -> np.ndarray:
 def held_points(tp, k: int) -> np.ndarray | None:
     """Per point of a G-code tool path ``tp`` (bool (n, k), the machine's axis order): the axes held at a
     ``G53`` value; None where none is (or for a CSV path)."""
-    if tp.kind != "gcode" or not any(e[2] == "g53" for e in tp.source.program.events):
+    if getattr(tp, "kind", None) != "gcode" or not any(e[2] == "g53" for e in tp.source.program.events):
         return None
     per_move = held_moves(tp.source.program)
     out = np.zeros((len(tp.axes), k), dtype=bool)
