@@ -334,9 +334,9 @@ def _load_sub(m, pc, col, name):
     """LinuxCNC's ``o<name> call`` of a subroutine not in the program: ``DIR/name.ngc`` (SUBROUTINE_PATH's rule)."""
     plain = name[1:-1] if name.startswith("<") and name.endswith(">") else None
     if m.sub_files is None or plain is None:
-        raise m._err(pc, col, f"o{name} call: the subroutine is not defined in this file (LinuxCNC looks for "
-                              + ("<name>.ngc in its SUBROUTINE_PATH): give that folder with --subprograms DIR"
-                                 if plain is not None else "a named one in its SUBROUTINE_PATH): define it in the file"))
+        how = ("<name>.ngc in its SUBROUTINE_PATH): give that folder with --subprograms DIR" if plain is not None
+               else "a named one in its SUBROUTINE_PATH): define it in the file")
+        raise m._err(pc, col, f"o{name} call: the subroutine is not defined in this file (LinuxCNC looks for {how}")
     path = m.sub_files.linuxcnc(plain)
     if path is None:
         raise m._err(pc, col, f"o{name} call: not defined in this file and no {plain}.ngc in --subprograms "
