@@ -21,7 +21,8 @@ MAX_SEGMENTS_PER_MOVE = 100_000
 
 
 def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None,
-                        dialect: str | None = None, cycles: str | None = None, tables: tuple | None = None) -> GProgram:
+                        dialect: str | None = None, cycles: str | None = None, tables: tuple | None = None,
+                        subprograms=None) -> GProgram:
     """Read a G-code file for the machine-tool chain ``machine``: :func:`compensation.gcode.parse_program`
     with its axis words, the rotary words of the axes the exact solver keeps kept as programmed, a
     solved rotary axis (a lathe's C) written like a linear one (module docstring). Moves'
@@ -55,7 +56,7 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
     prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=words,
                          dialect=named, cycles=None if cycles is None else partial(cycle_pass, mode=cycles),
                          data=data, found=(dia, evidence) if named == "auto" and dia is not None else None,
-                         tables=tables)
+                         tables=tables, subprograms=subprograms)
     if pre is not None:
         attach(prog, pre)
     if pre is not None or (dialect == "auto" and name is not None):

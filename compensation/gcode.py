@@ -43,7 +43,7 @@ BULK_MIN_RUN = 32
 def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None,
                   fast: bool = True, axis_words: AxisWords | None = None, dialect: str | None = None,
                   cycles=None, data: bytes | None = None, found: tuple | None = None, lathe_x: str | None = None,
-                  tables: tuple | None = None) -> GProgram:
+                  tables: tuple | None = None, subprograms=None) -> GProgram:
     """Read a G-code file into a :class:`GProgram` (see the module docstring).
 
     ``found``: ``(Dialect, evidence)`` already recognised from these bytes under ``dialect="auto"`` (a
@@ -70,7 +70,8 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     table)`` the program runs with (:mod:`compensation.nc_state`; either None: not given, the program's own
     ``G10`` lines only): a ``G53`` move's end is then placed in the program's frame (machine axis minus work
     offset, ``G92`` and tool length), so the moves after it are known; None: the axes a ``G53`` moves are
-    unknown until the program gives them.
+    unknown until the program gives them. ``subprograms``: the :class:`compensation.nc_subfiles.SubprogramFiles` a
+    call of a subprogram kept outside the file reads (``--subprograms``; None: such a call is refused).
     """
     path = Path(path)
     if rapids not in RAPIDS_CHOICES:
@@ -94,7 +95,7 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
         from . import nc_expand
         from .gcode_classify import ProgramState
         expanded = nc_expand.expand_if_needed(data, path, dialect if dialect in nc_expand.DIALECTS else None,
-                                              ProgramState)
+                                              ProgramState, subprograms)
         if cycles is not None:
             text = expanded.text if expanded is not None else data.decode("latin-1")
             try:  # unrecognised: the cycle's moves end in the G0-G3 of before it, as group 09 leaves it

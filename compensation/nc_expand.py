@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from pathlib import Path
 
 from errormap.io import InputError
 
@@ -76,11 +77,22 @@ class Expanded:
     origin: tuple
     dialect: str
     path: str
+    files: tuple = ()
+    """``(first line, path, sha256)`` of each subprogram file read (:mod:`compensation.nc_subfiles`): source lines from
+    ``first line`` (1-based, in the numbering of ``origin``) on are that file's, from its line 1."""
+
+    def at(self, src: int) -> tuple:
+        """``(path, line)`` of a source line in the numbering of ``origin``."""
+        for first, path, _ in reversed(self.files):
+            if src >= first:
+                return path, src - first + 1
+        return self.path, src
 
     def where(self, out_line: int, col: int | None = None) -> str:
         """``'prog.nc: line 12, column 3 (called from line 4)'`` for 1-based output line ``out_line``."""
         src, verbatim, calls = self.origin[out_line - 1]
-        at = f"{self.path}: line {src}"
+        path, line = self.at(src)
+        at = f"{path}: line {line}"
         if col is not None:
             at += f", column {col}" if verbatim else f" (expanded as {self.line(out_line)!r}), column {col} of that"
         return at + "".join(f" (called from line {c})" for c in reversed(calls))
@@ -88,8 +100,9 @@ class Expanded:
     def note(self) -> str:
         """The header line of a written program: it is the flat (expanded) one."""
         calls = sum(1 for o in self.origin if o[2])
+        files = "".join(f"; subprogram file {Path(p).name} sha256 {h[:16]}" for _, p, h in self.files)
         return (f"volcomp: subprograms, macros and parameters expanded by {self.dialect} rules; this is the flat "
-                f"program of {len(self.origin)} executed lines, {calls} of them inside calls")
+                f"program of {len(self.origin)} executed lines, {calls} of them inside calls{files}")
 
     def line(self, out_line: int) -> str:
         return self.text.split("\n")[out_line - 1].rstrip("\r")
@@ -111,6 +124,8 @@ def source_line(program, line: int):
     if exp is None or not 1 <= line <= len(exp.origin):
         return line
     src, _, calls = exp.origin[line - 1]
+    path, k = exp.at(src)
+    src = k if path == exp.path else f"{k} of {path}"
     return f"{src} (expanded line {line}" + "".join(f", called from line {c}" for c in reversed(calls)) + ")"
 
 
@@ -123,26 +138,27 @@ def needs_expansion(data: bytes) -> bool:
     return any(w in low for w in _MARK_WORDS) or _M7X_BYTES.search(low) is not None
 
 
-def expand_if_needed(data: bytes, path, dialect: str | None = None, state=None) -> Expanded | None:
+def expand_if_needed(data: bytes, path, dialect: str | None = None, state=None, files=None) -> Expanded | None:
     """:func:`expand_program` of a program's bytes where they hold any mark (:func:`needs_expansion`)
     and the expansion changes the text; None otherwise (the program is read as it is)."""
     if not needs_expansion(data):
         return None
     text = data.decode("latin-1")
-    exp = expand_program(text, path, dialect, state)
+    exp = expand_program(text, path, dialect, state, files)
     return None if exp.text == text else exp
 
 
-def expand_program(text: str, path, dialect: str | None = None, state=None) -> Expanded:
+def expand_program(text: str, path, dialect: str | None = None, state=None, files=None) -> Expanded:
     """Expand ``text`` (a whole program, Latin-1 decoded) read from ``path`` (named in refusals).
 
     ``dialect``: one of :data:`DIALECTS` or None (told from content: LinuxCNC O-codes or named
     parameters make it ``linuxcnc``, Fanuc calls or macro statements ``fanuc``). ``state``: a class
     ``(dialect, text)`` that follows the lines written and answers ``#<_x>``, ``#<_metric>`` …
-    (:class:`compensation.gcode_classify.ProgramState`; None: those are refused as run-time state)."""
+    (:class:`compensation.gcode_classify.ProgramState`; None: those are refused as run-time state). ``files``: the
+    :class:`compensation.nc_subfiles.SubprogramFiles` a call of a subprogram not in ``text`` reads (None: refused)."""
     if dialect is not None and dialect not in DIALECTS:
         raise ValueError(f"Expected dialect in {list(DIALECTS)} or None, got {dialect!r}")
-    return _Machine(text, str(path), dialect, state).run()
+    return _Machine(text, str(path), dialect, state, files).run()
 
 
 # ---------------------------------------------------------------------------- parsing one line
@@ -503,14 +519,14 @@ def _detect(stmts) -> str | None:
 class _Machine:
     """The controller's interpreter of the control language (module docstring), run once."""
 
-    def __init__(self, text: str, path: str, dialect, state=None):
-        self.path, self.text = path, text
+    def __init__(self, text: str, path: str, dialect, state=None, files=None):
+        self.path, self.text, self.sub_files, self.files = path, text, files, []
         self.lines = text.split("\n")
         self.endings = ["\n"] * (len(self.lines) - 1) + [""]
         if self.lines and self.lines[-1] == "":
             self.lines.pop()
             self.endings.pop()
-        self.stmts = []
+        self.stmts, self.n_main = [], len(self.lines)
         for i, ln in enumerate(self.lines):
             try:
                 self.stmts.append(_parse_line(ln.rstrip("\r")))
@@ -559,9 +575,47 @@ class _Machine:
                 return j
         return None
 
+    def _at(self, i) -> str:
+        for first, path, _ in reversed(self.files):
+            if i + 1 >= first:
+                return f"{path}: line {i + 2 - first}"
+        return f"{self.path}: line {i + 1}"
+
     def _err(self, i, col, msg) -> InputError:
-        at = f"{self.path}: line {i + 1}" + (f", column {col}" if col else "")
-        return InputError(at + "".join(f" (called from line {c + 1})" for c in reversed(self.calls)) + f": {msg}")
+        at = self._at(i) + (f", column {col}" if col else "")
+        return InputError(at + "".join(f" (called from {self._at(c)})" for c in reversed(self.calls)) + f": {msg}")
+
+    def load(self, path) -> int:
+        """Append the subprogram file ``path`` to the lines run (its programs and subroutines indexed); the index of
+        its first line."""
+        lo = len(self.lines)
+        text = self.sub_files.read(path)
+        lines = text.split("\n")
+        if lines and lines[-1] == "":
+            lines.pop()
+        ends = ["\n"] * len(lines)  # its last line too: the caller's next line follows it in the flat program
+        for k, ln in enumerate(lines):
+            try:
+                self.stmts.append(_parse_line(ln.rstrip("\r")))
+            except _Refuse as r:
+                raise InputError(f"{path}: line {k + 1}, column {r.col}: {r.msg}") from None
+        self.lines += lines
+        self.endings += ends
+        self.files.append((lo + 1, str(path), self.sub_files.used[str(path)]))
+        prog_lines = [i for i in range(lo, len(self.lines)) if self.stmts[i][0] == "prog"]
+        for i, end in zip(prog_lines, prog_lines[1:] + [len(self.lines)]):
+            self.progs.setdefault(self.stmts[i][1], (i + 1, end))
+        for i in range(lo, len(self.lines)):
+            s = self.stmts[i]
+            if s[0] == "o" and s[3] == "sub" and s[2] not in self.subs:
+                end = self._find(i, s[2], ("endsub",))
+                if end is None:
+                    raise self._err(i, s[5], f"o{s[2]} sub without its o{s[2]} endsub")
+                self.subs[s[2]] = (i + 1, end + 1)
+            lab = s[1] if s[0] not in ("plain", "prog") else self._plain_label(i)
+            if lab is not None:
+                self.labels.setdefault(lab, []).append(i)
+        return lo
 
     # -- output
     def _emit(self, i, text=None):
@@ -582,10 +636,10 @@ class _Machine:
             self._unit(self.main, _Frame("main"), main=True)
         except (_Stop, _Return):
             pass
-        last = max((i for i, ln in enumerate(self.lines) if ln.strip()), default=None)
+        last = max((i for i, ln in enumerate(self.lines[:self.n_main]) if ln.strip()), default=None)
         if last is not None and self.lines[last].strip() == "%" and (not self.origin or self.origin[-1][0] != last + 1):
             self._emit(last)
-        return Expanded("".join(self.out), tuple(self.origin), self.dialect or "unknown", self.path)
+        return Expanded("".join(self.out), tuple(self.origin), self.dialect or "unknown", self.path, tuple(self.files))
 
     def _tick(self, i):
         self.executed += 1

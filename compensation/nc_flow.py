@@ -10,6 +10,8 @@ import math
 import operator
 import re
 
+from errormap.io import InputError
+
 MAX_CALL_DEPTH = 32
 """Nested calls (subprograms, macros, subroutines): more is refused as runaway recursion
 (Fanuc allows 10 levels of M98 and 4 of G65 (5 with G66), LinuxCNC tens)."""
@@ -303,8 +305,7 @@ def call_statement(m, pc, call, words, vals, fr):
             raise m._err(pc, col, f"M98 P{p}: on Fanuc the digits before the last four are a repeat count, on Haas "
                                   "P is the program number; write it as M98 P<program> L<count>")
     if p not in m.progs:
-        raise m._err(pc, col, f"{kind} P{p}: program O{p} is not in this file (a subprogram stored in the "
-                              "controller's memory): append it to the file after the main program")
+        _load_program(m, pc, col, kind, p)
     if kind == "M98":
         frame = _Frame(f"O{p}", named=fr.named, local=fr.local)  # a subprogram shares its caller's locals
     else:  # G65: a new level of locals from the arguments
@@ -312,6 +313,38 @@ def call_statement(m, pc, call, words, vals, fr):
         frame = _Frame(f"O{p}", named={}, local=local)
     _enter(m, pc, m.progs[p], frame, times)
     return pc + 1
+
+
+def _load_program(m, pc, col, kind, p):
+    """Program O``p`` read from the subprogram folders (:mod:`compensation.nc_subfiles`); refused without them."""
+    if m.sub_files is None:
+        raise m._err(pc, col, f"{kind} P{p}: program O{p} is not in this file (a subprogram stored in the "
+                              "controller's memory): give its folder with --subprograms DIR")
+    try:
+        path = m.sub_files.fanuc(p)
+    except InputError as exc:
+        raise m._err(pc, col, f"{kind} P{p}: {exc}") from None
+    if path is None:
+        raise m._err(pc, col, f"{kind} P{p}: program O{p} is neither in this file nor in --subprograms "
+                              f"{m.sub_files.named()} (no file there has the program-number line O{p} or :{p})")
+    m.load(path)
+
+
+def _load_sub(m, pc, col, name):
+    """LinuxCNC's ``o<name> call`` of a subroutine not in the program: ``DIR/name.ngc`` (SUBROUTINE_PATH's rule)."""
+    plain = name[1:-1] if name.startswith("<") and name.endswith(">") else None
+    if m.sub_files is None or plain is None:
+        how = ("<name>.ngc in its SUBROUTINE_PATH): give that folder with --subprograms DIR" if plain is not None
+               else "a named one in its SUBROUTINE_PATH): define it in the file")
+        raise m._err(pc, col, f"o{name} call: the subroutine is not defined in this file (LinuxCNC looks for {how}")
+    path = m.sub_files.linuxcnc(plain)
+    if path is None:
+        raise m._err(pc, col, f"o{name} call: not defined in this file and no {plain}.ngc in --subprograms "
+                              f"{m.sub_files.named()}")
+    lo = m.load(path)
+    if name not in m.subs or m.subs[name][0] <= lo:
+        raise m._err(pc, col, f"o{name} call: {path} does not define o{name} sub ... o{name} endsub (a subroutine "
+                              "file holds its own subroutine)")
 
 
 # ---------------------------------------------------------------------------- LinuxCNC O-codes
@@ -335,8 +368,7 @@ def o_statement(m, pc, s, fr):
                 raise m._err(pc, col, f"o[...] call: the O-number {v:g} is not a whole number ≥ 0")
             name = str(int(v))
         if name not in m.subs:
-            raise m._err(pc, col, f"o{name} call: the subroutine is not defined in this file (LinuxCNC would look "
-                                  "for it in its SUBROUTINE_PATH): put its o sub ... endsub in the program")
+            _load_sub(m, pc, col, name)
         values = [evaluate(m, a, pc, fr) for a in args]
         if len(values) > 30:
             raise m._err(pc, col, f"o{name} call with {len(values)} arguments (at most 30)")

@@ -59,7 +59,8 @@ def _refuse_lathe_x(prog, lathe_x) -> None:
                          "parameter (LinuxCNC's G7/G8 say it in the program): leave --lathe-x out")
 
 
-def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe_x=None) -> tuple[GProgram, np.ndarray]:
+def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe_x=None,
+                        subprograms=None) -> tuple[GProgram, np.ndarray]:
     """A program for a machine with a ``[spindle]``: ``(program, turning)`` with ``turning`` (n_moves,) per
     move of ``program.moves`` (module docstring). ``lathe_x``: ``"diameter"`` or ``"radius"``, what a Fanuc, Haas
     or Siemens ISO lathe's X words are (``--lathe-x``; None: such a program's X is refused)."""
@@ -68,14 +69,14 @@ def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe
     xz = AxisWords(machine.name, tuple(w for w in full.words if w != c), tuple(r for r in full.rotary if r != c))
     try:
         prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=xz, dialect=dialect,
-                             lathe_x=lathe_x)
+                             lathe_x=lathe_x, subprograms=subprograms)
         _refuse_lathe_x(prog, lathe_x)
         return prog, np.ones(len(prog.moves), dtype=bool)
     except InputError as exc:
         if f"no {c} axis" not in str(exc):
             raise  # a program without C words: the reading that applies to it names the refusal
     prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=full, dialect=dialect,
-                         lathe_x=lathe_x)
+                         lathe_x=lathe_x, subprograms=subprograms)
     _refuse_lathe_x(prog, lathe_x)
     flags = spindle_turning(prog.lines, machine.spindle)
     turning = np.array([flags[m.index] for m in prog.moves], dtype=bool)
@@ -90,7 +91,7 @@ def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe
             raise exc if prog.expanded is None else prog.expanded.relocate(exc)
     kept = dataclasses.replace(full, kept=(c,))  # C written only where C-axis mode moves it
     prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=kept, dialect=dialect,
-                         lathe_x=lathe_x)
+                         lathe_x=lathe_x, subprograms=subprograms)
     return prog, np.array([flags[m.index] for m in prog.moves], dtype=bool)
 
 

@@ -222,7 +222,7 @@ ARM = Family(
                                Opt("--rapids", PHYSICS, default=DEFAULT_RAPIDS), Opt("--block-delete", PHYSICS),
                                Opt("--arc-tolerance-um", PHYSICS, default=DEFAULT_ARC_TOLERANCE_UM),
                                Opt("--dialect", PHYSICS, default="auto"), Opt("--expand-cycles", PHYSICS),
-                               Opt("--lathe-x", PHYSICS)),
+                               Opt("--lathe-x", PHYSICS), Opt("--subprograms", PHYSICS)),
                 "{given}: G-code programs of machine tools only (a serial arm's program is joint angles)"),
         Refusal("compensate", (Opt("--truth", NOT_YET),),
                 "{given} is not used on a serial arm ({name}): the true residual of a compensated program is reported "

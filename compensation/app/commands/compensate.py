@@ -27,6 +27,7 @@ from ... import guards
 from ...fields import FAILED_VERDICT
 from ...gcode import BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, RAPIDS_CHOICES
 from ...dialects import DIALECT_NAMES
+from ...nc_subfiles import SubprogramFiles
 from ...nc_state import read_tool_table, read_work_offsets
 from ...pathio import ARC_TOLERANCE_RANGE_UM, DEFAULT_ARC_TOLERANCE_UM, SEGMENT_RANGE_MM
 from ...solvers import METHODS
@@ -105,6 +106,12 @@ def register(sub):
                    help="a Fanuc, Haas or Siemens ISO lathe program: whether its X words are diameters or radii (a "
                         "parameter of the control, not a word of the program; LinuxCNC programs say it with G7/G8). "
                         "Without it such a program's X is refused")
+    p.add_argument("--subprograms", action="append", default=None, metavar="DIR",
+                   help="G-code: a folder of subprograms kept outside the program (repeatable, searched in the order "
+                        "given, like LinuxCNC's SUBROUTINE_PATH): o<name> call reads DIR/name.ngc; M98/G65 Pn finds "
+                        "the file whose program-number line is On or :n (by content, never by file name; a number in "
+                        "two files is refused). Calls are expanded into the flat program written; the files read "
+                        "and their SHA-256 are in the summary")
     p.add_argument("--expand-cycles", action="store_true",
                    help="machine-tool chains: write drilling canned cycles (G73 G81-G89) as the controller's explicit "
                         "G0/G1/G4 moves, compensated point by point (default: kept as cycles, each hole's X Y Z and R "
@@ -149,6 +156,7 @@ def settings_of(args) -> "CompensateSettings":
                               else None,
                               tool_table=read_tool_table(args.tool_table) if args.tool_table else None,
                               lathe_x=args.lathe_x,
+                              subprograms=SubprogramFiles(args.subprograms) if args.subprograms else None,
                               cycles="expand" if args.expand_cycles else "keep",
                               orientation=bool(args.compensate_orientation), chunk_points=args.chunk_points,
                               max_segment_mm=parse_max_segment(args.max_segment_mm))

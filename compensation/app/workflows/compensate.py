@@ -84,6 +84,7 @@ class CompensateSettings:
     chunk_points: int = CHUNK_POINTS  # points per chunk of the batch (compensation.batch)
     max_segment_mm: object = "auto"   # "auto" (the field's curvature), None (no splitting) or a length in mm
     lathe_x: str | None = None   # a Fanuc/Haas/Siemens ISO lathe's X words: "diameter", "radius" (None: refused)
+    subprograms: object = None   # compensation.nc_subfiles.SubprogramFiles (--subprograms; None: not given)
 
 
 @dataclass
@@ -519,6 +520,9 @@ def gcode_entry(entry, tp: ToolPath, res, true_r, true_base, field_, truth, mach
                   "moves_kept": int(len(job.kept_lines)), "rapids": s.rapids, "block_delete": s.block_delete,
                   "arc_tolerance_um": s.arc_tolerance_um, **job.frames.notes,
                   "dialect": job.program.dialect, "dialect_evidence": job.program.dialect_evidence})
+    files = getattr(job.program.expanded, "files", ())
+    if files:  # subprograms read from --subprograms folders (compensation.nc_subfiles)
+        entry["subprogram_files"] = [{"path": p, "sha256": h} for _, p, h in files]
     splines = spline_lines(job.program)
     if splines:
         entry["spline_lines"] = splines

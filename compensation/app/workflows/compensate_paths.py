@@ -82,12 +82,12 @@ def read_tool_path(path, machine, s, field_=None) -> ToolPath:
     if getattr(machine, "spindle", None) is not None:  # a lathe: turning mode where the spindle turns
         from ...turning import ColumnsField, parse_lathe_program
         prog, turning = parse_lathe_program(path, machine, s.rapids, s.block_delete, dialect=s.dialect,
-                                            lathe_x=getattr(s, "lathe_x", None))
+                                            lathe_x=getattr(s, "lathe_x", None), subprograms=s.subprograms)
     elif getattr(s, "lathe_x", None) is not None:
         raise UsageError(f"--lathe-x: the machine {machine.name!r} is not a lathe (no [spindle]); leave it out")
     else:
         prog = parse_chain_program(path, machine, rapids=s.rapids, block_delete=s.block_delete, dialect=s.dialect,
-                                   cycles=s.cycles, tables=(s.work_offsets, s.tool_table))
+                                   cycles=s.cycles, tables=(s.work_offsets, s.tool_table), subprograms=s.subprograms)
     frames = program_frames(prog, s.work_offsets, s.tool_table)
     refuse_unknown_frames(prog, frames, s.work_offsets)
     k = len(machine.axes)
