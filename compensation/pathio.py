@@ -98,9 +98,6 @@ class GCodeJob:
     counts: np.ndarray | None = None
     """(number of compensated moves,) vertices per move (block-wise programs; ``params`` then
     builds each move's parameters from it when asked)."""
-    machine: object = field(default=None, repr=False)
-    """The machine :func:`gcode_toolpath` computed the job's points for (:func:`replan` reuses
-    them when the vertices stay the same)."""
 
     @property
     def compensated_moves(self) -> list:
@@ -357,7 +354,6 @@ def _check_vertex_counts(program: GProgram, counts, lines, max_segment_mm) -> No
 
 def gcode_toolpath(job: GCodeJob, machine, path) -> "ToolPathFile":
     """The :class:`ToolPathFile` of a planned G-code job: one row per vertex."""
-    job.machine = machine
     if job.counts is not None:
         axes, lines = _table_vertices(job)
         return ToolPathFile(Path(path), "gcode", axes, forward(machine, axes), lines, job)
@@ -548,37 +544,10 @@ def grinder_frames(prog, work_offsets=None) -> None:
 
 def replan(toolpath: ToolPathFile, machine, **options) -> ToolPathFile:
     """A G-code tool path with its vertices placed again (:func:`plan_gcode` options,
-    e.g. ``max_segment_mm="auto", field=...``); CSV paths come back unchanged."""
-    if toolpath.kind != "gcode":
-        return toolpath
+    e.g. ``max_segment_mm="auto", field=...``)."""
     job = toolpath.source
     opts = {"arc_tolerance_um": job.arc_tolerance_um, "max_segment_mm": job.max_segment_mm, **options}
-    new = plan_gcode(job.program, machine, **opts)
-    if (new.counts is not None and job.counts is not None and new.counts.shape == job.counts.shape
-            and machine is job.machine):
-        return _replanned_table(toolpath, new, machine)
-    return gcode_toolpath(new, machine, toolpath.path)
-
-
-def _replanned_table(toolpath: ToolPathFile, new: GCodeJob, machine) -> ToolPathFile:
-    """:func:`gcode_toolpath` of ``new``, a block-wise job planned again: a move whose vertex
-    count did not change has the same vertices (they depend on the count only), so its
-    targets are taken from ``toolpath``; only the other moves' go through :func:`forward`."""
-    old = toolpath.source
-    new.machine = machine
-    if np.array_equal(new.counts, old.counts):
-        return ToolPathFile(toolpath.path, "gcode", toolpath.axes, toolpath.targets_mm, toolpath.lines, new)
-    axes, lines = _table_vertices(new)
-    owner = np.repeat(np.arange(new.counts.size), new.counts)
-    new_first = np.concatenate([[0], np.cumsum(new.counts)[:-1]])
-    old_first = np.concatenate([[0], np.cumsum(old.counts)[:-1]])
-    same = (new.counts == old.counts)[owner]
-    targets = np.empty_like(axes)
-    idx = np.flatnonzero(same)
-    targets[idx] = toolpath.targets_mm[old_first[owner[idx]] + idx - new_first[owner[idx]]]
-    idx = np.flatnonzero(~same)
-    targets[idx] = forward(machine, axes[idx])
-    return ToolPathFile(toolpath.path, "gcode", axes, targets, lines, new)
+    return gcode_toolpath(plan_gcode(job.program, machine, **opts), machine, toolpath.path)
 
 
 def align_turns(a_deg, a_ref_deg) -> np.ndarray:
