@@ -1,14 +1,7 @@
-"""Tool-path files: CSV and G-code readers and writers.
-
-Formats (docs/reference/tool-paths.md, docs/reference/file-formats.md): CSV axis commands (the program means
-the nominal tool points ``forward(axes)``), CSV WCS targets ``px_mm, py_mm, pz_mm`` (the nominal axes are
-``inverse(targets)`` unwrapped along the path; a file with both sets is refused as ambiguous; extra columns
-and the input's provenance are kept), and G-code: any file whose first line (after blank and ``#`` lines) is
-not a CSV header (:func:`is_csv`), read by :mod:`compensation.gcode` with an explicit allow-list;
-:func:`plan_gcode` places the vertices of each compensated move (arcs linearised, long moves split), one
-:class:`ToolPathFile` row per vertex. ``compensate`` writes the compensated program in the input's own
-format (:func:`compensation.app.workflows.compensate.write_outputs`); G-code gets new axis numbers on each
-compensated line in the line's own units and distance mode (:func:`compensation.gcode.render_program`)."""
+"""Tool-path helpers: the CSV sniffer and renderer, the option ranges, the move-extent check, and a G-code
+reader/planner (:func:`read_path`, :func:`plan_gcode`: a global ``auto`` segment length from the field's
+curvature) kept for the tool-path benchmark; ``volcomp compensate`` reads through
+:func:`compensation.app.workflows.compensate_paths.read_tool_path` (formats: docs/reference/tool-paths.md)."""
 from __future__ import annotations
 
 import csv
@@ -20,16 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.io import InputError, atomic_write, not_a_file, read_table
-from errormap.chain_kernel import forward, inverse
-from errormap.units import UNITS_CHECK, check_units
+from errormap.io import InputError, atomic_write, not_a_file
+from errormap.chain_kernel import forward
 
 from .gcode_kernels import linear_path_lengths_mm
 from .gcode_spline import spline_extent_mm
 from .gcode import (AxisWords, GProgram, arc_segments, fmt as _fmt, move_points, parse_program, render_program,
                     render_table)
 
-AXIS_COLUMNS = ("x_mm", "z_mm", "a_deg")
 TARGET_COLUMNS = ("px_mm", "py_mm", "pz_mm")
 DECIMALS_MM = 6   # 1 nm
 DECIMALS_DEG = 6  # 1e-6 deg: 1 nm at 57 mm from the A axis
@@ -107,9 +98,6 @@ class GCodeJob:
     counts: np.ndarray | None = None
     """(number of compensated moves,) vertices per move (block-wise programs; ``params`` then
     builds each move's parameters from it when asked)."""
-    machine: object = field(default=None, repr=False)
-    """The machine :func:`gcode_toolpath` computed the job's points for (:func:`replan` reuses
-    them when the vertices stay the same)."""
 
     @property
     def compensated_moves(self) -> list:
@@ -366,7 +354,6 @@ def _check_vertex_counts(program: GProgram, counts, lines, max_segment_mm) -> No
 
 def gcode_toolpath(job: GCodeJob, machine, path) -> "ToolPathFile":
     """The :class:`ToolPathFile` of a planned G-code job: one row per vertex."""
-    job.machine = machine
     if job.counts is not None:
         axes, lines = _table_vertices(job)
         return ToolPathFile(Path(path), "gcode", axes, forward(machine, axes), lines, job)
@@ -477,32 +464,6 @@ def _table_vertices(job: GCodeJob):
 
 # ----------------------------------------------------------------------------- CSV
 
-def _read_csv(path, machine, units: str = UNITS_CHECK, units_option: str | None = None) -> ToolPathFile:
-    t = read_table(path)
-    has_axes = all(c in t for c in AXIS_COLUMNS)
-    has_targets = all(c in t for c in TARGET_COLUMNS)
-    if has_axes and has_targets:
-        raise InputError(f"{path}: has both axis columns {list(AXIS_COLUMNS)} and target columns "
-                         f"{list(TARGET_COLUMNS)}; expected one set")
-    if not (has_axes or has_targets):
-        raise InputError(f"{path}: expected columns {list(AXIS_COLUMNS)} (axis commands) or "
-                         f"{list(TARGET_COLUMNS)} (WCS targets); found columns {t.names}")
-    if len(t) == 0:
-        raise InputError(f"{path}: no data rows")
-    rows = t.row_number(0) + np.arange(len(t), dtype=int)  # Table.row_number(k), all at once
-    # metres for mm, radians for degrees, °F for °C: the shared unit check, before any kinematics
-    temps = {"temp_c": t.float("temp_c")} if "temp_c" in t else None
-    if has_axes:
-        axes = np.stack([t.float(c) for c in AXIS_COLUMNS], axis=1)
-        check_units(path, rows, machine=machine, axes=axes, axes_columns=AXIS_COLUMNS, coverage="path", temps=temps,
-                    units=units, option=units_option)
-        return ToolPathFile(Path(path), "csv-axes", axes, forward(machine, axes), rows, t)
-    targets = np.stack([t.float(c) for c in TARGET_COLUMNS], axis=1)
-    check_units(path, rows, machine=machine, targets=targets, target_columns=TARGET_COLUMNS, temps=temps,
-                units=units, option=units_option)
-    return ToolPathFile(Path(path), "csv-targets", inverse(machine, targets, unwrap=True), targets, rows, t)
-
-
 def _render_csv(table, replace: dict) -> str:
     """The CSV ``table`` with the columns of ``replace`` (name -> (values, decimals)) rewritten: a plain CSV,
     header first (its provenance goes to the sidecar: :func:`compensated_sidecar`)."""
@@ -547,20 +508,15 @@ _COLUMN_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 def read_path(path, machine, *, rapids: str = "keep", block_delete=None,
               arc_tolerance_um: float = DEFAULT_ARC_TOLERANCE_UM, max_segment_mm=None, field=None,
-              units: str = UNITS_CHECK, units_option: str | None = None, work_offsets=None,
-              dialect: str | None = None) -> ToolPathFile:
-    """Read a tool-path file for ``machine``: a CSV path or G-code, told apart by content
-    (:func:`is_csv`), never by the file's suffix.
+              work_offsets=None, dialect: str | None = None) -> ToolPathFile:
+    """Read a G-code program for ``machine`` (CSV paths: ``compensate_paths.read_tool_path``).
 
-    G-code options: ``rapids``, ``block_delete`` (:func:`compensation.gcode.parse_program`),
-    ``arc_tolerance_um``, ``max_segment_mm``, ``field`` (:func:`plan_gcode`), ``work_offsets``
-    (:func:`grinder_frames`), ``dialect`` (:func:`compensation.gcode.parse_program`). CSV: ``units``, ``units_option`` (:func:`errormap.units.check_units`).
+    Options: ``rapids``, ``block_delete``, ``dialect`` (:func:`compensation.gcode.parse_program`),
+    ``arc_tolerance_um``, ``max_segment_mm``, ``field`` (:func:`plan_gcode`), ``work_offsets`` (:func:`grinder_frames`).
     """
     path = Path(path)
     if not path.is_file():
         raise InputError(not_a_file(path))
-    if is_csv(path):
-        return _read_csv(path, machine, units, units_option)
     prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=AxisWords.of(machine),
                          dialect=dialect)
     grinder_frames(prog, work_offsets)
@@ -588,37 +544,10 @@ def grinder_frames(prog, work_offsets=None) -> None:
 
 def replan(toolpath: ToolPathFile, machine, **options) -> ToolPathFile:
     """A G-code tool path with its vertices placed again (:func:`plan_gcode` options,
-    e.g. ``max_segment_mm="auto", field=...``); CSV paths come back unchanged."""
-    if toolpath.kind != "gcode":
-        return toolpath
+    e.g. ``max_segment_mm="auto", field=...``)."""
     job = toolpath.source
     opts = {"arc_tolerance_um": job.arc_tolerance_um, "max_segment_mm": job.max_segment_mm, **options}
-    new = plan_gcode(job.program, machine, **opts)
-    if (new.counts is not None and job.counts is not None and new.counts.shape == job.counts.shape
-            and machine is job.machine):
-        return _replanned_table(toolpath, new, machine)
-    return gcode_toolpath(new, machine, toolpath.path)
-
-
-def _replanned_table(toolpath: ToolPathFile, new: GCodeJob, machine) -> ToolPathFile:
-    """:func:`gcode_toolpath` of ``new``, a block-wise job planned again: a move whose vertex
-    count did not change has the same vertices (they depend on the count only), so its
-    targets are taken from ``toolpath``; only the other moves' go through :func:`forward`."""
-    old = toolpath.source
-    new.machine = machine
-    if np.array_equal(new.counts, old.counts):
-        return ToolPathFile(toolpath.path, "gcode", toolpath.axes, toolpath.targets_mm, toolpath.lines, new)
-    axes, lines = _table_vertices(new)
-    owner = np.repeat(np.arange(new.counts.size), new.counts)
-    new_first = np.concatenate([[0], np.cumsum(new.counts)[:-1]])
-    old_first = np.concatenate([[0], np.cumsum(old.counts)[:-1]])
-    same = (new.counts == old.counts)[owner]
-    targets = np.empty_like(axes)
-    idx = np.flatnonzero(same)
-    targets[idx] = toolpath.targets_mm[old_first[owner[idx]] + idx - new_first[owner[idx]]]
-    idx = np.flatnonzero(~same)
-    targets[idx] = forward(machine, axes[idx])
-    return ToolPathFile(toolpath.path, "gcode", axes, targets, lines, new)
+    return gcode_toolpath(plan_gcode(job.program, machine, **opts), machine, toolpath.path)
 
 
 def align_turns(a_deg, a_ref_deg) -> np.ndarray:

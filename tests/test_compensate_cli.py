@@ -8,7 +8,7 @@ from compensation.app.cli import main
 from compensation.nc_state import MACHINE, read_work_offsets
 from compensation.pathio import read_path, write_axes_gcode
 from compensation.toolpath import flute_path
-from path_files import write_targets_csv
+from path_files import read_as_compensate, write_targets_csv
 from errormap.chain_field import ChainField
 from errormap.chain_truth import make_chain_truth
 from errormap.io import read_table
@@ -56,7 +56,7 @@ def test_batch_writes_each_file_and_summary(setup, grinder, capsys):
     assert np.abs(reached - src.targets_mm).max() < 1e-3 * TOL_MODEL_RESIDUAL_UM + TOL_MM
     assert np.abs(res.axes[:, 2] - src.axes[:, 2]).max() < 180.0  # A stays on its turn
     # a targets CSV comes back as compensated WCS commands p_r
-    assert read_path(out / "flute.csv", grinder).kind == "csv-targets"
+    assert read_as_compensate(out / "flute.csv", grinder).kind == "csv-targets"
 
 
 def test_refuses_to_overwrite_inputs(setup, capsys):

@@ -149,7 +149,7 @@ def test_fuzz_report_path(grinder, data, text, methods):
     """report --path on a hostile tool-path CSV: exit 0 compares the methods on exactly the points the library reads
     from the same file (metrics.json's count, the exact method's model residual under its solver's tolerance), or
     one line naming the file or --methods."""
-    from compensation.pathio import read_path
+    from path_files import read_as_compensate
     machine = load_machine(None)
     raw = data.draw(hostile_bytes(text, table=True))
     with tempfile.TemporaryDirectory() as d:
@@ -160,7 +160,7 @@ def test_fuzz_report_path(grinder, data, text, methods):
         rc, err = run_main(argv)
         if _tally_outcome(argv, rc, err, [str(p), "--methods"]):
             doc = json.loads((out / "metrics.json").read_text())
-            n = len(read_path(p, machine))
+            n = len(read_as_compensate(p, machine))
             ok = doc["points"] == n and all(m["points"] == n for m in doc["methods"].values())
             if "exact" in doc["methods"]:   # the exact solve lands on every target under the model
                 ok = ok and doc["methods"]["exact"]["model_max_um"] < 1e3 * TOL_LANDING_MM
@@ -227,7 +227,7 @@ def test_fuzz_predict_arm_program(arm, data):
 def test_fuzz_compensate_targets_csv(grinder, data, seg):
     """compensate --method exact on a hostile targets CSV: exit 0 writes axes that land on every target the library
     reads from the same file under the model, or one line naming the file or --max-segment-mm."""
-    from compensation.pathio import read_path
+    from path_files import read_as_compensate
     from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
     from errormap.chain_kernel import forward
@@ -242,8 +242,8 @@ def test_fuzz_compensate_targets_csv(grinder, data, seg):
         rc, err = run_main(argv)
         if _tally_outcome(argv, rc, err, [str(p), "--max-segment-mm"]):
             field = ChainField(machine, ChainElementSet.load(el, machine))
-            src = read_path(p, machine)
-            res = read_path(out / p.name, machine)
+            src = read_as_compensate(p, machine)
+            res = read_as_compensate(out / p.name, machine)
             lands = forward(machine, res.axes) + 1e-3 * field.predict(res.axes)
             miss = np.linalg.norm(src.targets_mm[:, None, :] - lands[None], axis=2).min(axis=1)
             _check_output("compensate", len(res) >= len(src) and miss.max() < TOL_LANDING_MM, (argv, miss.max()))

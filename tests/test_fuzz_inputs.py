@@ -125,11 +125,11 @@ def test_fuzz_sweeps_reader(sim, machine, data):
 @FUZZ
 @given(data=st.data(), targets=st.booleans())
 def test_fuzz_toolpath_csv_reader(machine, data, targets):
-    from compensation.pathio import read_path
+    from path_files import read_as_compensate
     text = ("px_mm,py_mm,pz_mm\n-250,10,200\n-260,20,205\n-270,0,210\n" if targets else
             "x_mm,z_mm,a_deg,feed\n10,5,0,100\n20,6,45,100\n30,7,90,100\n")
     raw = data.draw(mangled(text))
-    reads_or_refuses(lambda p: read_path(p, machine), raw, ".csv")
+    reads_or_refuses(lambda p: read_as_compensate(p, machine), raw, ".csv")
 
 
 @FUZZ

@@ -307,9 +307,8 @@ def test_format_fixed_writes_what_fmt_writes(decimals):
 
 
 @pytest.mark.parametrize("seg", ["auto", 0.05, None])
-def test_replan_reuses_points_bit_for_bit(tmp_path, grinder, field, seg):
-    """replan keeps the targets of moves whose vertex count did not change: the tool path is
-    the one a fresh plan gives, bit for bit."""
+def test_replan_is_a_fresh_plan_bit_for_bit(tmp_path, grinder, field, seg):
+    """replan gives the tool path a fresh plan gives, bit for bit."""
     path = tmp_path / "gen.nc"
     path.write_bytes(_program(2, LINES_PER_PROGRAM, incremental=False).encode("latin-1"))
     tp0 = pathio.read_path(path, grinder, work_offsets=read_work_offsets(MACHINE))  # G54 read as machine zero

@@ -21,11 +21,10 @@ TOL_MM = 1e-6
 def test_axes_csv_targets_are_forward(tmp_path, grinder):
     p = tmp_path / "axes.csv"
     p.write_text("# job: test\nx_mm,z_mm,a_deg,feed\n10,1,0,100\n20,2,370,100\n")
-    tp = read_path(p, grinder, work_offsets=MCS)
+    tp = read_as_compensate(p, grinder, work_offsets=MCS)   # read and written as compensate does
     assert tp.kind == "csv-axes" and tp.lines.tolist() == [3, 4]
-    assert np.allclose(tp.targets_mm, forward(grinder, tp.axes))
-    tpw = read_as_compensate(p, grinder, work_offsets=MCS)   # written as compensate writes it
-    out = write_compensated(tpw, tmp_path / "out" / "axes.csv", grinder, tp.axes + 0.001,
+    assert np.array_equal(tp.axes, [[10, 1, 0], [20, 2, 370]])
+    out = write_compensated(tp, tmp_path / "out" / "axes.csv", grinder, tp.axes + 0.001,
                             comments=["method: x"])
     text = out.read_text().splitlines()
     # a plain CSV (header first); the input's '#' provenance and the added lines go to the sidecar
@@ -40,7 +39,7 @@ def test_axes_csv_targets_are_forward(tmp_path, grinder):
 def test_targets_csv_round_trip_and_unwrap(tmp_path, grinder):
     f = flute_path(turns=2, points_per_turn=30)
     p = write_targets_csv(tmp_path / "flute.csv", f.targets_mm)
-    tp = read_path(p, grinder, work_offsets=MCS)
+    tp = read_as_compensate(p, grinder, work_offsets=MCS)
     assert tp.kind == "csv-targets"
     assert np.abs(tp.axes[:, 2] - f.theta_deg).max() < 1e-6  # A unwrapped along the path
     tpw = read_as_compensate(p, grinder, work_offsets=MCS)
@@ -50,7 +49,7 @@ def test_targets_csv_round_trip_and_unwrap(tmp_path, grinder):
 
 
 @pytest.mark.parametrize("text, match", [
-    ("x_mm,z_mm\n1,2\n", "expected columns"),
+    ("x_mm,z_mm\n1,2\n", r"missing required column\(s\) \['a_deg'\]"),
     ("x_mm,z_mm,a_deg,px_mm,py_mm,pz_mm\n1,2,3,4,5,6\n", "both"),
     ("x_mm,z_mm,a_deg\n1,2,3\n1,abc,3\n", r"row 3, column 'z_mm'"),
     ("x_mm,z_mm,a_deg\n1,2\n", "row 2"),
@@ -60,7 +59,7 @@ def test_bad_csv_names_row_and_column(tmp_path, grinder, text, match):
     p = tmp_path / "bad.csv"
     p.write_text(text)
     with pytest.raises(InputError, match=match) as exc:
-        read_path(p, grinder, work_offsets=MCS)
+        read_as_compensate(p, grinder, work_offsets=MCS)
     assert "bad.csv" in str(exc.value)
 
 

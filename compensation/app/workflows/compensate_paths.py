@@ -68,7 +68,10 @@ def read_tool_path(path, machine, s, field_=None) -> ToolPath:
     if is_csv(path):
         t = read_table(path)
         cols = machine.axis_columns
-        if all(c in t for c in TARGET_COLUMNS) and not any(c in t for c in cols):
+        if all(c in t for c in TARGET_COLUMNS):
+            if any(c in t for c in cols):
+                raise InputError(f"{path}: has both axis columns {list(cols)} and target columns "
+                                 f"{list(TARGET_COLUMNS)}; expected one set")
             return read_targets_csv(path, t, machine, s)
         t.require(*cols)
         if len(t) == 0:
