@@ -59,7 +59,7 @@ def mill():
 def _fit(mill, physics, out_dir=None):
     m, fp, val = mill
     return fit_field(fp, TrainSettings(hidden=SMALL_NET, max_iter=ITERS, seed=0, physics=physics), machine=m,
-                     validation=val, out_dir=out_dir, quiet=True)
+                     validation=val, out_dir=out_dir, quiet=True, track=False)
 
 
 def test_physics_first_beats_the_plain_network_off_the_grid(mill):

@@ -438,8 +438,8 @@ def fit_field(featurepoints, settings: TrainSettings | None = None, *, machine=N
     its axis columns, held against the plain OLS baseline (:func:`_chain_run`).
 
     ``featurepoints``: :class:`errormap.featurepoints.FeaturePoints` (axes (n, k), errors (n, 3) μm, meta).
-    ``settings``: :class:`TrainSettings`; ``tracking``: :class:`TrackSettings` (the grinder's run; a chain's
-    is recorded by its caller). Keyword ``overrides`` name fields of either (``fit_field(fp, max_iter=60,
+    ``settings``: :class:`TrainSettings`; ``tracking``: :class:`TrackSettings` (the run, the grinder's and a
+    chain's alike). Keyword ``overrides`` name fields of either (``fit_field(fp, max_iter=60,
     track=False)``) and go through the same validation. ``validation``: ``(axes (m, k), errors (m, 3) μm)``;
     when None, ``n_validation`` random off-grid points of the element set named in the feature points' meta
     (``elements_file``), InputError if there is none. ``out_dir``: also save the model and ``metrics.json``
@@ -491,7 +491,7 @@ def fit_field(featurepoints, settings: TrainSettings | None = None, *, machine=N
     if s.physics != "none":
         metrics["physics_alone_kept"] = physics_kept_alone
     if machine is not None:
-        return _chain_run(model, metrics, hist, s, machine, meta, axes, errors, len(val_axes), val_source,
+        return _chain_run(model, metrics, hist, s, t, machine, meta, axes, errors, len(val_axes), val_source,
                           source, out_dir)
     params = _fit_params(model, s, meta, hist, axes, errors, len(val_axes), val_source, selector is not None)
     run_id = None
@@ -623,12 +623,13 @@ def _write_run(model, axes, errors, ref, metrics, params, hist, s: TrainSettings
     return run_id
 
 
-def _chain_run(model, metrics: dict, hist, s, machine, meta: dict, axes, errors, n_val: int,
+def _chain_run(model, metrics: dict, hist, s, t: TrackSettings, machine, meta: dict, axes, errors, n_val: int,
                val_source: str, source: str, out_dir):
     """The end of :func:`training.trainers.fit_field` on a chain (a :class:`training.trainers.FitResult`):
     a network whose validation RMS is not below the OLS baseline's is refused (InputError, nothing
-    written), never returned; else ``model/`` and ``metrics.json`` go to ``out_dir`` as a set (not tracked
-    in MLflow)."""
+    written), never returned; else ``model/`` and ``metrics.json`` go to ``out_dir`` as a set and the fit is
+    an MLflow run (tags ``machine``, ``kind = chain-network``; ``model/`` as saved; its id and store go into
+    ``metrics.json``)."""
     from errormap.io import atomic_dir, write_json
     params = {"hidden": ",".join(map(str, model.hidden)), "activation": s.activation,
               "inputs": ",".join(model.axis_columns),
@@ -648,9 +649,23 @@ def _chain_run(model, metrics: dict, hist, s, machine, meta: dict, axes, errors,
                          f"{metrics['val_rms_um']:.4g} μm is not below the plain OLS baseline's "
                          f"{metrics['baseline_ols_val_rms_um']:.4g} μm ({val_source}); model not written "
                          "(more feature points, iterations or another network)")
-    if out_dir is not None:
-        with atomic_dir(out_dir) as d:
-            model.save(d / "model")
-            write_json(d / "metrics.json", {**metrics, "stop_reason": hist.stop_reason, "trainer": s.trainer,
-                                            "seconds": hist.seconds, "params": params})
-    return FitResult(model, metrics, None, hist.seconds, hist, params)
+    if out_dir is None and not t.track:
+        return FitResult(model, metrics, None, hist.seconds, hist, params)
+    doc = {**metrics, "stop_reason": hist.stop_reason, "trainer": s.trainer, "seconds": hist.seconds,
+           "params": params}
+    run_id = None
+    with contextlib.ExitStack() as stack:
+        d = stack.enter_context(atomic_dir(out_dir)) if out_dir is not None else \
+            Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="volcomp-fit-")))
+        model.save(d / "model")
+        write_json(d / "metrics.json", doc)
+        if t.track:
+            from .tracking import default_tracking_uri, log_fit
+            uri = t.tracking_uri or default_tracking_uri()
+            numbers = {k: float(v) for k, v in metrics.items() if isinstance(v, (int, float))}
+            tags = {"machine": machine.name, "kind": "chain-network", **(t.tags or {})}
+            run_id = log_fit(params, numbers, hist, d / "model", [d / "metrics.json"], tracking_uri=uri,
+                             run_name=t.run_name, parent_run_id=t.parent_run_id, experiment=t.experiment,
+                             tags=tags, pyfunc=False)
+            write_json(d / "metrics.json", {**doc, "run_id": run_id, "tracking_uri": uri})
+    return FitResult(model, metrics, run_id, hist.seconds, hist, params)

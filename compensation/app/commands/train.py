@@ -194,7 +194,7 @@ def _run_chain(args, fp, settings, max_iter, max_time, hidden) -> int:
         raise UsageError(f"--a-encoding: the machine-tool chain {machine.name!r} has no rotary axis short of a full "
                          "turn to encode (a full-turn rotary axis is always (cos, sin), a linear axis one scaled input)")
     from training.chain_model import ChainMLPField
-    from training.trainers import fit_field
+    from training.trainers import TrackSettings, fit_field
     if args.trainer == "lm":
         from ..validate import check_lm_size
         net = ChainMLPField.for_machine(machine, settings.a_encoding, hidden=hidden)
@@ -204,7 +204,10 @@ def _run_chain(args, fp, settings, max_iter, max_time, hidden) -> int:
     print(f"training {args.trainer} on {len(fp.axes)} feature points of the machine-tool chain {machine.name!r} "
           f"({', '.join(machine.axis_columns)}) from {args.featurepoints} (at most {max_iter} iterations"
           + (f", {max_time:g} s" if math.isfinite(max_time) else "") + ") ...", file=sys.stderr)
-    res = fit_field(fp, settings, machine=machine, validation=validation, out_dir=out)
+    # always tracked, as the grinder's network
+    tracking = TrackSettings(tracking_uri=args.tracking_uri, run_name=args.run_name,
+                             tags={"featurepoints_file": str(Path(args.featurepoints).resolve())})
+    res = fit_field(fp, settings, machine=machine, validation=validation, tracking=tracking, out_dir=out)
     m = res.metrics
     print(f"stopped after {res.history.iterations} iterations, {res.seconds:.1f} s "
           f"({m['train_cpu_seconds']:.1f} CPU s): {res.history.stop_reason}")
@@ -216,29 +219,11 @@ def _run_chain(args, fp, settings, max_iter, max_time, hidden) -> int:
     print(f"wrote model file: {_model_file(out, machine, args, None)}")
     print(f"wrote metrics: {out / 'metrics.json'}")
     from training.tracking import default_tracking_uri
-    uri = args.tracking_uri or default_tracking_uri()   # tracked like the grinder's network: always, this store
-    run_id = _track_chain(args, res, machine, out, uri)
-    print(f"run id: {run_id}")
-    print(f"use it with: --machine {machine.name} --model runs:/{run_id}/model --tracking-uri {uri}")
+    uri = args.tracking_uri or default_tracking_uri()   # the store fit_field recorded the run in
+    print(f"run id: {res.run_id}")
+    print(f"use it with: --machine {machine.name} --model runs:/{res.run_id}/model --tracking-uri {uri}")
     print(f"use it with: --machine {machine.name} --model {out / 'model'}")
     return 0
-
-
-def _track_chain(args, res, machine, out, uri: str) -> str:
-    """Record the chain network's fit as an MLflow run in the store ``uri``, like the grinder's (params, every
-    metric with the OLS baseline, the loss per iteration, ``model/`` as saved, ``metrics.json``); the run id and
-    the store go into metrics.json."""
-    import json
-    from errormap.io import write_json
-    from training.tracking import log_fit
-    metrics = {k: float(v) for k, v in res.metrics.items() if isinstance(v, (int, float))}
-    tags = {"machine": machine.name, "kind": "chain-network",
-            "featurepoints_file": str(Path(args.featurepoints).resolve())}
-    run_id = log_fit(res.params, metrics, res.history, out / "model", [out / "metrics.json"],
-                     tracking_uri=uri, run_name=args.run_name, tags=tags, pyfunc=False)
-    doc = json.loads((out / "metrics.json").read_text(encoding="utf-8"))
-    write_json(out / "metrics.json", {**doc, "run_id": run_id, "tracking_uri": uri})
-    return run_id
 
 
 def _model_file(out, machine, args, run_id):

@@ -284,7 +284,7 @@ def learned_chain_row(machine, s, truth, el_path, paths, label: str, common: dic
         settings = TrainSettings(max_iter=s.train_iter, max_time_s=math.inf if s.train_s is None else s.train_s,
                                  seed=s.seed, hidden=tuple(s.hidden), activation=s.activation,
                                  a_encoding=s.a_encoding)
-        fit = fit_field(fp, settings, machine=machine, quiet=True)
+        fit = fit_field(fp, settings, machine=machine, quiet=True, track=False)
     except Exception as exc:  # training unavailable, or no better than its baseline: said, never faked
         return bench_row(machine.name, machine.kind, "learned", label, available=False,
                          not_available=f"training failed: {type(exc).__name__}: {exc}", **common)

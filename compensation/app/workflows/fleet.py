@@ -200,26 +200,18 @@ def _train(machine, el_path: Path, folder: Path, s: dict, name: str) -> tuple:
 
     from errormap.featurepoints import make_feature_points
     from errormap.io import sha256_file
-    from training.trainers import TrainSettings, fit_field
+    from training.trainers import TrackSettings, TrainSettings, fit_field
 
     from ...model_file import read_model
     fp = make_feature_points(machine, read_model(str(el_path), machine).field, n=s["grid"],
                              meta={"elements_file": str(el_path), "elements_sha256": sha256_file(el_path)})
     fp_path = fp.save(folder / "featurepoints.csv")
     tags = {"fleet": s["fleet"], "fleet_machine": name, "featurepoints_file": str(fp_path)}
-    if "axis_columns" not in fp.meta:
-        res = fit_field(fp, max_iter=s["train_iter"], max_time_s=np.inf, seed=s["seed"], hidden=tuple(s["hidden"]),
-                        tracking_uri=s["tracking_uri"], run_name=f"fleet {name}", quiet=True, out_dir=folder / "train",
-                        tags=tags)
-        return fp_path, res.run_id, int(res.history.iterations), res.metrics
-    from training.tracking import log_fit
     settings = TrainSettings(max_iter=s["train_iter"], max_time_s=np.inf, seed=s["seed"], hidden=tuple(s["hidden"]))
-    res = fit_field(fp, settings, machine=machine, out_dir=folder / "train", quiet=True)
-    metrics = {k: float(v) for k, v in res.metrics.items() if isinstance(v, (int, float))}
-    run_id = log_fit(res.params, metrics, res.history, folder / "train" / "model", [folder / "train" / "metrics.json"],
-                     tracking_uri=s["tracking_uri"], run_name=f"fleet {name}",
-                     tags={**tags, "machine": machine.name, "kind": "chain-network"}, pyfunc=False)
-    return fp_path, run_id, int(res.history.iterations), res.metrics
+    chain = machine if "axis_columns" in fp.meta else None
+    res = fit_field(fp, settings, machine=chain, tracking=TrackSettings(tracking_uri=s["tracking_uri"],
+                    run_name=f"fleet {name}", tags=tags), out_dir=folder / "train", quiet=True)
+    return fp_path, res.run_id, int(res.history.iterations), res.metrics
 
 
 def _run_machine(m, folder: Path, s: dict) -> dict:
