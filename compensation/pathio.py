@@ -49,14 +49,18 @@ class ToolPathFile:
 # ----------------------------------------------------------------------------- G-code
 
 DEFAULT_ARC_TOLERANCE_UM = 0.5
-"""Chord tolerance of linearised arcs and split moves (μm): half of it bounds the chord
-sagitta of the nominal arc, the other half the chord error of the compensation along a
-move (the ``auto`` segment length)."""
+"""Chord tolerance of linearised arcs and split moves (μm; ``compensate --arc-tolerance-um``).
+``compensate`` (:func:`compensation.chain_gcode.plan_chain_gcode`) gives each bound the whole of it:
+the chord sagitta of a nominal arc (:func:`compensation.gcode_classify.arc_segments`) and, with
+``--max-segment-mm auto``, the straight interpolation of the compensation between a move's vertices
+(:func:`compensation.chain_gcode.field_pieces`, from the field's second differences at a quarter, half
+and three quarters of the move). The error left between vertices is measured, not bounded: the summary's
+``true_path`` (with ``--truth``; docs/reference/tool-paths.md, "Vertices")."""
 ARC_TOLERANCE_RANGE_UM = (0.001, 5.0)
 """Accepted chord tolerances (μm; ``compensate --arc-tolerance-um``). Below 1 nm the program
 cannot state the difference (it is written with :data:`DECIMALS_MM` = 6 decimals, 1 nm) and an
 arc's chords multiply for nothing (their count grows as ``1/sqrt(tolerance)``). Above 5 μm the
-geometric half of the tolerance (2.5 μm of sagitta) is as large as what compensation leaves
+chords' sagitta (up to the whole tolerance) is larger than what compensation leaves
 (1-3 μm true RMS in docs/decisions/020-benchmark-notebook.md), so the flattening would undo the compensation: 1e9 μm
 wrote a G2 arc as one G1 chord."""
 SEGMENT_RANGE_MM = (0.01, 100.0)
