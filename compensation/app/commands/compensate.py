@@ -74,10 +74,10 @@ def register(sub):
                         "cannot state it, above 5 um the chords' sagitta is as large as the error compensation leaves)")
     lo, hi = SEGMENT_RANGE_MM
     p.add_argument("--max-segment-mm", default="auto",
-                   help="split G1 moves and arcs into segments no longer than this (WCS mm, in "
-                        f"[{lo:g}, {hi:g}]: the range 'auto' chooses from; finer is finer than any field varies, "
-                        "longer bounds no move 'none' would not leave alone); 'auto' "
-                        "(default): from the field's curvature along the file's moves; 'none': no splitting")
+                   help="split each G1 move and arc into pieces of at most this tool-point path length (mm, in "
+                        f"[{lo:g}, {hi:g}]); 'auto' (default): pieces per move from the field's second differences "
+                        "along it (docs/reference/tool-paths.md, Vertices); 'none': no splitting (arcs keep their "
+                        "chords)")
     p.add_argument("--max-rotary-correction-deg", type=float, default=None, metavar="DEG",
                    help="machine-tool chains whose solver moves a rotary axis (lathe-xzc's C): refuse a point whose "
                         "compensated rotary command differs from the programmed one by more than DEG (default: only "
