@@ -162,6 +162,14 @@ def expand_program(text: str, path, dialect: str | None = None, state=None, file
 
 
 # ---------------------------------------------------------------------------- parsing one line
+def program_number(body: str) -> int | None:
+    """The number of a program-number line (``O9100``, ``:9100``, comments aside), else None: the one rule of
+    what starts a program, in the file (:func:`_parse_line`) and in a folder of subprograms
+    (:mod:`compensation.nc_subfiles`)."""
+    m = _PROG.match(_COMMENT.sub(lambda c: " " * len(c.group()), body))
+    return int(m.group(1)) if m else None
+
+
 def _code_of(body: str) -> str:
     """``body`` with comments blanked (same length, so columns stay); a '(' left is an unclosed comment."""
     code = _COMMENT.sub(lambda m: " " * len(m.group()), body)

@@ -11,14 +11,14 @@ Every file read is recorded (:attr:`SubprogramFiles.used`: path and SHA-256) for
 from __future__ import annotations
 
 import hashlib
-import re
 from pathlib import Path
 
 from errormap.io import InputError
 
+from .nc_expand import program_number
+
 MAX_SUBPROGRAM_FILE_BYTES = 64 * 2**20
 """A file larger than this in a folder is not a subprogram (skipped when numbers are looked for)."""
-_PROG_LINE = re.compile(r"^\s*(?:n\s*\d+\s*)?(?:o|:)\s*(\d+)\s*(?:\([^)]*\)\s*)*(?:;.*)?$", re.I)
 OPTION = "--subprograms"
 
 
@@ -66,9 +66,9 @@ class SubprogramFiles:
                 if not p.is_file() or p.stat().st_size > MAX_SUBPROGRAM_FILE_BYTES:
                     continue
                 for ln in p.read_bytes().decode("latin-1").splitlines():
-                    m = _PROG_LINE.match(ln)
-                    if m:
-                        hits = numbers.setdefault(int(m.group(1)), [])
+                    n = program_number(ln)
+                    if n is not None:
+                        hits = numbers.setdefault(n, [])
                         if p not in hits:
                             hits.append(p)
         return numbers
