@@ -57,10 +57,11 @@ def solve_held(field, machine, result, targets, axes_d, held):
     (n, k)) with its points that hold axes (``held`` (n, k) bool) solved again with those axes at ``axes_d``
     and the others of the solved axes free (module docstring); ``info["held"]`` says how many and what is left
     along the held axes (μm, model)."""
-    from .solvers.chain_exact import nominal_and_jacobian, solved_and_kept
-    from .solvers.exact import NominalChain
-    sol, _ = solved_and_kept(machine)
+    from errormap.chain_kernel import NominalChain
+
+    from .solvers.chain_exact import solved_and_kept
     chain = NominalChain(machine)
+    sol, _ = solved_and_kept(machine, chain)
     axes, residual = np.array(result.axes, dtype=float), np.array(result.residual_um, dtype=float)
     success, along = np.array(result.success, dtype=bool), np.zeros(len(targets))
     for key in np.unique(held[:, sol], axis=0):
@@ -70,13 +71,12 @@ def solve_held(field, machine, result, targets, axes_d, held):
         free, fixed = sol[~key], sol[key]
         q = axes[idx].copy()
         q[:, fixed] = axes_d[idx][:, fixed]
-        q, F, conv = _gauss_newton(field, chain, q, targets[idx], free)
-        _, J = nominal_and_jacobian(machine, q, chain)
+        q, F, conv, J = _gauss_newton(field, chain, q, targets[idx], free)
         d = J[:, :, fixed] / np.linalg.norm(J[:, :, fixed], axis=1, keepdims=True)  # (m, 3, h) held directions
         axes[idx], residual[idx] = q, 1e3 * F
         along[idx] = np.abs(np.einsum("mi,mih->mh", 1e3 * F, d)).max(axis=1)
         success[idx] &= conv
-    commands = nominal_and_jacobian(machine, axes, chain)[0]
+    commands = chain.forward_and_jacobian(axes, jac=False)[0]
     h = held[:, sol].any(axis=1)
     result.axes, result.residual_um, result.commands_mm = axes, residual, commands
     result.correction_um = 1e3 * np.linalg.norm(commands - targets, axis=1)
@@ -90,7 +90,8 @@ def solve_held(field, machine, result, targets, axes_d, held):
 
 
 def _gauss_newton(field, chain, q, targets, free):
-    """``(q (m, k), F (m, 3) mm, converged (m,))``: the free axes moved to least |F|, F = fwd + 1e-3·E − p_d."""
+    """``(q (m, k), F (m, 3) mm, converged (m,), J (m, 3, k))``: the free axes moved to least |F|,
+    F = fwd + 1e-3·E − p_d; J the chain's Jacobian at the returned q."""
     conv = np.zeros(len(q), dtype=bool)
     for _ in range(MAX_ITER):
         P, J = chain.forward_and_jacobian(q)
@@ -101,8 +102,8 @@ def _gauss_newton(field, chain, q, targets, free):
         conv = np.abs(step).max(axis=1) <= STEP_TOL_MM
         if conv.all():
             break
-    P, _ = chain.forward_and_jacobian(q)
-    return q, P + 1e-3 * np.asarray(field.predict(q), dtype=float) - targets, conv
+    P, J = chain.forward_and_jacobian(q)
+    return q, P + 1e-3 * np.asarray(field.predict(q), dtype=float) - targets, conv, J
 
 
 def merge_held(parts) -> dict:

@@ -524,7 +524,7 @@ class ChainTruth:
 
 
 def make_chain_truth(machine: MachineTool, seed: int, effects=(), family: str = "default",
-                  n_stations: int | None = None) -> ChainTruth:
+                     n_stations: int | None = None) -> ChainTruth:
     """A seeded truth of ``family`` for ``machine`` (module doc) on ``n_stations`` per axis (None: the
     family's); ``effects``: ``KIND[:AXES]`` strings, or a mapping of them to parameter overrides."""
     rec = recipe(machine, family)
