@@ -3,9 +3,7 @@ from __future__ import annotations
 
 import sys
 
-from errormap.chain_elements import ChainElementSet
 from errormap.featurepoints import DEFAULT_GRID, make_feature_points
-from errormap.chain_field import ChainField
 from errormap.io import InputError, sha256_file
 from errormap.machine import load_machine
 
@@ -14,8 +12,8 @@ from ..families import family_of
 
 def register(sub):
     p = sub.add_parser("featurepoints", help="feature points (a grid over the machine's axes) from an element set")
-    p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name; default: the built-in "
-                   "grinder; a machine-tool chain (mill-xyz ...): the grid over its own axes")
+    p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name (mill-xyz, five-axis-ac, ...); "
+                   "default: the built-in grinder; the grid is over the machine's own axes")
     p.add_argument("--elements", required=True, help="element-set file (JSON)")
     p.add_argument("--grid", type=int, default=None,
                    help=f"points per axis (default {DEFAULT_GRID} on up to three axes, a node at every element station "
@@ -36,7 +34,8 @@ def run(args) -> int:
 
 
 def _chain_field(machine, args):
-    """A chain: its element set; the grid over its own axes, sized before any work."""
+    """A machine tool (a chain file, the built-in grinder, a ``kind = "grinder"`` file read as its chain): its
+    element set; the grid over its own axes, sized before any work."""
     from compensation.app.validate import UsageError
     from compensation.app.validate import MAX_GRID_POINTS
     k = len(machine.axes)
@@ -52,10 +51,5 @@ def _chain_field(machine, args):
     return model.field
 
 
-def _grinder_field(machine, args):
-    """The grinder: its HTM field of the element set (by content: its format key, whatever the name)."""
-    return ChainField(machine, ChainElementSet.load(args.elements, machine))
-
-
-FIELDS = {"grinder": _grinder_field, "chain": _chain_field}
+FIELDS = {"chain": _chain_field}
 """The error field of each target of ``featurepoints`` (:meth:`compensation.app.families.Family.target`)."""

@@ -1,15 +1,14 @@
-"""``volcomp simulate``: a seeded truth grinder, its feature points and check measurements."""
+"""``volcomp simulate``: a seeded truth machine and its measurements (a machine tool: its elements, feature points and
+check measurements; an arm or a parallel machine: measured poses)."""
 from __future__ import annotations
 
 import sys
 from pathlib import Path
 
 from errormap.machine import load_machine
-from compensation.app.validate import UsageError
-
 from ..families import family_of, say_read_as
 
-from ..workflows.simulate import EFFECT_CHOICES, EFFECT_HELP, simulate_truth, summary_lines
+from ..workflows.simulate import summary_lines
 
 
 def register(sub):
@@ -27,11 +26,13 @@ def register(sub):
                         "parameters and check layout; errormap/chain_truth.py)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--effect", action="append", default=[],
-                   help="add an undeclared effect (repeatable): grinder " + EFFECT_HELP + "; a machine-tool "
-                        "chain KIND[:AXES] with KIND thermal, reversal, periodic (pitch), harmonic (worm), interaction, or the "
-                        "truth-only bump, xz_saddle, squareness, squareness_xz on two linear axes or a_tilt, "
-                        "a_lobe_x on a rotary and a linear axis, e.g. periodic:Y, harmonic:C, bump:X*Y, "
-                        "a_tilt:C*X; a serial arm: sag, backlash")
+                   help="add an undeclared effect (repeatable): a machine tool KIND[:AXES] with KIND thermal, "
+                        "reversal (backlash), periodic (pitch), harmonic (worm), interaction, or the truth-only bump, "
+                        "xz_saddle, squareness, squareness_xz on two linear axes or a_tilt, a_lobe_x on a rotary and a "
+                        "linear axis, e.g. periodic:Y, harmonic:C, bump:X*Y, a_tilt:C*X (without AXES: thermal and "
+                        "periodic on the first linear axis, reversal on the last, harmonic on the first rotary axis, "
+                        "a pair on the first and last linear axes, a_tilt and a_lobe_x on the first rotary and first "
+                        "linear axis); a serial arm: sag, backlash")
     p.add_argument("--noise-um", type=float, default=None,
                    help="measurement noise σ per axis (μm); default 1 for machine tools, 20 for a serial arm's tracker, "
                         "5 for a parallel machine's instrument")
@@ -92,29 +93,17 @@ def _machine_tool_defaults(args) -> None:
 
 
 def _run_chain(machine, args) -> int:
+    """Every machine tool (a chain file, the built-in grinder, a ``kind = "grinder"`` file read as its chain)."""
     from ..workflows.measurement import parse_effects, simulate_chain
     _machine_tool_defaults(args)
     parse_effects(machine, args.effect)
     print(f"simulating truth {machine.name} seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
     info = simulate_chain(machine, args.seed, args.out, effects=args.effect, noise_um=args.noise_um,
                           checks=args.checks, family=args.family, check_noise_seed=args.seed_check_noise)
-    print(f"max spatial error {info['max_spatial_error_um']:.1f} μm over the volume (reference temperature, "
-          "positive approach)")
-    return _print_written(info, args.out, "")
-
-
-def _run_grinder(machine, args) -> int:
-    _machine_tool_defaults(args)
-    bad = [e for e in args.effect if e not in EFFECT_CHOICES]
-    if bad:
-        raise UsageError(f"--effect: unknown effect {bad[0]!r} for the grinder (expected one of {', '.join(EFFECT_CHOICES)})")
-    print(f"simulating truth grinder seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
-    info = simulate_truth(machine, args.seed, args.out, effects=args.effect, noise_um=args.noise_um,
-                          checks=args.checks, family=args.family, check_noise_seed=args.seed_check_noise)
     for line in summary_lines(info, args.out):
         print(line)
     return 0
 
 
-RUNNERS = {"grinder": _run_grinder, "chain": _run_chain, "arm": _run_arm, "parallel": _run_parallel}
+RUNNERS = {"chain": _run_chain, "arm": _run_arm, "parallel": _run_parallel}
 """The runner of each target of ``simulate`` (:meth:`compensation.app.families.Family.target`)."""

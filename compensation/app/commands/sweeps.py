@@ -1,32 +1,28 @@
-"""``volcomp sweeps``: simulated laser-tracker sweeps (the sweep file of docs/reference/file-formats.md) of a truth grinder."""
+"""``volcomp sweeps``: simulated laser-tracker sweeps (the sweep file of docs/reference/file-formats.md) of a truth
+machine tool."""
 from __future__ import annotations
 
 import sys
 
-from errormap.chain_elements import ChainElementSet
 from errormap.machine import load_machine
 from errormap.seeds import spawn_seeds
-from errormap.chain_truth import ChainTruth
-from errormap.chain_sweeps import simulated_sweeps, write_sweeps
-from compensation.app.validate import UsageError
 
 from ..families import family_of, say_read_as
-from ..workflows.simulate import EFFECT_CHOICES, EFFECT_HELP
 
 
 def register(sub):
     p = sub.add_parser("sweeps", help="simulate laser-tracker axis sweeps of a truth machine tool (sweep CSV)",
                        description="Three target balls per moving body (machine file [targets]), 21 stations per "
                                    "axis, the tracker at a seeded unknown pose, isotropic noise. Writes one sweep "
-                                   "file (one tracker set-up, axes X, Z and A).")
+                                   "file (one tracker set-up, every axis of the machine, the others parked at the "
+                                   "lower ends of their strokes).")
     p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name (mill-xyz, five-axis-ac, ...); "
                                                      "default: the built-in grinder")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--truth", default=None, metavar="ELEMENTS", help="truth element-set file (JSON)")
-    src.add_argument("--seed", type=int, default=None, help="seed of a random truth grinder (as `volcomp simulate`)")
+    src.add_argument("--seed", type=int, default=None, help="seed of a random truth machine (as `volcomp simulate`)")
     p.add_argument("--effect", action="append", default=[],
-                   help="undeclared effect in the truth (repeatable): grinder " + EFFECT_HELP + "; a "
-                        "machine-tool chain KIND[:AXES] as `volcomp simulate`")
+                   help="undeclared effect in the truth (repeatable): KIND[:AXES] as `volcomp simulate`")
     p.add_argument("--family", choices=("default", "independent"), default="default",
                    help="truth family: default (the simulator) or independent (other shapes, magnitudes, effect "
                         "parameters and check layout; errormap/chain_truth.py)")
@@ -69,6 +65,7 @@ def run(args) -> int:
 
 
 def _run_chain(machine, args) -> int:
+    """Every machine tool (a chain file, the built-in grinder, a ``kind = "grinder"`` file read as its chain)."""
     from ..workflows.measurement import parse_effects, sweeps_chain
     parse_effects(machine, args.effect)
     print(f"simulating tracker sweeps of {machine.name} (noise {args.noise_um} um, seed {args.seed_noise}) ...",
@@ -80,31 +77,5 @@ def _run_chain(machine, args) -> int:
     return 0
 
 
-def _run_grinder(machine, args) -> int:
-    bad = [e for e in args.effect if e not in EFFECT_CHOICES]
-    if bad:
-        raise UsageError(f"--effect: unknown effect {bad[0]!r} for the grinder (expected one of {', '.join(EFFECT_CHOICES)})")
-    if args.truth is not None:
-        if args.effect:
-            raise UsageError("--effect needs --seed (a truth element file carries no effects)")
-        truth = ChainTruth(machine, ChainElementSet.load(args.truth, machine), {})
-        what = f"truth {args.truth}"
-    else:
-        from errormap.chain_truth import make_chain_truth
-        truth = make_chain_truth(machine, args.seed, effects=args.effect, family=getattr(args, "family", "default"))
-        what = f"truth seed {args.seed} ({getattr(args, 'family', 'default')} family)"
-    print(f"simulating tracker sweeps of {what} (noise {args.noise_um} um, seed {args.seed_noise}) ...",
-          file=sys.stderr)
-    cols = simulated_sweeps(truth, noise_um=args.noise_um, seed=args.seed_noise, bidirectional=args.bidirectional,
-                              warmup_c=args.warmup_c)
-    path = write_sweeps(args.out, cols, comments=[
-        f"setup: {args.setup}", f"machine: {machine.name}", f"machine_sha256: {machine.sha256}",
-        f"truth: {what}", f"effects: {','.join(args.effect) or 'none'}", f"noise_um: {args.noise_um}",
-        f"seed_noise: {args.seed_noise}", "tracker pose: seeded, unknown to the identification",
-        "the A sweep is taken with X and Z at their first stations"])
-    print(f"wrote {len(cols['axis'])} ball measurements to {path}")
-    return 0
-
-
-RUNNERS = {"grinder": _run_grinder, "chain": _run_chain}
+RUNNERS = {"chain": _run_chain}
 """The runner of each target of ``sweeps`` (:meth:`compensation.app.families.Family.target`)."""

@@ -31,7 +31,8 @@ from ...evaluate import load_truth
 from ..reports.methods import print_table, write_report
 from .compare import compare_methods
 from .compensate import kernel_modules
-from .simulate import simulate_truth, summary_lines
+from .measurement import simulate_chain
+from .simulate import summary_lines
 
 
 DEMO_GA_BUDGET_S = 5.0  # the per-point PyGAD GA (0.5–1 s a point, one core): a sample of the path, said so
@@ -201,7 +202,7 @@ def run_demo(s: DemoSettings, machine, out=None, log=None) -> dict:
     sim_dir = Path(s.out) / "sim"
     print(f"simulating truth grinder seed={s.sim_seed} effects=none ...", file=log)
     with clock.stage("simulate"):
-        sim_info = simulate_truth(machine, s.sim_seed, sim_dir, effects=[], noise_um=1.0, checks=400)
+        sim_info = simulate_chain(machine, s.sim_seed, sim_dir, effects=[], noise_um=1.0, checks=400)
         for line in summary_lines(sim_info, sim_dir):
             print(line, file=out)
         truth = load_truth(sim_dir, machine)

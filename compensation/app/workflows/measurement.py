@@ -1,8 +1,6 @@
-"""The measurement side on any machine-tool chain file (``kind = "machine-tool"``): ``simulate``,
-``sweeps``, ``identify`` and ``diagnose`` when ``--machine`` names one (``mill-xyz``,
-``five-axis-ac``, a path). The grinder's commands are unchanged (its built-in file stays the
-default); these are the generic forms (``errormap/chain_truth.py``, ``chain_sweeps.py``,
-``identification.py``, ``diagnosis/chain_loop.py``)."""
+"""The measurement side of every machine tool (a chain file, the built-in grinder, a ``kind = "grinder"`` file read
+as its chain): ``simulate``, ``sweeps``, ``identify`` and ``diagnose`` (``errormap/chain_truth.py``,
+``chain_sweeps.py``, ``identification.py``, ``diagnosis/chain_loop.py``)."""
 from __future__ import annotations
 
 import json
@@ -10,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.io import InputError, companion_path, read_document_text, write_csv, write_json
+from errormap.io import InputError, companion_path, read_document_text, sha256_file, write_csv, write_json
 from errormap.machine import made_on
 from errormap.seeds import spawn_seeds
 from compensation.app.validate import UsageError
@@ -76,14 +74,23 @@ def make_truth(machine, seed: int, effects=(), family: str = "default"):
 
 def simulate_chain(machine, seed: int, out, effects=(), noise_um: float = 1.0, checks: int = 400,
                    family: str = "default", check_noise_seed=None) -> dict:
-    """Write ``out/truth_elements.json`` (hidden truth), ``checks.csv`` and ``truth.json``.
-    ``check_noise_seed``: None (default) the checks' noise from the seed's own stream; an int redraws only
-    the checks' noise (same machine, points and conditions), as on the grinder."""
+    """Write ``out/truth_elements.json`` (hidden truth), ``featurepoints.csv`` (the truth's error on the default
+    grid over the axes, :func:`errormap.featurepoints.make_feature_points`), ``checks.csv`` and ``truth.json``;
+    returns the ``truth.json`` document (``files``: the paths written, ``max_spatial_error_um`` over the volume).
+    The truth takes the seed itself, the check measurements a child stream of it; ``check_noise_seed``: None
+    (default) the checks' noise from that stream, an int redraws only the checks' noise (same machine, points
+    and conditions)."""
+    from errormap.chain_field import ChainField
     from errormap.chain_truth import volume_grid
+    from errormap.featurepoints import make_feature_points
     from .simulate import check_noise_comments, check_noise_record
     out = Path(out)
     truth = make_truth(machine, seed, effects, family)
     el_path = truth.elements.save(out / "truth_elements.json")
+    fp = make_feature_points(machine, ChainField(machine, truth.elements),
+                             meta={"elements_file": str(el_path), "source": f"simulate seed={seed}"})
+    fp.meta["elements_sha256"] = sha256_file(el_path)
+    fp_path = fp.save(out / "featurepoints.csv")
     measured = truth.check_measurements(n=checks, noise_um=noise_um, seed=spawn_seeds(seed, 1)[0],
                                         noise_seed=check_noise_seed)
     ck_path = write_csv(out / "checks.csv", measured, header_comments=[
@@ -97,7 +104,7 @@ def simulate_chain(machine, seed: int, out, effects=(), noise_um: float = 1.0, c
             "effects": truth.effects, "noise_um": noise_um, **check_noise_record(check_noise_seed),
             "max_spatial_error_um": float(e.max()),
             "elements": el_path.name,
-            "files": {"elements": str(el_path), "checks": str(ck_path)}}
+            "files": {"elements": str(el_path), "featurepoints": str(fp_path), "checks": str(ck_path)}}
     write_json(out / "truth.json", info)
     return info
 
