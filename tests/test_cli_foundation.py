@@ -18,7 +18,8 @@ def test_simulate_featurepoints_predict(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "truth_elements.json" in printed and "checks.csv" in printed
     info = json.loads((out / "truth.json").read_text())
-    assert 150 <= info["max_spatial_error_um"] <= 230 and "worm" in info["effects"]
+    # worm is the harmonic kind's alias: recorded by its canonical name on the first rotary axis (A)
+    assert 150 <= info["max_spatial_error_um"] <= 230 and list(info["effects"]) == ["harmonic:A"]
     fp = FeaturePoints.load(out / "featurepoints.csv")
     assert fp.axes.shape == (DEFAULT_GRID ** 3, 3) and fp.meta["grid"] == "x".join([str(DEFAULT_GRID)] * 3)
     assert fp.meta["elements_sha256"] and fp.meta["machine_sha256"]
@@ -50,11 +51,12 @@ def test_bad_inputs_exit_cleanly(tmp_path, capsys):
     assert not (tmp_path / "p.csv").exists()
 
 
-@pytest.mark.parametrize("effect", ["thermal", "reversal"])
-def test_simulate_effects_that_need_conditions(tmp_path, effect):
+@pytest.mark.parametrize("effect, key", [("thermal", "thermal:X"), ("reversal", "reversal:Z")])
+def test_simulate_effects_that_need_conditions(tmp_path, effect, key):
+    """Without axes an effect lands on the machine's default axis (thermal: the first linear, reversal: the last)."""
     assert main(["simulate", "--seed", "1", "--out", str(tmp_path), "--effect", effect, "--checks", "20"]) == 0
     info = json.loads((tmp_path / "truth.json").read_text())
-    assert effect in info["effects"] and info["max_spatial_error_um"] > 150
+    assert list(info["effects"]) == [key] and info["max_spatial_error_um"] > 150
 
 
 def test_command_help_lines_match_the_modules():

@@ -156,13 +156,13 @@ def test_compensate_refuses_an_unknown_kind_in_a_diagnosed_model(grinder, tmp_pa
 
 
 def test_simulate_takes_the_canonical_name_for_the_simulator_one(tmp_path):
-    """``--effect periodic`` is ``--effect pitch``: the same truth, recorded under the simulator's name."""
+    """``--effect periodic`` is ``--effect pitch``: the same truth, recorded under the canonical name and its axis."""
     out = {}
     for name in ("pitch", "periodic"):
         out[name] = tmp_path / name
         assert main(["simulate", "--seed", "3", "--out", str(out[name]), "--effect", name, "--checks", "20"]) == 0
     info = {n: json.loads((d / "truth.json").read_text()) for n, d in out.items()}
-    assert info["periodic"]["effects"] == info["pitch"]["effects"] and set(info["pitch"]["effects"]) == {"pitch"}
+    assert info["periodic"]["effects"] == info["pitch"]["effects"] and set(info["pitch"]["effects"]) == {"periodic:X"}
     rows = {n: [ln for ln in (d / "checks.csv").read_text().splitlines() if not ln.startswith("#")]
             for n, d in out.items()}
     assert rows["periodic"] == rows["pitch"]
