@@ -402,6 +402,8 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
     known = np.isfinite(end)
     if compensate and not known.all():
         lacking = [a for a, k in zip(ax.words, known) if not k]
+        compensate = not _from_start_position(st, axis_words, lacking)
+    if compensate and not known.all():
         raise _Refuse(first.start + 1, f"'{first.letter}{first.text}': motion before {ax.joined('and')} are all "
                                        f"known (no value yet for {', '.join(lacking)}){_unknown_since(st, lacking)}")
     move = GMove(idx, kind, start, end, "inch" if st.inch else "mm", st.incremental, words, motion_word,
@@ -432,6 +434,17 @@ def _g53_end(st: _State, axis_words, ax: AxisWords) -> None:
     st.pos = pos
     if all(np.isfinite(pos[ax.words.index(a)]) for a in axis_words):
         st.system = st.system or st.replay.system  # placed in the power-on system: selecting it is no change
+
+
+def _from_start_position(st: _State, axis_words, lacking) -> bool:
+    """A line moving Z alone before the program ever gave the ``lacking`` axes (no ``G53`` moved them either):
+    the controller keeps them where the machine stands at cycle start, which the program does not say. Such a
+    line (the first retract of many posts, ``G0 Z5``) is written as programmed, not compensated, and listed
+    (:func:`compensation.nc_state.program_frames`, ``moves_before_position_known``)."""
+    if set(axis_words) != {"Z"} or "Z" in lacking:
+        return False
+    moved_g53 = {a for e in st.events if e[2] == "g53" for a in e[3]}
+    return not any(a in st.last_given or a in moved_g53 for a in lacking)
 
 
 def _unknown_since(st: _State, lacking) -> str:

@@ -103,3 +103,33 @@ def test_a_move_before_z_is_known_names_why(tmp_path, text, line, col, why):
     assert f"line {line}, column {col}:" in msg and "no value yet for Z" in msg and why in msg, msg
     assert ("G53" in msg) == ("G53" in why)
     assert len(msg) - len(str(p)) < 300
+
+
+@pytest.mark.parametrize("text, kept", [
+    # grbl / LinuxCNC / Fanuc: a G0 or G1 with Z alone moves Z and keeps X, Y where the machine stands (the
+    # position at cycle start when the program has not given them): written as programmed, listed, not compensated
+    ("G21 G90 G54\nG0 Z5.\nG0 X1. Y2.\nG1 Z-1. F100\n", [2]),
+    ("G90\nG21\nM3 S10000\nG1 F1200.0 Z4.0\nG1 F1200.0 X3.08 Y-22.95\nG1 F100.0 Z-3.0\n", [4]),
+])
+def test_z_alone_before_x_y_are_given_is_written_as_programmed(tmp_path, text, kept):
+    from compensation.nc_state import program_frames, read_work_offsets
+    p = tmp_path / "p.nc"
+    p.write_text(text)
+    prog = parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyz")), dialect="auto")
+    assert all(not m.compensate for m in prog.moves if m.index + 1 in kept)
+    assert all(m.compensate for m in prog.moves if m.kind == "linear" and m.index + 1 not in kept)
+    frames = program_frames(prog, read_work_offsets(STYLE_TABLES / "offsets.csv"), None)
+    assert frames.notes["moves_before_position_known"] == kept
+
+
+@pytest.mark.parametrize("text, line, why", [
+    ("G21 G90 G54\nG1 X1. Y2. Z3. F100\nG55\nG1 Z5.\n", 4, "no value yet for X, Y"),  # given, then a new system
+    ("G21 G90\nG53 G0 X0 Y0\nG1 Z5. F100\nG54\n", 3, "moved X, Y in machine coordinates (G53)"),
+    ("G21 G90 G54\nG1 Z5. X1. F100\n", 2, "no value yet for Y"),              # not Z alone
+])
+def test_z_alone_is_refused_once_x_or_y_was_given(tmp_path, text, line, why):
+    p = tmp_path / "p.nc"
+    p.write_text(text)
+    with pytest.raises(InputError) as e:
+        parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyz")), dialect="auto")
+    assert f"line {line}," in str(e.value) and why in str(e.value), str(e.value)
