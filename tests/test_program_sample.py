@@ -9,7 +9,7 @@ import json
 import pytest
 
 from benchmarks.suite.gcode_corpus import (HERE, MANIFEST, SAMPLE_MARK, STYLE_TABLES, independent_check,
-                                           sample_figures, style_tables)
+                                           sample_figures, sample_of, style_tables)
 from compensation.app.cli import main
 from compensation.gcode import AxisWords, parse_program
 from errormap.chain_elements import ChainElementSet
@@ -55,15 +55,20 @@ def test_sample_rows_are_fresh_mill_programs_with_their_bytes_named():
 
 
 def test_sample_figures_count_only_the_sample_rows():
-    res = [{"sample": True, "outcome": "accepted", "check": "ok: max 0.001 um at 3 points"},
-           {"sample": True, "outcome": "accepted", "check": "WRONG: a line that is not a compensated move changed"},
-           {"sample": True, "outcome": "refused", "reason": "x"},
-           {"sample": True, "outcome": "crashed", "reason": "y"},
-           {"sample": False, "outcome": "accepted", "check": "WRONG: z"}]
-    acc, wrong = sample_figures(res)
+    one, two = "blind sample", "blind sample 2"
+    res = [{"sample": one, "outcome": "accepted", "check": "ok: max 0.001 um at 3 points"},
+           {"sample": one, "outcome": "accepted", "check": "WRONG: a line that is not a compensated move changed"},
+           {"sample": one, "outcome": "refused", "reason": "x"},
+           {"sample": one, "outcome": "crashed", "reason": "y"},
+           {"sample": two, "outcome": "accepted", "check": "ok: max 0.002 um at 2 points"},
+           {"sample": None, "outcome": "accepted", "check": "WRONG: z"}]
+    acc, wrong, acc2, wrong2 = sample_figures(res)
     assert (acc["value"], acc["anchor_value"]) == ("2/4", 1)
     assert (wrong["value"], wrong["anchor_value"]) == (1, 2)
-    assert sample_figures([{"sample": False, "outcome": "accepted"}]) == []
+    assert (acc2["value"], wrong2["value"], wrong2["anchor_value"]) == ("1/1", 0, 1) and "second" in acc2["what"]
+    assert sample_figures([{"sample": None, "outcome": "accepted"}]) == []
+    assert [sample_of(f"no licence checked; not copied; {m} (program_corpus/README.md); x") for m in (one, two)] \
+        == [one, two] and sample_of("GPL-2.0 (LinuxCNC)") is None
 
 
 def test_a_crlf_program_is_checked_byte_for_byte(tmp_path, truth_file):
