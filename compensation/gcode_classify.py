@@ -402,7 +402,7 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
     known = np.isfinite(end)
     if compensate and not known.all():
         lacking = [a for a, k in zip(ax.words, known) if not k]
-        compensate = not _from_start_position(st, axis_words, lacking)
+        compensate = not _from_start_position(st, axis_words, lacking, ax)
     if compensate and not known.all():
         raise _Refuse(first.start + 1, f"'{first.letter}{first.text}': motion before {ax.joined('and')} are all "
                                        f"known (no value yet for {', '.join(lacking)}){_unknown_since(st, lacking)}")
@@ -436,12 +436,12 @@ def _g53_end(st: _State, axis_words, ax: AxisWords) -> None:
         st.system = st.system or st.replay.system  # placed in the power-on system: selecting it is no change
 
 
-def _from_start_position(st: _State, axis_words, lacking) -> bool:
-    """A line moving Z alone before the program ever gave the ``lacking`` axes (no ``G53`` moved them either):
-    the controller keeps them where the machine stands at cycle start, which the program does not say. Such a
-    line (the first retract of many posts, ``G0 Z5``) is written as programmed, not compensated, and listed
-    (:func:`compensation.nc_state.program_frames`, ``moves_before_position_known``)."""
-    if set(axis_words) != {"Z"} or "Z" in lacking:
+def _from_start_position(st: _State, axis_words, lacking, ax: AxisWords) -> bool:
+    """On a mill (X, Y, Z), a line moving Z alone before the program ever gave the ``lacking`` X or Y (no ``G53``
+    moved them either): the controller keeps them where the machine stands at cycle start, which the program does
+    not say. Such a line (the first retract of many posts, ``G0 Z5``) is written as programmed, not compensated,
+    and listed (:func:`compensation.nc_state.program_frames`, ``moves_before_position_known``)."""
+    if set(axis_words) != {"Z"} or not set(lacking) <= {"X", "Y"} or not {"X", "Y", "Z"} <= set(ax.words):
         return False
     moved_g53 = {a for e in st.events if e[2] == "g53" for a in e[3]}
     return not any(a in st.last_given or a in moved_g53 for a in lacking)
