@@ -87,7 +87,7 @@ def _checked_words(words, ax: AxisWords, dia=None):
             gs.append((code, w))
             continue
         if w.letter == "M":
-            if w.value != int(w.value) or int(w.value) not in dia.m_codes:
+            if w.value != int(w.value) or int(w.value) not in dia.m_codes and int(w.value) not in ax.harmless_m:
                 raise _Refuse(w.start + 1, f"'M{w.text}': M code not on the {dia.name} allow-list (may move or call a "
                                            f"program){other_dialects_with_m(w.value, dia.name)}")
             ms.append(w)
@@ -109,6 +109,14 @@ def _checked_words(words, ax: AxisWords, dia=None):
             raise _Refuse(w.start + 1, f"repeated '{w.letter}' word")
         by[w.letter] = w
     return by, gs, ms
+
+
+def _machine_m_codes(st: _State, ms, idx: int, ax: AxisWords, dia) -> None:
+    """Record (an event ``"machine-m"``) each M word passed only because the machine file lists it as harmless."""
+    from .dialects import GENERIC
+    for w in ms:
+        if ax.harmless_m and int(w.value) in ax.harmless_m and int(w.value) not in (dia or GENERIC).m_codes:
+            st.events.append((idx, w.start + 1, "machine-m", int(w.value), f"M{w.text}"))
 
 
 def _lathe_t_word(w: Word, ax: AxisWords, dia) -> bool:
@@ -261,6 +269,7 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     if bd and block_delete == "on":
         return "skipped", None
     by, gs, ms = _checked_words(words, ax, dia)
+    _machine_m_codes(st, ms, idx, ax, dia)
     _tool_change(st, by, ms, idx)
     if "T" in by and _lathe_t_word(by["T"], ax, dia):
         lathe_t_offset(idx, st, by["T"], ax)

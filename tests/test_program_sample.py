@@ -138,3 +138,23 @@ def test_z_alone_is_refused_once_x_or_y_was_given(tmp_path, text, line, why):
     with pytest.raises(InputError) as e:
         parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyz")), dialect="auto")
     assert f"line {line}," in str(e.value) and why in str(e.value), str(e.value)
+
+
+def test_a_machine_files_harmless_m_codes_pass_and_are_listed(tmp_path):
+    """``[controller] harmless_m`` of a machine file: its M codes pass (the file says they move nothing) and the
+    frames' notes list where; the built-in machine still refuses them; a malformed list names its key."""
+    from errormap.machine_tool_file import MachineFileError
+    from compensation.nc_state import program_frames, read_work_offsets
+    base = (HERE.parent / "errormap" / "machines" / "mill-xyz.toml").read_text(encoding="utf-8")
+    (tmp_path / "m.toml").write_text(base + '\n[controller]\nharmless_m = ["M252"]\n', encoding="utf-8")
+    p = tmp_path / "p.nc"
+    p.write_text("G21 G90 G54\nM252\nG0 X1. Y2. Z5.\nG1 Z-1. F100\nM30\n")
+    machine = load_machine(tmp_path / "m.toml")
+    prog = parse_program(p, axis_words=AxisWords.of(machine), dialect="auto")
+    frames = program_frames(prog, read_work_offsets(STYLE_TABLES / "offsets.csv"), None)
+    assert frames.notes["machine_m_codes"] == ["line 2: M252"]
+    with pytest.raises(InputError, match="line 2, column 1: 'M252': M code not on"):
+        parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyz")), dialect="auto")
+    (tmp_path / "bad.toml").write_text(base + '\n[controller]\nharmless_m = [252]\n', encoding="utf-8")
+    with pytest.raises(MachineFileError, match="controller.harmless_m"):
+        load_machine(tmp_path / "bad.toml")
