@@ -87,7 +87,7 @@ def _checked_words(words, ax: AxisWords, dia=None):
             gs.append((code, w))
             continue
         if w.letter == "M":
-            if w.value != int(w.value) or int(w.value) not in dia.m_codes:
+            if w.value != int(w.value) or int(w.value) not in dia.m_codes and int(w.value) not in ax.harmless_m:
                 raise _Refuse(w.start + 1, f"'M{w.text}': M code not on the {dia.name} allow-list (may move or call a "
                                            f"program){other_dialects_with_m(w.value, dia.name)}")
             ms.append(w)
@@ -109,6 +109,14 @@ def _checked_words(words, ax: AxisWords, dia=None):
             raise _Refuse(w.start + 1, f"repeated '{w.letter}' word")
         by[w.letter] = w
     return by, gs, ms
+
+
+def _machine_m_codes(st: _State, ms, idx: int, ax: AxisWords, dia) -> None:
+    """Record (an event ``"machine-m"``) each M word passed only because the machine file lists it as harmless."""
+    from .dialects import GENERIC
+    for w in ms:
+        if ax.harmless_m and int(w.value) in ax.harmless_m and int(w.value) not in (dia or GENERIC).m_codes:
+            st.events.append((idx, w.start + 1, "machine-m", int(w.value), f"M{w.text}"))
 
 
 def _lathe_t_word(w: Word, ax: AxisWords, dia) -> bool:
@@ -261,6 +269,7 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     if bd and block_delete == "on":
         return "skipped", None
     by, gs, ms = _checked_words(words, ax, dia)
+    _machine_m_codes(st, ms, idx, ax, dia)
     _tool_change(st, by, ms, idx)
     if "T" in by and _lathe_t_word(by["T"], ax, dia):
         lathe_t_offset(idx, st, by["T"], ax)
@@ -402,6 +411,8 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
     known = np.isfinite(end)
     if compensate and not known.all():
         lacking = [a for a, k in zip(ax.words, known) if not k]
+        compensate = not _from_start_position(st, axis_words, lacking, ax)
+    if compensate and not known.all():
         raise _Refuse(first.start + 1, f"'{first.letter}{first.text}': motion before {ax.joined('and')} are all "
                                        f"known (no value yet for {', '.join(lacking)}){_unknown_since(st, lacking)}")
     move = GMove(idx, kind, start, end, "inch" if st.inch else "mm", st.incremental, words, motion_word,
@@ -432,6 +443,17 @@ def _g53_end(st: _State, axis_words, ax: AxisWords) -> None:
     st.pos = pos
     if all(np.isfinite(pos[ax.words.index(a)]) for a in axis_words):
         st.system = st.system or st.replay.system  # placed in the power-on system: selecting it is no change
+
+
+def _from_start_position(st: _State, axis_words, lacking, ax: AxisWords) -> bool:
+    """On a mill (X, Y, Z), a line moving Z alone before the program ever gave the ``lacking`` X or Y (no ``G53``
+    moved them either): the controller keeps them where the machine stands at cycle start, which the program does
+    not say. Such a line (the first retract of many posts, ``G0 Z5``) is written as programmed, not compensated,
+    and listed (:func:`compensation.nc_state.program_frames`, ``moves_before_position_known``)."""
+    if set(axis_words) != {"Z"} or not set(lacking) <= {"X", "Y"} or not {"X", "Y", "Z"} <= set(ax.words):
+        return False
+    moved_g53 = {a for e in st.events if e[2] == "g53" for a in e[3]}
+    return not any(a in st.last_given or a in moved_g53 for a in lacking)
 
 
 def _unknown_since(st: _State, lacking) -> str:

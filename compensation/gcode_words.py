@@ -62,6 +62,8 @@ class AxisWords:
     words: tuple
     rotary: tuple = ()
     kept: tuple = ()
+    harmless_m: tuple = ()
+    """M code numbers the machine file's ``[controller] harmless_m`` adds to the dialect's harmless ones."""
 
     def __post_init__(self):
         bad = [w for w in self.words if w not in AXIS_LETTERS]
@@ -83,7 +85,8 @@ class AxisWords:
             raise ValueError(f"the machine {machine.name!r} ({machine.kind}) has no G-code axis words "
                              f"(its axes: {' '.join(words)})")
         rotary = tuple(a.name for a in axes if a.type == "rotary")
-        return cls(machine.name, words, rotary, rotary if keep_rotary else ())
+        harmless = tuple((getattr(machine, "controller", None) or {}).get("harmless_m", ()))
+        return cls(machine.name, words, rotary, rotary if keep_rotary else (), harmless)
 
     @functools.cached_property
     def is_rotary(self) -> tuple:

@@ -576,6 +576,11 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
     notes["g92_lines"] = [e[0] + 1 for e in events if e[2].startswith("g92")]
     notes["g52_lines"] = [e[0] + 1 for e in events if e[2] == "g52"]
     notes["dialect_modes"] = sorted({e[3] for e in events if e[2] == "mode"})
+    notes["machine_m_codes"] = [f"line {e[0] + 1}: {e[4]}" for e in events if e[2] == "machine-m"]
+    t = getattr(program, "table", None)  # written as programmed before their axes were known (a first G0 Z5)
+    notes["moves_before_position_known"] = ([int(i) + 1 for i in t.line[~t.compensate & ~t.known.all(axis=1)]]
+                                            if t is not None else [m.index + 1 for m in program.moves
+                                                                   if not m.compensate and not np.all(m.known)])
     offs, tls, rads, txs, rots = zip(*frames)
     rots = np.array(rots, dtype=float)
     if np.any(np.nan_to_num(rots) != 0.0):

@@ -16,7 +16,7 @@ import numpy as np
 from .chain import Chain, ET, inverted
 from .machine_checks import MachineFileError, check_known_keys, check_number, check_table, optional_table, short_repr
 from .machine_tool_file import (AXIS_WORDS, COMPONENTS, CHAIN_SCHEMA_VERSION, UM_MM, ChainAxis, Slot, chain_side,
-                                read_spindle, read_targets, read_tcp)
+                                read_controller, read_spindle, read_targets, read_tcp)
 
 @dataclass(frozen=True)
 class ClosedForm:
@@ -143,6 +143,9 @@ class MachineTool:
     """``[tcp]`` of the file: ``switch_on`` / ``switch_off`` (tuples of M code numbers) that switch the
     controller's tool-centre-point kinematics on and off (LinuxCNC's switchable kinematics, remapped M
     codes); None without one (:mod:`compensation.tcp`)."""
+    controller: dict | None = None
+    """``[controller]`` of the file: ``harmless_m`` (a tuple of M code numbers) this machine's controller runs
+    without moving an axis or calling a program, beyond its dialect's own; None without one."""
     truth: dict = field(default_factory=dict)
     """``[truth]`` of the file: how seeded truths of this machine are drawn
     (:func:`errormap.chain_truth.recipe` reads and checks it); empty without one."""
@@ -462,7 +465,8 @@ class MachineTool:
 
 def parse_machine_tool(doc: dict, path, sha: str = "") -> MachineTool:
     """Validate a parsed ``kind = "machine-tool"`` file and compile its chain (``docs/how-to/machine-file.md``)."""
-    check_known_keys(doc, ("machine", "geometry", "work", "tool", "targets", "spindle", "tcp", "truth"), "",
+    check_known_keys(doc, ("machine", "geometry", "work", "tool", "targets", "spindle", "tcp", "controller",
+                          "truth"), "",
                      path)
     m = check_table(doc, "machine", path)
     check_known_keys(m, ("kind", "name", "schema", "description"), "machine", path)
@@ -515,6 +519,7 @@ def parse_machine_tool(doc: dict, path, sha: str = "") -> MachineTool:
                        path=str(path), sha256=sha, description=str(m.get("description", "")),
                        spindle=read_spindle(optional_table(doc, "spindle", path), path, axis_names),
                        tcp=read_tcp(optional_table(doc, "tcp", path), path, axis_names),
+                       controller=read_controller(optional_table(doc, "controller", path), path),
                        truth=optional_table(doc, "truth", path, {}))
 
 

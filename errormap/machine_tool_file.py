@@ -314,6 +314,17 @@ def read_tcp(t, path, axes):
     return out
 
 
+def read_controller(t, path):
+    """``[controller]``: ``harmless_m``, a list of M codes (``"M252"``) of this machine's controller that move no
+    axis and call no program (a vendor's door, light or air code) beyond its dialect's own: the G-code reader
+    passes them as it passes the dialect's and the summary lists the lines (``machine_m_codes``). The codes are
+    the machine's, so they live in its file; None without the table."""
+    if t is None:
+        return None
+    check_known_keys(t, ("harmless_m",), "controller", path)
+    return {"harmless_m": _m_codes(t.get("harmless_m"), "controller.harmless_m", "M252", path)}
+
+
 def read_spindle(t, path, axes):
     """``[spindle]``: ``axis`` a rotary axis word of the machine; ``turning_on`` / ``turning_off`` lists
     of M codes (``"M3"``); the codes are the machine's, so they live in its file."""

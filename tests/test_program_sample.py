@@ -9,7 +9,7 @@ import json
 import pytest
 
 from benchmarks.suite.gcode_corpus import (HERE, MANIFEST, SAMPLE_MARK, STYLE_TABLES, independent_check,
-                                           sample_figures, style_tables)
+                                           sample_figures, sample_of, style_tables)
 from compensation.app.cli import main
 from compensation.gcode import AxisWords, parse_program
 from errormap.chain_elements import ChainElementSet
@@ -55,15 +55,20 @@ def test_sample_rows_are_fresh_mill_programs_with_their_bytes_named():
 
 
 def test_sample_figures_count_only_the_sample_rows():
-    res = [{"sample": True, "outcome": "accepted", "check": "ok: max 0.001 um at 3 points"},
-           {"sample": True, "outcome": "accepted", "check": "WRONG: a line that is not a compensated move changed"},
-           {"sample": True, "outcome": "refused", "reason": "x"},
-           {"sample": True, "outcome": "crashed", "reason": "y"},
-           {"sample": False, "outcome": "accepted", "check": "WRONG: z"}]
-    acc, wrong = sample_figures(res)
+    one, two = "blind sample", "blind sample 2"
+    res = [{"sample": one, "outcome": "accepted", "check": "ok: max 0.001 um at 3 points"},
+           {"sample": one, "outcome": "accepted", "check": "WRONG: a line that is not a compensated move changed"},
+           {"sample": one, "outcome": "refused", "reason": "x"},
+           {"sample": one, "outcome": "crashed", "reason": "y"},
+           {"sample": two, "outcome": "accepted", "check": "ok: max 0.002 um at 2 points"},
+           {"sample": None, "outcome": "accepted", "check": "WRONG: z"}]
+    acc, wrong, acc2, wrong2 = sample_figures(res)
     assert (acc["value"], acc["anchor_value"]) == ("2/4", 1)
     assert (wrong["value"], wrong["anchor_value"]) == (1, 2)
-    assert sample_figures([{"sample": False, "outcome": "accepted"}]) == []
+    assert (acc2["value"], wrong2["value"], wrong2["anchor_value"]) == ("1/1", 0, 1) and "second" in acc2["what"]
+    assert sample_figures([{"sample": None, "outcome": "accepted"}]) == []
+    assert [sample_of(f"no licence checked; not copied; {m} (program_corpus/README.md); x") for m in (one, two)] \
+        == [one, two] and sample_of("GPL-2.0 (LinuxCNC)") is None
 
 
 def test_a_crlf_program_is_checked_byte_for_byte(tmp_path, truth_file):
@@ -103,3 +108,53 @@ def test_a_move_before_z_is_known_names_why(tmp_path, text, line, col, why):
     assert f"line {line}, column {col}:" in msg and "no value yet for Z" in msg and why in msg, msg
     assert ("G53" in msg) == ("G53" in why)
     assert len(msg) - len(str(p)) < 300
+
+
+@pytest.mark.parametrize("text, kept", [
+    # grbl / LinuxCNC / Fanuc: a G0 or G1 with Z alone moves Z and keeps X, Y where the machine stands (the
+    # position at cycle start when the program has not given them): written as programmed, listed, not compensated
+    ("G21 G90 G54\nG0 Z5.\nG0 X1. Y2.\nG1 Z-1. F100\n", [2]),
+    ("G90\nG21\nM3 S10000\nG1 F1200.0 Z4.0\nG1 F1200.0 X3.08 Y-22.95\nG1 F100.0 Z-3.0\n", [4]),
+])
+def test_z_alone_before_x_y_are_given_is_written_as_programmed(tmp_path, text, kept):
+    from compensation.nc_state import program_frames, read_work_offsets
+    p = tmp_path / "p.nc"
+    p.write_text(text)
+    prog = parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyz")), dialect="auto")
+    assert all(not m.compensate for m in prog.moves if m.index + 1 in kept)
+    assert all(m.compensate for m in prog.moves if m.kind == "linear" and m.index + 1 not in kept)
+    frames = program_frames(prog, read_work_offsets(STYLE_TABLES / "offsets.csv"), None)
+    assert frames.notes["moves_before_position_known"] == kept
+
+
+@pytest.mark.parametrize("text, line, why", [
+    ("G21 G90 G54\nG1 X1. Y2. Z3. F100\nG55\nG1 Z5.\n", 4, "no value yet for X, Y"),  # given, then a new system
+    ("G21 G90\nG53 G0 X0 Y0\nG1 Z5. F100\nG54\n", 3, "moved X, Y in machine coordinates (G53)"),
+    ("G21 G90 G54\nG1 Z5. X1. F100\n", 2, "no value yet for Y"),              # not Z alone
+])
+def test_z_alone_is_refused_once_x_or_y_was_given(tmp_path, text, line, why):
+    p = tmp_path / "p.nc"
+    p.write_text(text)
+    with pytest.raises(InputError) as e:
+        parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyz")), dialect="auto")
+    assert f"line {line}," in str(e.value) and why in str(e.value), str(e.value)
+
+
+def test_a_machine_files_harmless_m_codes_pass_and_are_listed(tmp_path):
+    """``[controller] harmless_m`` of a machine file: its M codes pass (the file says they move nothing) and the
+    frames' notes list where; the built-in machine still refuses them; a malformed list names its key."""
+    from errormap.machine_tool_file import MachineFileError
+    from compensation.nc_state import program_frames, read_work_offsets
+    base = (HERE.parent / "errormap" / "machines" / "mill-xyz.toml").read_text(encoding="utf-8")
+    (tmp_path / "m.toml").write_text(base + '\n[controller]\nharmless_m = ["M252"]\n', encoding="utf-8")
+    p = tmp_path / "p.nc"
+    p.write_text("G21 G90 G54\nM252\nG0 X1. Y2. Z5.\nG1 Z-1. F100\nM30\n")
+    machine = load_machine(tmp_path / "m.toml")
+    prog = parse_program(p, axis_words=AxisWords.of(machine), dialect="auto")
+    frames = program_frames(prog, read_work_offsets(STYLE_TABLES / "offsets.csv"), None)
+    assert frames.notes["machine_m_codes"] == ["line 2: M252"]
+    with pytest.raises(InputError, match="line 2, column 1: 'M252': M code not on"):
+        parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyz")), dialect="auto")
+    (tmp_path / "bad.toml").write_text(base + '\n[controller]\nharmless_m = [252]\n', encoding="utf-8")
+    with pytest.raises(MachineFileError, match="controller.harmless_m"):
+        load_machine(tmp_path / "bad.toml")
