@@ -89,12 +89,15 @@ class Identification(Estimator):
     is scaled with, None: the residuals' σ̂); ``gauge`` (the machine-frame gauge,
     :data:`errormap.identification.GAUGES`; default station-mean, as ``volcomp identify``); ``smooth`` (the
     station values smoothed by the UBRE smoother, :func:`errormap.identification.smooth_chain`, and the
-    covariance with them; False: interpolating splines through the noisy stations, ``identify --raw``). The
-    defaults are ``volcomp identify``'s (the command takes them from :meth:`defaults`).
+    covariance with them; False: interpolating splines through the noisy stations, ``identify --raw``); ``n_boot``
+    (None: Gauss–Newton's covariance; N ≥ 2: the residual bootstrap's, N draws seeded by ``seed``,
+    :func:`errormap.identification.bootstrap_covariance`, before smoothing). The defaults are ``volcomp identify``'s
+    (the command takes them from :meth:`defaults`).
 
     ``fit(sweeps)``: ``sweeps`` a :class:`errormap.sweeps.Sweeps` (:func:`errormap.read_sweeps`,
     :func:`errormap.simulate_sweeps`). Learned: ``elements_`` (the chain's element set), ``result_``
-    (:class:`errormap.identification.ChainIdentificationResult`: residuals, conditioning, warnings),
+    (:class:`errormap.identification.ChainIdentificationResult`: residuals, conditioning, warnings, how the
+    covariance was obtained), ``raw_result_`` (the same before smoothing: the interpolating station values),
     ``covariance_`` (``(slot names, stations (N,), Σ (N, N))`` μm² / μrad²), ``prior_covariance_`` (the same
     with the smoother's extra variance on the diagonal: the prior of a closed loop's element update, as
     ``volcomp diagnose`` reads it from ``NAME.cov.npz``), ``field_`` (the elements' error field:
@@ -103,22 +106,25 @@ class Identification(Estimator):
 
     def __init__(self, machine, max_iter: int | None = None, tol: float | None = None,
                  min_separation_mm: float = 1.0, distance_tol_mm: float = 2.0, noise_um: float | None = None,
-                 gauge: str = "station-mean", smooth: bool = True):
+                 gauge: str = "station-mean", smooth: bool = True, n_boot: int | None = None, seed: int = 0):
         keep_settings(self, locals())
 
     def fit(self, sweeps) -> "Identification":
         from .chain_field import ChainField
-        from .identification import ChainIdentification, smooth_chain
+        from .identification import ChainIdentification, bootstrap_covariance, smooth_chain
         from .sweeps import Sweeps
         mt = machine_tool(self.machine, "Identification(machine=...)")
         if not isinstance(self.smooth, bool):
             raise TypeError(f"Identification(smooth=...): expected True or False, got {self.smooth!r}")
         _require_type(sweeps, (Sweeps,), "Identification.fit(sweeps)", "read the file first (errormap.read_sweeps)")
         given = {k: v for k, v in (("max_iter", self.max_iter), ("tol", self.tol)) if v is not None}
-        method = ChainIdentification(min_separation_mm=self.min_separation_mm, distance_tol_mm=self.distance_tol_mm,
-                                     noise_um=self.noise_um, gauge=self.gauge, **given).fit(sweeps, mt)
-        res = smooth_chain(method.result_, mt) if self.smooth else method.result_
-        self.result_ = res
+        settings = dict(min_separation_mm=self.min_separation_mm, distance_tol_mm=self.distance_tol_mm,
+                        noise_um=self.noise_um, gauge=self.gauge, **given)
+        raw = ChainIdentification(**settings).fit(sweeps, mt).result_
+        if self.n_boot is not None:
+            raw = bootstrap_covariance(sweeps, mt, raw, self.n_boot, self.seed, **settings)
+        res = smooth_chain(raw, mt) if self.smooth else raw
+        self.raw_result_, self.result_ = raw, res
         self.elements_ = res.elements_
         self.covariance_ = (list(res.param_slot), res.param_station.copy(), res.cov.copy())
         extra = 0.0 if res.prior_extra is None else np.diag(np.asarray(res.prior_extra, float))

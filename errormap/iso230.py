@@ -1,4 +1,4 @@
-"""ISO 230-1 names for the grinder's 23 error elements, and one axis' components to and from the MCS.
+"""ISO 230-1: one axis' components to and from the MCS (the names: each slot's ``iso`` in the machine file).
 
 ISO 230-1 names a *component error* ``E<direction><axis>`` (``EXX`` positioning of X, ``EAX`` its
 roll) and a *location error* ``E<direction>0<axis>`` (``EB0Z`` squareness of Z to X about Y). An ISO
@@ -11,37 +11,6 @@ frames differ (Z turned by θ1, A rotating): ``docs/how-to/export-to-controller.
 from __future__ import annotations
 
 import numpy as np
-
-from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, ELEMENT_NAMES, X_ELEMENTS, Z_ELEMENTS
-from .grinder_file import ELEMENT_SLOTS
-
-ISO_NAME = dict(ELEMENT_SLOTS)
-"""Project element name -> ISO 230-1 name (one-to-one): the grinder chain's slots and their ISO names."""
-ISO_NAMES = tuple(ISO_NAME[k] for k in ELEMENT_NAMES)
-"""The 23 ISO names, in ELEMENT_NAMES order."""
-
-ISO_MEANING = {
-    "EXX": "positioning error of X", "EYX": "straightness of X in Y", "EZX": "straightness of X in Z",
-    "EAX": "roll of X (about X)", "EBX": "pitch of X (about Y)", "ECX": "yaw of X (about Z)",
-    "EXZ": "straightness of Z in X", "EYZ": "straightness of Z in Y", "EZZ": "positioning error of Z",
-    "EAZ": "angular error of Z about X", "EBZ": "angular error of Z about Y", "ECZ": "roll of Z (about Z)",
-    "EXA": "axial error motion of A", "EYA": "radial error motion of A in Y", "EZA": "radial error motion of A in Z",
-    "EAA": "angular positioning error of A", "EBA": "tilt error motion of A about Y",
-    "ECA": "tilt error motion of A about Z",
-    "EY0A": "offset of the A axis line in Y", "EZ0A": "offset of the A axis line in Z",
-    "EB0A": "tilt of the A axis line about Y", "EC0A": "tilt of the A axis line about Z",
-    "EB0Z": "squareness of Z to X (about Y)",
-}
-BODY_OF = {**{k: "X" for k in X_ELEMENTS}, **{k: "Z" for k in Z_ELEMENTS}, **{k: "A" for k in A_ELEMENTS},
-           "dy_oa": "A", "dz_oa": "A", "ey_oa": "A", "ez_oa": "A", "s_xz": "Z"}
-CARRIES = {"X": "workpiece", "Z": "wheel (tool)", "A": "workpiece"}
-
-
-def label(name: str) -> str:
-    """``"dx_x (EXX)"``: the project name with its ISO 230-1 name beside it."""
-    if name not in ISO_NAME:
-        raise KeyError(f"Expected one of the 23 element names {ELEMENT_NAMES}, got {name!r}")
-    return f"{name} ({ISO_NAME[name]})"
 
 
 def axis_to_mcs(mt, word: str, axes, comp, offset_mm=None) -> np.ndarray:

@@ -4,7 +4,7 @@
 full-turn axis) a Whittaker smoother ``f = (W + λ DᵀD)⁻¹ W y`` (second differences, ``W`` the inverse of
 the station variances), λ chosen by the unbiased risk estimate with the known covariance (Mallows' C_p /
 UBRE), and the smoother's estimated squared bias. :func:`bootstrap_draws`: the seeded loop of a bootstrap.
-Used by :mod:`errormap.identification` (machine tools) and :mod:`errormap.uncertainty`.
+Used by :mod:`errormap.identification` (machine tools).
 """
 from __future__ import annotations
 

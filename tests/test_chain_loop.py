@@ -15,7 +15,6 @@ from errormap.chain_truth import FAMILIES, TARGET_MAX_RANGE_UM, ChainTruth, make
 from errormap.chain_sweeps import simulated_sweeps, swept_words
 from errormap.chain_truth import make_chain_truth
 from errormap.sweeps import read_sweeps, sweeps_from_columns, write_sweeps
-from errormap.uncertainty import smooth_identify
 
 EXACT_MM = 1e-9
 """Two implementations of the same rigid-body chain agree to round-off on ~1 m coordinates (double precision
@@ -131,7 +130,7 @@ def test_generic_identification_agrees_with_grinder(noise):
     g, gc = load_machine(None), load_machine("grinder-chain")
     tg = make_chain_truth(g, 1)
     cols = simulated_sweeps(tg, noise_um=noise, seed=3)
-    eg = smooth_identify(cols, g, smooth=False, gauge="first-station").raw.elements_
+    eg = ChainIdentification(gauge="first-station").fit(sweeps_from_columns(cols), g).elements_
     ec = ChainIdentification().fit(sweeps_from_columns(cols, axes=swept_words(gc)), gc).elements_
     grid = volume_grid(g, (9, 5, 13))
     d = np.linalg.norm(ChainField(g, eg).predict(grid) - ChainField(gc, ec).predict(grid), axis=1)

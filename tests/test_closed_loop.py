@@ -14,7 +14,11 @@ from errormap.chain_kernel import spatial_error
 from errormap.chain_truth import EFFECT_DEFAULTS, TRUTH_STATIONS, make_chain_truth, random_axes
 from errormap.chain_sweeps import simulated_sweeps
 from errormap.chain_covariance import band_sd, covariance_path, read_chain_covariance, save_chain_covariance
-from errormap.uncertainty import elements_from_theta, smooth_identify, theta_covariance, theta_from_elements
+from errormap.diagnosis.chain_effects import full_parameters
+from errormap.diagnosis.chain_update import apply_parameters
+from errormap.estimators import Identification
+from errormap.sweeps import sweeps_from_columns
+from errormap.uncertainty import noise_um, station_standard_errors
 
 SEED = 0
 TRACKER_NOISE_UM = 2.0
@@ -25,6 +29,11 @@ HELD_OUT_TARGET_UM = 2.2  # issue 13: 1.25 × √3 × 1 μm check noise
 N_CHECKS = 600
 
 
+def _identified(cols, grinder):
+    """``volcomp identify``'s identification (its defaults: smoothed, station-mean gauge) of sweep columns."""
+    return Identification(grinder).fit(sweeps_from_columns(cols))
+
+
 def _loop(grinder, sm, cols, tmp, **kw):
     """The machine tools' loop (``volcomp diagnose``'s) on the grinder's chain: the smoothed identification
     ``sm`` as the files ``volcomp identify`` writes (elements and covariance with its prior_extra), read as the
@@ -33,7 +42,7 @@ def _loop(grinder, sm, cols, tmp, **kw):
     from errormap.diagnosis.chain_loop import ChainChecks, closed_loop_chain
     mt = grinder
     el_path = sm.elements_.save(tmp / "el.json")
-    save_chain_covariance(sm.result, covariance_path(el_path))
+    save_chain_covariance(sm.result_, covariance_path(el_path))
     el, cov, _ = load_chain_model(el_path, mt, prior=True)
     checks = ChainChecks.from_columns(mt, cols)
     return closed_loop_chain(mt, el, checks, cov=cov, **kw), checks
@@ -42,7 +51,7 @@ def _loop(grinder, sm, cols, tmp, **kw):
 @pytest.fixture(scope="module")
 def indep(grinder):
     truth = make_chain_truth(grinder, SEED, family="independent")
-    sm = smooth_identify(simulated_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=SEED + 50), grinder)
+    sm = _identified(simulated_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=SEED + 50), grinder)
     return truth, sm
 
 
@@ -71,7 +80,7 @@ def test_simulate_cli_family(tmp_path):
 
 def test_noise_is_estimated_from_ball_residuals(indep):
     _, sm = indep
-    assert abs(sm.noise_um - TRACKER_NOISE_UM) < NOISE_REL_TOL * TRACKER_NOISE_UM
+    assert abs(noise_um(sm.result_) - TRACKER_NOISE_UM) < NOISE_REL_TOL * TRACKER_NOISE_UM
 
 
 def test_smoothing_beats_interpolation_on_the_truth(grinder, indep):
@@ -79,7 +88,7 @@ def test_smoothing_beats_interpolation_on_the_truth(grinder, indep):
     pts = random_axes(grinder, 3000, np.random.default_rng(1))
     et = ChainField(grinder, truth.elements).predict(pts)
     rms = lambda el: np.sqrt(np.mean(np.sum((ChainField(grinder, el).predict(pts) - et) ** 2, axis=1)))  # noqa: E731
-    assert rms(sm.elements_) < SMOOTH_GAIN * rms(sm.raw.elements_)
+    assert rms(sm.elements_) < SMOOTH_GAIN * rms(sm.raw_result_.elements_)
 
 
 def test_the_bands_parameter_matrix_is_the_first_order_change(grinder, indep):
@@ -87,10 +96,10 @@ def test_the_bands_parameter_matrix_is_the_first_order_change(grinder, indep):
     _, sm = indep
     el = sm.elements_
     pts = random_axes(grinder, 200, np.random.default_rng(2))
-    dtheta = np.random.default_rng(3).normal(0, 1.0, theta_from_elements(el).size)  # ~1 μm / μrad
-    new = elements_from_theta(theta_from_elements(el) + dtheta, el)
+    slots, stations = full_parameters(el)
+    dtheta = np.random.default_rng(3).normal(0, 1.0, len(slots))  # ~1 μm / μrad
+    new = apply_parameters(el, slots, stations, dtheta)
     exact = spatial_error(grinder, pts, new.values(pts)) - spatial_error(grinder, pts, el.values(pts))
-    slots, stations, _ = theta_covariance(el, None)
     lin = np.einsum("nip,p->ni", parameter_matrix(grinder, el, pts, slots, stations), dtheta)
     assert np.abs(exact - lin).max() < LINEAR_REL_TOL * np.abs(exact).max()
 
@@ -99,7 +108,7 @@ def test_band_shape_and_station_se(grinder, indep):
     _, sm = indep
     sd = band_sd(grinder, sm.elements_, sm.covariance_, random_axes(grinder, 10, np.random.default_rng(4)))
     assert sd.shape == (10, 3) and np.all(sd > 0)
-    se = sm.station_se()
+    se = station_standard_errors(sm.result_)
     assert se["dx_x"].shape == (21,) and se["ex_a"][0] == se["ex_a"][-1] and se["s_xz"] > 0
 
 
@@ -116,7 +125,7 @@ def test_update_brings_held_out_to_the_noise_floor_and_reports_no_effect(grinder
 @pytest.mark.slow
 def test_reversal_is_named_after_the_update(grinder, tmp_path):
     truth = make_chain_truth(grinder, 1, family="independent", effects=["reversal"])
-    sm = smooth_identify(simulated_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=51), grinder)
+    sm = _identified(simulated_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=51), grinder)
     s, _ = _loop(grinder, sm, truth.check_measurements(800, 1.0, seed=13), tmp_path)
     e = s["effects"]
     assert e and (e[0]["kind"], e[0]["axis"]) == ("reversal", "Z")
@@ -252,7 +261,7 @@ def test_an_effect_the_update_would_imitate_is_named_and_kept(grinder, tmp_path)
     """Thermal growth (a dx_x slope at the mean temperature) is partly taken up by an update made alone; the loop
     names it, re-fits it jointly with the update, and keeps the model with it."""
     truth = make_chain_truth(grinder, 0, family="independent", effects=["thermal"])
-    sm = smooth_identify(simulated_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder)
+    sm = _identified(simulated_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder)
     s, _ = _loop(grinder, sm, truth.check_measurements(800, 1.0, seed=14), tmp_path)
     assert s["effects"] and (s["effects"][0]["kind"], s["effects"][0]["axis"]) == ("thermal", "X")
     assert s["kept_stage"] == "updated_plus_effects"
@@ -265,7 +274,7 @@ def test_an_effect_the_element_slots_represent_is_named_as_absorbed(grinder, tmp
     the checks, so the update takes it up; the loop names it as absorbed (not a missed effect) and the updated
     model reaches the held-out target."""
     truth = make_chain_truth(grinder, 0, family="independent", effects=["interaction"])
-    sm = smooth_identify(simulated_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder)
+    sm = _identified(simulated_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder)
     s, _ = _loop(grinder, sm, truth.check_measurements(800, 1.0, seed=14), tmp_path)
     assert ("interaction", "X*Z") in {(e["kind"], e["axis"]) for e in s["effects_absorbed"]}
     assert s["held_out_rms_um"] < HELD_OUT_TARGET_UM

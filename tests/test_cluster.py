@@ -161,7 +161,7 @@ def test_fleet_on_ray_tracked_on_a_server(ray_session, mlflow_server, grinder, c
 
     from errormap.chain_elements import ChainElementSet
     from errormap.sweeps import read_sweeps
-    from errormap.uncertainty import smooth_identify
+    from errormap.estimators import Identification
     url, tmp = mlflow_server
     fleet = _fleet_inputs(tmp, grinder)
     out = tmp / "fleet_out"
@@ -184,7 +184,7 @@ def test_fleet_on_ray_tracked_on_a_server(ray_session, mlflow_server, grinder, c
     assert len(list((tmp / "art").rglob("weights.npy"))) == 2
     assert len(list((tmp / "art").rglob("diagnosis.json"))) == 2
     # the Ray task identified what an in-process identification of the same sweeps gives
-    ref = smooth_identify(read_sweeps([str(tmp / "m1" / "sweeps.csv")], grinder), grinder, n_boot=4, seed=0).elements_
+    ref = Identification(grinder, n_boot=4, seed=0).fit(read_sweeps([str(tmp / "m1" / "sweeps.csv")], grinder)).elements_
     got = ChainElementSet.load(out / "g1" / "elements.json", grinder)
     pts = random_axes(grinder, 200, np.random.default_rng(0))
     assert np.abs(got.values(pts) - ref.values(pts)).max() < IDENTIFY_TOL

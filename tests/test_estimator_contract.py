@@ -204,6 +204,21 @@ def test_identification_defaults_are_the_commands():
         Identification(m, smooth="yes").fit(sweeps)
 
 
+def test_identification_bootstrap_is_the_residual_bootstrap_before_smoothing():
+    """``Identification(n_boot=N, seed=S)``: the covariance is the residual bootstrap's (the same draws as
+    :func:`errormap.identification.bootstrap_covariance` with the same settings), then smoothed; ``raw_result_`` is
+    the result before smoothing. Bit for bit: the same arithmetic in the same order."""
+    from errormap.identification import ChainIdentification, bootstrap_covariance, smooth_chain
+    m, _, sweeps = _mill_sweeps()
+    est = Identification(m, n_boot=3, seed=1).fit(sweeps)
+    raw = ChainIdentification(gauge="station-mean").fit(sweeps, m).result_
+    raw = bootstrap_covariance(sweeps, m, raw, 3, 1, gauge="station-mean")
+    ref = smooth_chain(raw, m)
+    np.testing.assert_array_equal(est.raw_result_.cov, raw.cov)
+    np.testing.assert_array_equal(est.covariance_[2], ref.cov)
+    assert est.result_.covariance_info["method"] == "residual-bootstrap" and est.result_.covariance_info["seed"] == 1
+
+
 POSE_CSV_REL = 1e-8
 """A pose file's columns are written to 9 significant digits (errormap.io.write_csv): a value read back is within
 5e-9 of it, relatively; 1e-8 is far below a mis-read column (another column's values differ by percents)."""

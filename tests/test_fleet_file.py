@@ -118,8 +118,9 @@ def test_a_failed_verdict_is_marked_and_never_counted_as_a_pass(capsys):
 
 @pytest.mark.slow
 def test_a_fleet_of_a_machine_tool_chain_runs_the_same_steps(tmp_path, capsys):
-    """A mill-xyz chain file in a fleet: identify from its one sweep file, the chain network on its feature points
-    (tracked), the chain loop on its checks; a second sweep file for a chain is refused up front naming the key."""
+    """A mill-xyz chain file in a fleet: identify from its sweep file, the chain network on its feature points
+    (tracked), the chain loop on its checks; sweep files of two tracker set-ups are refused up front (as for the
+    grinder: one identification is one set-up), naming the files."""
     import json
     from compensation.app.cli import main
     from compensation.app.workflows.fleet import read_fleet, validate_inputs
@@ -144,8 +145,9 @@ def test_a_fleet_of_a_machine_tool_chain_runs_the_same_steps(tmp_path, capsys):
     assert fp.meta["axis_columns"] == "x_mm,y_mm,z_mm" and (tmp_path / "out" / "mill" / "train" / "model").is_dir()
     diag = json.loads((tmp_path / "out" / "mill" / "diagnosis" / "diagnosis.json").read_text())
     assert m["diagnosis"]["diagnose_heldout_rms_final_um"] == diag["held_out_rms_um"]
-    (tmp_path / "fleet.toml").write_text(body.replace('sweeps = "sweeps.csv"', 'sweeps = ["sweeps.csv", "sweeps.csv"]'))
-    with pytest.raises(InputError, match=r"machine\[0\].sweeps': a machine-tool chain .* one sweep file"):
+    (tmp_path / "sweeps2.csv").write_text((tmp_path / "sweeps.csv").read_text())   # its set-up not named
+    (tmp_path / "fleet.toml").write_text(body.replace('sweeps = "sweeps.csv"', 'sweeps = ["sweeps.csv", "sweeps2.csv"]'))
+    with pytest.raises(InputError, match=r"sweeps2.csv: several sweep files must all name the same tracker set-up"):
         validate_inputs(read_fleet(tmp_path / "fleet.toml"))
 
 

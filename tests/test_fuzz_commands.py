@@ -84,7 +84,7 @@ def files(tmp_path_factory):
 @given(data=st.data())
 def test_fuzz_identify_grinder(files, data):
     """exit 0 writes the element set the library identifies from the same file (compared through the field)."""
-    from compensation.app.workflows.identification import identify_elements
+    from compensation.app.workflows.identification import identify_chain_files
     from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
     from errormap.sweeps import read_sweeps
@@ -97,10 +97,10 @@ def test_fuzz_identify_grinder(files, data):
         rc, err = run_main(argv)
         if _tally_outcome(argv, rc, err, [str(p)]):
             with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-                lib = identify_elements(machine, [str(p)], Path(d) / "L.json", n_boot=2, seed=0,
-                                        sweeps=read_sweeps([str(p)], machine))
+                lib = identify_chain_files(machine, [str(p)], Path(d) / "L.json", n_boot=2, seed=0,
+                                           sweeps=read_sweeps([str(p)], machine))[0]
             got = ChainField(machine, ChainElementSet.load(Path(d) / "E.json", machine)).predict(AXES_PROBE)
-            want = ChainField(machine, lib.result.elements_).predict(AXES_PROBE)
+            want = ChainField(machine, lib.elements_).predict(AXES_PROBE)
             _check_output("identify", np.allclose(got, want, rtol=TOL_PREDICT_REL, atol=TOL_PREDICT_ABS_UM), argv)
 
 

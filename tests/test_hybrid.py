@@ -218,15 +218,15 @@ def test_hybrid_total_band_is_learned_band_plus_element_band(grinder):
     """band_std = sqrt(learned std² + diag(J Σ Jᵀ)); without a covariance, the learned band alone."""
     from compensation.hybrid import axis_features
     from errormap.chain_covariance import band_sd
-    from errormap.uncertainty import theta_covariance, theta_layout
+    from errormap.diagnosis.chain_effects import full_parameters
     from training.residual import ResidualRegressor
     rng = np.random.default_rng(SEED + 5)
     axes = random_axes(grinder, 80, rng)
     r = _bump(grinder, axes) + NOISE_UM * rng.standard_normal(axes.shape)
     reg = ResidualRegressor(seed=SEED, margin_se=0.0).fit(axis_features(axes)[0], r)
     el = make_chain_truth(grinder, SEED).elements
-    p = len(theta_layout(el))
-    cov = theta_covariance(el, 0.25 * np.eye(p))
+    slots, stations = full_parameters(el)
+    cov = (slots, stations, 0.25 * np.eye(len(slots)))
     hyb = HybridField(ChainField(grinder, el), LearnedResidual(reg, axes[:, :2].min(0), axes[:, :2].max(0)))
     P = random_axes(grinder, 50, np.random.default_rng(SEED + 6))
     _, s_learned = hyb.learned.predict(P, return_std=True)

@@ -152,7 +152,7 @@ def test_xz_saddle_is_outside_the_linearised_element_model(grinder):
     from errormap.chain_kernel import error_jacobian
     from errormap.diagnosis.chain_update import parameter_matrix
     from errormap.chain_elements import ChainElementSet
-    from errormap.uncertainty import theta_covariance
+    from errormap.diagnosis.chain_effects import full_parameters
     xs = np.linspace(*grinder.strokes["x_mm"], 21)
     zs = np.linspace(*grinder.strokes["z_mm"], 21)
     X, Z, A = np.meshgrid(xs, zs, np.arange(24) * 15.0, indexing="ij")
@@ -160,7 +160,7 @@ def test_xz_saddle_is_outside_the_linearised_element_model(grinder):
     J = error_jacobian(grinder, P)
     truth = make_chain_truth(grinder, SEED)
     nominal = ChainElementSet.zeros(grinder, truth.elements.stations["x_mm"].size)   # linearised at nominal
-    slots, stations, _ = theta_covariance(nominal, None)
+    slots, stations = full_parameters(nominal)
     M = parameter_matrix(grinder, nominal, P, slots, stations).reshape(3 * P.shape[0], -1)
     MtM = M.T @ M
     without = truth.element_values(P)

@@ -18,7 +18,7 @@ from errormap.identification import ChainIdentification, layout_problem, rigid_f
 from errormap.io import InputError
 from errormap.machine import load_machine
 from errormap.chain_truth import ChainTruth, make_chain_truth, random_axes
-from errormap.uncertainty import smooth_identify
+from errormap.sweeps import sweeps_from_columns
 
 SPATIAL_TOL_UM = 0.01          # the issue's noise-free target on the tool-point error
 ELEMENT_TOL = 1e-6             # μm / μrad: noise-free recovery, limited by float rounding at metres
@@ -46,7 +46,7 @@ def truth(machine):
 
 def identify(cols, machine, gauge="first-station"):
     """The interpolating identification of a grinder in ``gauge`` (its ``elements_`` the grinder's set)."""
-    return smooth_identify(cols, machine, smooth=False, gauge=gauge).raw
+    return ChainIdentification(gauge=gauge).fit(sweeps_from_columns(cols), machine).result_
 
 
 def spatial_max_um(machine, a, b, points):
@@ -218,7 +218,7 @@ NULLSPACE_ATOL = 1e-9   # exact algebra on 21 stations: round-off only
 def test_nullspace_smoother_keeps_lines_and_removes_the_rest():
     """The λ → ∞ smoother (the noise floor's smoother) is a projection that keeps an offset and
     slope (open axis) or a constant (periodic), and its noise covariance is at most the raw one."""
-    from errormap.uncertainty import nullspace_smoother
+    from benchmarks.suite.sweeps import nullspace_smoother
     rng = np.random.default_rng(13)
     m = 21
     Sigma = np.diag(rng.uniform(0.5, 2.0, m))

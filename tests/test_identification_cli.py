@@ -47,3 +47,25 @@ def test_degenerate_layout_is_one_clean_line(tmp_path, capsys):
     assert len(err) == 3 and 'kind = "grinder" read as its machine-tool chain' in err[0]
     assert "targets.X" in err[-1] and "collinear" in err[-1]
     assert not (tmp_path / "e.json").exists()
+
+
+def test_identify_reports_the_uncertainty_and_iso_names_of_any_machine_tool(tmp_path, capsys):
+    """One identification for every machine tool: a mill's report carries the ``uncertainty`` block (a standard error
+    per slot and station: the covariance file's diagonal, the same floats) and the ISO 230-1 names of its own file's
+    slots, and the command prints them."""
+    from errormap.identification import load_covariance
+    sw = tmp_path / "sw.csv"
+    assert main(["sweeps", "--machine", "mill-xyz", "--seed", "2", "--out", str(sw)]) == 0
+    capsys.readouterr()
+    assert main(["identify", str(sw), "--machine", "mill-xyz", "--out", str(tmp_path / "E.json")]) == 0
+    text = capsys.readouterr().out
+    m = load_machine("mill-xyz")
+    report = json.loads((tmp_path / "E.report.json").read_text())
+    assert report["iso230_names"] == dict(zip(m.slot_names, m.iso_names))
+    se = report["uncertainty"]["standard_errors"]
+    assert list(se) == list(m.slot_names)
+    slots, stations, C = load_covariance(tmp_path / "E.cov.npz")
+    sd = np.sqrt(np.diag(C))
+    assert [se[s] if i < 0 else se[s][i] for s, i in zip(slots, stations)] == sd.tolist()   # no full-turn axis
+    assert all(f"{s} ({iso})" in text for s, iso in zip(m.slot_names, m.iso_names))
+    assert "largest station standard error:" in text

@@ -272,12 +272,12 @@ def test_identify_truth_overlay_is_in_the_identified_gauge(machine):
     """`identify --truth` drew the truth in its own frame (curves tens of μrad off the identified ones);
     the overlay must be the truth in the identified gauge, and the old one measurably was not."""
     from errormap.sweeps import sweeps_from_columns
-    from errormap.uncertainty import smooth_identify
+    from errormap.identification import ChainIdentification
     from compensation.app.workflows.measurement import truth_in_gauge
     truth = make_chain_truth(machine, SEED).elements
     sweeps = sweeps_from_columns(simulated_sweeps(make_chain_truth(machine, SEED), noise_um=0.0, seed=3), "<sweeps>")
     # the interpolating identification (--raw): on noise-free sweeps it is the truth in its gauge exactly
-    ident = smooth_identify(sweeps, machine, noise_um=0.5, smooth=False, gauge="station-mean").elements_
+    ident = ChainIdentification(noise_um=0.5, gauge="station-mean").fit(sweeps, machine).elements_
     pts = np.zeros((300, 3))
     pts[:, 0], pts[:, 1], pts[:, 2] = np.linspace(0, 200, 300), np.linspace(0, 60, 300), np.linspace(0, 360, 300)
     overlay = truth_in_gauge(machine, truth, "station-mean", ident.stations)
@@ -357,11 +357,12 @@ def test_a_stale_covariance_companion_is_refused(machine, tmp_path):
     """The companion is found by name; that an older grinder file (θ layout) belongs to the element set is
     checked by content."""
     from errormap.chain_covariance import read_chain_covariance
-    from errormap.uncertainty import theta_from_elements, theta_layout
+    from errormap.diagnosis.chain_effects import full_parameters
+    from errormap.identification import parameter_vector
     el = make_chain_truth(machine, SEED).elements
-    lay = theta_layout(el)
-    np.savez(tmp_path / "E.cov.npz", theta=theta_from_elements(el), cov=np.eye(len(lay)),
-             layout_element=np.array([k for k, _ in lay]), layout_station=np.array([i for _, i in lay]))
+    slots, stations = full_parameters(el)
+    np.savez(tmp_path / "E.cov.npz", theta=parameter_vector(el, slots, stations), cov=np.eye(len(slots)),
+             layout_element=np.array(slots), layout_station=stations)
     el.save(tmp_path / "E.json")
     read_chain_covariance(covariance_path(tmp_path / "E.json"),
                           ChainElementSet.load(tmp_path / "E.json", machine))

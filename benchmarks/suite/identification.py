@@ -15,7 +15,8 @@ from errormap.machine import load_machine
 from errormap.chain_truth import make_chain_truth, random_axes
 from errormap.stats import residual_stats
 from errormap.chain_sweeps import simulated_sweeps
-from errormap.uncertainty import smooth_identify
+from errormap.identification import identify_chain
+from errormap.sweeps import sweeps_from_columns
 
 TITLE = "Identification: tracker sweeps → 23 elements of the grinder"
 DATA = ("simulated grinder (`make_chain_truth` seed 3), 21 stations per axis, 3 balls per body, 10,000 random axis "
@@ -24,7 +25,7 @@ NOISE_UM = 2.0
 
 
 def _identify(sweeps, machine, gauge="first-station"):
-    return smooth_identify(sweeps, machine, smooth=False, gauge=gauge).raw
+    return identify_chain(sweeps_from_columns(sweeps), machine, gauge=gauge)
 
 
 def run(quick: bool, seed: int) -> dict:

@@ -111,14 +111,15 @@ def chain_setting():
     from errormap.chain_truth import make_chain_truth
     from errormap.chain_sweeps import simulated_sweeps
     from errormap.chain_covariance import covariance_path, save_chain_covariance
-    from errormap.uncertainty import smooth_identify
+    from errormap.estimators import Identification
+    from errormap.sweeps import sweeps_from_columns
     grinder = load_machine()
     mt = grinder
     truth = make_chain_truth(grinder, 4)
-    sm = smooth_identify(simulated_sweeps(truth, noise_um=2.0, seed=54), grinder, n_boot=40)
+    sm = Identification(grinder, n_boot=40).fit(sweeps_from_columns(simulated_sweeps(truth, noise_um=2.0, seed=54)))
     with tempfile.TemporaryDirectory() as tmp:
         el_path = sm.elements_.save(Path(tmp) / "el.json")
-        save_chain_covariance(sm.result, covariance_path(el_path))
+        save_chain_covariance(sm.result_, covariance_path(el_path))
         el, cov, _ = load_chain_model(el_path, mt, prior=True)
     checks = ChainChecks.from_columns(mt, truth.check_measurements(N_CHECKS, CHECK_NOISE_UM, seed=5))
     return mt, el, cov, checks
@@ -173,13 +174,15 @@ def prediction_coverage(seeds_per_family: int) -> dict:
     from errormap.chain_sweeps import simulated_sweeps
     from errormap.chain_truth import make_chain_truth
     from errormap.chain_covariance import band_sd
-    from errormap.uncertainty import smooth_identify
+    from errormap.estimators import Identification
+    from errormap.sweeps import sweeps_from_columns
     grinder = load_machine()
     inside = total = 0
     for fam in ("default", "independent"):
         for s in range(seeds_per_family):
             truth = make_chain_truth(grinder, s, family=fam)
-            sm = smooth_identify(simulated_sweeps(truth, noise_um=2.0, seed=s + 500), grinder, n_boot=100, seed=s)
+            sw = sweeps_from_columns(simulated_sweeps(truth, noise_um=2.0, seed=s + 500))
+            sm = Identification(grinder, n_boot=100, seed=s).fit(sw)
             pts = random_axes(grinder, 400, np.random.default_rng(s + 7))
             err = ChainField(grinder, sm.elements_).predict(pts) - ChainField(grinder, truth.elements).predict(pts)
             sd = band_sd(grinder, sm.elements_, sm.covariance_, pts)

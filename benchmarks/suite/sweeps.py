@@ -4,13 +4,13 @@ other smoothing choices, the coverage of its 95 % prediction band, and the ``sta
 
 Per family (``independent``, ``default``), truths ``seed .. seed + N - 1``, the closed-loop benchmark's sweeps
 (``volcomp sweeps`` 2 μm, 21 stations, noise seed from ``spawn_seeds(seed, 2)[0]``), the product's
-identification (:func:`errormap.uncertainty.smooth_identify`, UBRE smoothing, bootstrap 100, noise from the
-ball residuals), scored against the hidden truth geometry (TRUE residual, 5000 random points, vector norm),
+identification (:class:`errormap.estimators.Identification`, ``volcomp identify``'s: UBRE smoothing, station-mean
+gauge, noise from the ball residuals), scored against the hidden truth geometry (TRUE residual, 5000 random points, vector norm),
 beside
 
 * the raw (unsmoothed) identification, the plain baseline;
 * the **noise-propagation floor**: the noise no second-difference smoother removes
-  (:func:`errormap.uncertainty.nullspace_noise_cov`, λ → ∞ per element) propagated to the points;
+  (:func:`nullspace_noise_cov`, λ → ∞ per element) propagated to the points;
 * the same smoother with λ by **GCV** or **REML**, and with the **known** noise (``noise_um=2``);
 * the band's own predicted RMS ``sqrt(mean tr J Σ Jᵀ)``.
 
@@ -74,6 +74,94 @@ def _sd_rms(sd):
     return float(np.sqrt(np.mean(np.sum(sd**2, axis=1))))
 
 
+# -- the grinder's θ: its 18 functions' values at their stations (X and Z: all; A: all but the last, which equals the
+#    first), then its 5 constants; the per-element smoothing experiments here work on it ------------------------------
+
+def theta_layout(elements) -> list[tuple[str, int]]:
+    """``(element, station index)`` of every entry of θ (station −1 for a constant)."""
+    from errormap.elements import A_ELEMENTS, AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS
+    out = []
+    for k in FUNCTION_ELEMENTS:
+        m = elements.stations[AXIS_OF[k]].size - (1 if k in A_ELEMENTS else 0)
+        out += [(k, i) for i in range(m)]
+    return out + [(k, -1) for k in CONSTANT_ELEMENTS]
+
+
+def theta_blocks(elements) -> dict:
+    """Function element -> indices (m,) of its station values in θ (see :func:`theta_layout`)."""
+    from errormap.elements import FUNCTION_ELEMENTS
+    names = np.array([k for k, _ in theta_layout(elements)])
+    return {k: np.flatnonzero(names == k) for k in FUNCTION_ELEMENTS}
+
+
+def theta_from_elements(elements) -> np.ndarray:
+    """θ (P,) from an element set."""
+    from errormap.identification import parameter_vector
+    lay = theta_layout(elements)
+    return parameter_vector(elements, [k for k, _ in lay], [i for _, i in lay])
+
+
+def elements_from_theta(theta, template):
+    """The element set with θ's values on ``template``'s stations (A: last = first)."""
+    from errormap.chain_elements import ChainElementSet
+    from errormap.elements import A_ELEMENTS, AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS
+    theta = np.asarray(theta, dtype=float)
+    fun, i = {}, 0
+    for k in FUNCTION_ELEMENTS:
+        m = template.stations[AXIS_OF[k]].size
+        if k in A_ELEMENTS:
+            fun[k] = np.r_[theta[i:i + m - 1], theta[i]]
+            i += m - 1
+        else:
+            fun[k] = theta[i:i + m].copy()
+            i += m
+    const = {k: float(theta[i + j]) for j, k in enumerate(CONSTANT_ELEMENTS)}
+    return ChainElementSet(template.machine, template.stations, fun, const, template.machine_name,
+                           template.machine_sha256)
+
+
+def theta_covariance(elements, C) -> tuple:
+    """A θ covariance ``C`` (P, P) as the chain's ``(slot names, stations, Σ)`` (:func:`errormap.chain_covariance.band_sd`)."""
+    lay = theta_layout(elements)
+    return [k for k, _ in lay], np.array([i for _, i in lay]), C
+
+
+def raw_theta_cov(raw) -> np.ndarray:
+    """The θ covariance (P, P) of an identification result before smoothing (its ``cov`` over ``param_slot`` /
+    ``param_station``, taken at θ's entries)."""
+    where = {(s, int(i)): j for j, (s, i) in enumerate(zip(raw.param_slot, raw.param_station))}
+    idx = np.array([where[key] for key in theta_layout(raw.elements_)])
+    return raw.cov[np.ix_(idx, idx)]
+
+
+def nullspace_smoother(Sigma, periodic: bool) -> np.ndarray:
+    """The λ → ∞ limit of :func:`errormap.smoothing._smoother` with the same weights: the weighted
+    least-squares projection of the station values onto the second-difference penalty's null space
+    (a constant and a slope in the station index; a constant for a periodic element), shape (m, m)."""
+    m = Sigma.shape[0]
+    var = np.diag(Sigma).copy()
+    if var.max() <= 0:
+        return np.eye(m)
+    var = np.maximum(var, 1e-3 * var.max())
+    X = np.ones((m, 1)) if periodic else np.stack([np.ones(m), np.arange(m, dtype=float)], axis=1)
+    Xw = X / var[:, None]
+    return X @ np.linalg.solve(X.T @ Xw, Xw.T)
+
+
+def nullspace_noise_cov(raw_cov, elements) -> np.ndarray:
+    """Covariance (P, P) of the station values after the heaviest smoothing of this family
+    (:func:`nullspace_smoother` per element, constants as identified), from the raw identification's
+    covariance ``raw_cov`` (P, P): the tracker noise that no second-difference smoother removes — per element
+    the offset and slope the penalty does not touch. Propagated to points (``J C Jᵀ``) it is the noise part of
+    the prediction error at λ → ∞ (the noise-propagation floor of the smoothing choice, not a bound on every
+    estimator)."""
+    from errormap.elements import A_ELEMENTS
+    H = np.eye(raw_cov.shape[0])
+    for k, idx in theta_blocks(elements).items():
+        H[np.ix_(idx, idx)] = nullspace_smoother(raw_cov[np.ix_(idx, idx)], periodic=k in A_ELEMENTS)
+    return H @ raw_cov @ H.T
+
+
 def _sweeps(main, td, family, seed, noise_seed):
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(["sweeps", "--family", family, "--seed", str(seed), "--noise-um", "2", "--seed-noise",
@@ -107,26 +195,26 @@ def floor_case(args) -> dict:
     from errormap.elements import A_ELEMENTS
     from errormap.chain_field import ChainField
     from errormap.chain_covariance import band_sd
-    from errormap.uncertainty import (elements_from_theta, nullspace_noise_cov, smooth_identify, theta_blocks,
-                                      theta_covariance, theta_from_elements)
+    from errormap.estimators import Identification
     t0 = time.process_time()
     m, sw, P, et = loop_sweeps(family, seed)
-    sm = smooth_identify(sw, m)
-    el, S = sm.elements_, sm.raw_cov
+    sm = Identification(m).fit(sw)
+    raw = sm.raw_result_
+    el, S = sm.elements_, raw_theta_cov(raw)
     e = ChainField(m, el).predict(P) - et
     sd = band_sd(m, el, sm.covariance_, P)
     out = {"family": family, "seed": seed, "ubre_rms_um": _rms(e), "band_sd_um": _sd_rms(sd),
            "band95_cover": float(np.mean(np.abs(e) <= Z95 * sd)),
-           "floor_um": _sd_rms(band_sd(m, sm.raw.elements_, theta_covariance(
-               sm.raw.elements_, nullspace_noise_cov(S, sm.raw.elements_)), P)),
-           "raw_rms_um": _rms(ChainField(m, sm.raw.elements_).predict(P) - et)}
-    y = theta_from_elements(sm.raw.elements_)
+           "floor_um": _sd_rms(band_sd(m, raw.elements_, theta_covariance(
+               raw.elements_, nullspace_noise_cov(S, raw.elements_)), P)),
+           "raw_rms_um": _rms(ChainField(m, raw.elements_).predict(P) - et)}
+    y = theta_from_elements(raw.elements_)
     for crit in ("gcv", "reml"):
         H = np.eye(y.size)
         for k, idx in theta_blocks(el).items():
             H[np.ix_(idx, idx)] = _criterion_smoother(y[idx], S[np.ix_(idx, idx)], k in A_ELEMENTS, crit)
         out[f"{crit}_rms_um"] = _rms(ChainField(m, elements_from_theta(H @ y, el)).predict(P) - et)
-    known = smooth_identify(sw, m, noise_um=2.0)
+    known = Identification(m, noise_um=2.0).fit(sw)
     out["known_noise_rms_um"] = _rms(ChainField(m, known.elements_).predict(P) - et)
     out["cpu_s"] = time.process_time() - t0
     return out
@@ -139,13 +227,13 @@ def mc_case(args) -> dict:
     from errormap.machine import load_machine
     from errormap.chain_truth import make_chain_truth, random_axes
     from errormap.chain_covariance import band_sd
-    from errormap.uncertainty import smooth_identify
+    from errormap.estimators import Identification
     m = load_machine()
     truth = make_chain_truth(m, seed, family=family)
     P = random_axes(m, 3000, np.random.default_rng(123))
     with tempfile.TemporaryDirectory() as td:
         sw = _sweeps(main, Path(td), family, seed, 1000 + k)
-    sm = smooth_identify(sw, m, seed=k)
+    sm = Identification(m, seed=k).fit(sw)
     e = ChainField(m, sm.elements_).predict(P) - ChainField(m, truth.elements).predict(P)
     sd = band_sd(m, sm.elements_, sm.covariance_, P)
     return {"family": family, "seed": seed, "draw": k, "cover": float(np.mean(np.abs(e) <= Z95 * sd)),
@@ -157,15 +245,16 @@ def gauge_case(args) -> dict:
     family, seed = args
     from errormap.chain_field import ChainField
     from errormap.chain_covariance import band_sd
-    from errormap.uncertainty import nullspace_noise_cov, smooth_identify, theta_covariance
+    from errormap.estimators import Identification
     m, sw, P, et = loop_sweeps(family, seed)
     out = {"family": family, "seed": seed}
     for g in GAUGES:
-        sm = smooth_identify(sw, m, gauge=g)
+        sm = Identification(m, gauge=g).fit(sw)
         e = ChainField(m, sm.elements_).predict(P) - et
         sd = band_sd(m, sm.elements_, sm.covariance_, P)
-        raw_el = sm.raw.elements_
-        floor = band_sd(m, raw_el, theta_covariance(raw_el, nullspace_noise_cov(sm.raw_cov, raw_el)), P)
+        raw_el = sm.raw_result_.elements_
+        floor = band_sd(m, raw_el, theta_covariance(raw_el, nullspace_noise_cov(raw_theta_cov(sm.raw_result_), raw_el)),
+                        P)
         out[g] = {"rms_um": _rms(e), "floor_um": _sd_rms(floor), "band_sd_um": _sd_rms(sd),
                   "band95_cover": float(np.mean(np.abs(e) <= Z95 * sd))}
     return out

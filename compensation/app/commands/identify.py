@@ -9,11 +9,12 @@ from errormap.estimators import Identification
 from errormap.identification import GAUGES
 from errormap.machine import load_machine
 from errormap.sweeps import read_sweeps
+from errormap.uncertainty import uncertainty_lines
 
 from ..families import family_of, say_read_as
-from ..reports.identification import iso_summary_lines, plot_elements
+from ..reports.identification import iso_summary_lines, plot_chain_elements
 from ..validate import UsageError
-from ..workflows.identification import identify_elements
+from ..workflows.identification import identify_chain_files
 from ..workflows.measurement import truth_in_gauge
 
 
@@ -29,8 +30,8 @@ def register(sub):
     p.add_argument("--report", default=None,
                    help="identification report (JSON: conditioning, residuals per station); default OUT.report.json")
     p.add_argument("--plot", default=None, metavar="PREFIX",
-                   help="write one figure per axis: PREFIX_X.png, PREFIX_Z.png, PREFIX_A.png (a chain: PREFIX_<W>.png "
-                        "per swept axis)")
+                   help="write one figure per swept axis W: PREFIX_<W>.png (the grinder: PREFIX_X.png, PREFIX_Z.png, "
+                        "PREFIX_A.png)")
     p.add_argument("--truth", default=None, metavar="ELEMENTS", help="truth element set to overlay on the plots")
     p.add_argument("--gauge", choices=GAUGES, default=d["gauge"],
                    help=f"machine-frame gauge (default {d['gauge']}; station-mean: the frame at the root axis' mean "
@@ -76,29 +77,19 @@ def _model_file(machine, el_path, cov_path, args):
 
 def run(args) -> int:
     machine = load_machine(args.machine)   # the built-in grinder unless --machine
-    target = family_of(machine).target("identify")   # an arm or a parallel machine: calibrate (the registry's gap)
+    family_of(machine).target("identify")   # an arm or a parallel machine: calibrate (the registry's gap)
     if args.truth and not args.plot:   # never read and ignored
         raise UsageError("--truth is overlaid on the plots: give --plot PREFIX too")
     boot = _bootstrap(args)
     truth = ChainElementSet.load(args.truth, machine) if args.truth else None
-    if target == "chain":
-        from ..reports.identification import plot_chain_elements as plot
-        from ..workflows.measurement import identify_chain_files
-        print(f"identifying {machine.name} from {', '.join(args.sweeps)} ...", file=sys.stderr)
-        res, el_path, cov_path, report = identify_chain_files(machine, args.sweeps, args.out, report=args.report,
-                                                              noise_um=args.noise_um, gauge=args.gauge,
-                                                              smooth=not args.raw, **boot)
-        elements, lines = res.elements_, res.summary_lines()
-    else:
-        plot = plot_elements
-        sweeps = read_sweeps(args.sweeps, machine)
-        say_read_as(machine)   # a kind = "grinder" file read as its chain, said once the inputs are read
-        print(f"identifying from {', '.join(args.sweeps)} ...", file=sys.stderr)
-        ident = identify_elements(machine, args.sweeps, args.out, report=args.report, noise_um=args.noise_um,
-                                  smooth=not args.raw, gauge=args.gauge, sweeps=sweeps, **boot)
-        elements = ident.result.elements_
-        lines = ident.summary_lines() + iso_summary_lines(elements)
-        el_path, cov_path, report = ident.elements_path, ident.covariance_path, ident.report_path
+    sweeps = read_sweeps(args.sweeps, machine)
+    say_read_as(machine)   # a kind = "grinder" file read as its chain, said once the inputs are read
+    print(f"identifying {machine.name} from {', '.join(args.sweeps)} ...", file=sys.stderr)
+    res, el_path, cov_path, report = identify_chain_files(machine, args.sweeps, args.out, report=args.report,
+                                                          noise_um=args.noise_um, gauge=args.gauge,
+                                                          smooth=not args.raw, sweeps=sweeps, **boot)
+    elements = res.elements_
+    lines = res.summary_lines() + uncertainty_lines(res) + iso_summary_lines(elements)
     for line in lines:
         print(line)
     print(f"wrote elements: {el_path}")
@@ -108,6 +99,6 @@ def run(args) -> int:
     if args.plot:
         if truth is not None:  # in the identified gauge and squareness split, so like is compared with like
             truth = truth_in_gauge(machine, truth, args.gauge, elements.stations)
-        for p in plot(elements, args.plot, truth):
+        for p in plot_chain_elements(elements, args.plot, truth):
             print(f"wrote plot: {p}")
     return 0

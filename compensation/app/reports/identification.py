@@ -7,18 +7,13 @@ from pathlib import Path
 import numpy as np
 
 from errormap.chain_elements import ChainElementSet
-from errormap.elements import A_ELEMENTS, X_ELEMENTS, Z_ELEMENTS, element_unit
 from errormap.io import atomic_write
-from errormap.iso230 import label as iso_label
-
-AXIS_GROUPS = {"X": (X_ELEMENTS, "x_mm", "x (mm)"), "Z": (Z_ELEMENTS, "z_mm", "z (mm)"),
-               "A": (A_ELEMENTS, "a_deg", "a (deg)")}
 
 
 def axis_figure(path, title: str, xlabel: str, grid, curves) -> Path:
     """One figure of an axis' elements, written atomically to ``path`` (PNG): ``curves`` is a list of
     ``(title, values on grid (g,), (stations, station values), truth on grid (g,) or None)``, one panel each
-    (three columns), truth dashed. The grinder's and a chain's plots are both this figure."""
+    (three columns), truth dashed."""
     from matplotlib.figure import Figure  # Agg canvas, no pyplot state
     rows = int(np.ceil(len(curves) / 3))
     fig = Figure(figsize=(11, 3.25 * rows), layout="constrained")
@@ -45,38 +40,11 @@ def _unit_label(unit: str) -> str:
     return "μm" if unit == "um" else "μrad"
 
 
-def plot_elements(elements: ChainElementSet, prefix, truth: ChainElementSet | None = None) -> list[Path]:
-    """One figure per axis (six elements each, the constants in the title), truth dashed when given.
-
-    Written atomically as ``PREFIX_X.png``, ``PREFIX_Z.png``, ``PREFIX_A.png``; returns the paths.
-    The caller passes the truth in the identified gauge and squareness split
-    (:func:`compensation.app.workflows.measurement.truth_in_gauge`), so like is compared with like.
-    """
-    from errormap.elements import ELEMENT_NAMES
-    c = elements.constants
-    out = []
-    for ax, (names, key, label) in AXIS_GROUPS.items():
-        st = elements.stations[key]
-        grid = np.linspace(st[0], st[-1], 400)
-        pts = np.zeros((grid.size, 3))
-        pts[:, ["x_mm", "z_mm", "a_deg"].index(key)] = grid
-        v = elements.values(pts)
-        vt = truth.values(pts) if truth is not None else None
-        curves = [(f"{iso_label(n)} ({_unit_label(element_unit(n))})", v[:, ELEMENT_NAMES.index(n)],
-                   (st, elements.functions[n]), None if vt is None else vt[:, ELEMENT_NAMES.index(n)]) for n in names]
-        if ax == "A":
-            extra = (f"dy_oa {c['dy_oa']:.3f} μm, dz_oa {c['dz_oa']:.3f} μm, "
-                     f"ey_oa {c['ey_oa']:.3f} μrad, ez_oa {c['ez_oa']:.3f} μrad")
-        else:
-            extra = f"s_xz {c['s_xz']:.3f} μrad"
-        out.append(axis_figure(f"{prefix}_{ax}.png", f"identified {ax}-axis elements ({extra})", label, grid, curves))
-    return out
-
-
 def plot_chain_elements(elements, prefix, truth=None) -> list[Path]:
-    """A machine-tool chain's :func:`plot_elements`: one figure per swept axis ``w`` (``PREFIX_<W>.png``), a panel
-    per component error of that axis (ISO 230 name), the constants in the title; ``truth`` (a
-    :class:`errormap.chain_elements.ChainElementSet` in the identified gauge) dashed. Returns the paths."""
+    """One figure per swept axis ``w`` of a machine tool (``PREFIX_<W>.png``; the grinder: ``PREFIX_X.png``,
+    ``PREFIX_Z.png``, ``PREFIX_A.png``), a panel per component error of that axis (ISO 230 name), the constants in
+    the title; ``truth`` (a :class:`errormap.chain_elements.ChainElementSet` in the identified gauge and squareness
+    split, :func:`compensation.app.workflows.measurement.truth_in_gauge`) dashed. Returns the paths."""
     from errormap.chain_sweeps import swept_words
     m = elements.machine
     iso = dict(zip(m.slot_names, m.iso_names))
@@ -104,15 +72,18 @@ def plot_chain_elements(elements, prefix, truth=None) -> list[Path]:
 
 
 def iso_summary_lines(elements: ChainElementSet) -> list[str]:
-    """The 23 elements with their ISO 230-1 names (docs/how-to/export-to-controller.md) and their largest magnitude.
+    """Every slot of the element set's machine with its ISO 230-1 name (the machine file's ``iso`` of each slot) and
+    its largest magnitude over its stations (a constant: its value): the functions first, then the constants.
 
-    The ISO names hold in the project's frames: Z's lateral pairs and A's radial/tilt pairs
-    are turned (θ1, a) before they equal the ISO components (``errormap.iso230.axis_to_mcs``).
+    The ISO names hold in the chain's frames: an axis' components are turned by its body's nominal rotation
+    before they equal the ISO components in the MCS (``errormap.iso230.axis_to_mcs``,
+    docs/how-to/export-to-controller.md).
     """
-    from errormap.elements import CONSTANT_ELEMENTS, FUNCTION_ELEMENTS
+    m = elements.machine
+    iso = dict(zip(m.slot_names, m.iso_names))
     lines = ["element (ISO 230-1)    max |value|"]
-    for k in FUNCTION_ELEMENTS:
-        lines.append(f"  {iso_label(k):<20} {np.abs(elements.functions[k]).max():9.3f} {element_unit(k)}")
-    for k in CONSTANT_ELEMENTS:
-        lines.append(f"  {iso_label(k):<20} {elements.constants[k]:9.3f} {element_unit(k)} (constant)")
+    for s in (s for s in m.slots if s.is_function):
+        lines.append(f"  {f'{s.name} ({iso[s.name]})':<20} {np.abs(elements.functions[s.name]).max():9.3f} {s.unit}")
+    for s in (s for s in m.slots if not s.is_function):
+        lines.append(f"  {f'{s.name} ({iso[s.name]})':<20} {elements.constants[s.name]:9.3f} {s.unit} (constant)")
     return lines

@@ -145,25 +145,27 @@ def condition_sweeps(s: BenchmarkSettings, truth, c: GrinderCondition) -> dict:
 def identify_from_sweeps(machine, s: BenchmarkSettings, truth, c: GrinderCondition):
     """Simulated tracker sweeps of ``truth`` under condition ``c`` → the 23 identified elements.
     Returns ``(elements, identification seconds, number of ball-centre measurements)``."""
-    from errormap.uncertainty import smooth_identify
+    from errormap.identification import identify_chain
+    from errormap.sweeps import sweeps_from_columns
     sw = condition_sweeps(s, truth, c)
     t0 = time.perf_counter()
-    res = smooth_identify(sw, machine, smooth=False, gauge="first-station").raw
+    res = identify_chain(sweeps_from_columns(sw), machine, gauge="first-station")
     return res.elements_, time.perf_counter() - t0, len(sw["axis"])
 
 
 def identify_with_covariance(machine, s: BenchmarkSettings, truth, c: GrinderCondition):
     """The same sweeps identified as ``volcomp identify`` does with its defaults
-    (:func:`compensation.app.workflows.identification.identify_elements` → :func:`errormap.uncertainty.smooth_identify`:
+    (:func:`compensation.app.workflows.identification.identify_chain_files` → :class:`errormap.estimators.Identification`:
     penalised smoothing, station-mean gauge, tracker noise estimated from the ball residuals, the covariance
     Gauss-Newton's or ``s.identify_bootstrap`` residual-bootstrap draws of seed 0). Returns
     ``(identification, seconds)``: its ``elements_`` and covariance, what ``volcomp diagnose`` finds beside
     the element-set file."""
-    from errormap.uncertainty import smooth_identify
+    from errormap.estimators import Identification
+    from errormap.sweeps import sweeps_from_columns
     sw = condition_sweeps(s, truth, c)
     t0 = time.perf_counter()
-    sm = smooth_identify(sw, machine, n_boot=s.identify_bootstrap, seed=0)
-    return sm.result, time.perf_counter() - t0
+    res = Identification(machine, n_boot=s.identify_bootstrap, seed=0).fit(sweeps_from_columns(sw)).result_
+    return res, time.perf_counter() - t0
 
 
 def compensate_true(machine, s: BenchmarkSettings, points: GrinderTestPoints, truth, field_, method: str,

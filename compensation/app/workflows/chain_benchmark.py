@@ -209,7 +209,8 @@ def run_chain(machine, s, log, out_dir) -> list:
     from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
     from errormap.chain_truth import ChainTruth
-    from .measurement import identify_chain_files, simulate_chain, sweeps_chain
+    from .identification import identify_chain_files
+    from .measurement import simulate_chain, sweeps_chain
     streams, skipped = rng_streams(s.seed), []
     try:
         path = judging_path(machine, s.chain_path_points)

@@ -106,10 +106,7 @@ def validate_inputs(machines) -> None:
     for m in machines:
         machine = load_machine(m["machine"])
         family_of(machine).target("fleet")   # every machine tool; an arm or a parallel machine refused
-        if family_of(machine).target("identify") == "chain" and len(m["sweeps"]) != 1:
-            raise InputError(f"{m['fleet_file']}: key '{m['key']}.sweeps': a machine-tool chain ({machine.name!r}) is "
-                             f"identified from one sweep file (one tracker set-up), got {len(m['sweeps'])}")
-        read_sweeps(m["sweeps"], machine)   # the sweep reader of every machine (the grinder's chain among them)
+        read_sweeps(m["sweeps"], machine)   # one tracker set-up: one file, or several naming the same set-up
         load_chain_checks(m["checks"], machine)   # the reader the loop itself uses (diagnose_chain)
 
 
@@ -175,21 +172,15 @@ def run_machine(m: dict, out_dir: str, settings: dict) -> dict:
 
 
 def _identify(machine, m: dict, folder: Path, s: dict) -> tuple:
-    """``(elements file, tracker σ μm)`` of ``m``'s sweeps, identified as ``volcomp identify`` identifies the machine
-    (:meth:`compensation.app.families.Family.target`): the grinder's element set from its sweep files, a chain's from
-    its one sweep file; each with its covariance and ``identify_report.json``."""
-    from ..families import family_of
+    """``(elements file, tracker σ μm)`` of ``m``'s sweeps, identified as ``volcomp identify`` identifies every machine
+    tool (:func:`.identification.identify_chain_files`), with its covariance and ``identify_report.json``."""
+    from errormap.uncertainty import noise_um
+    from .identification import identify_chain_files
     sweeps = [str(p) for p in m["sweeps"]]
     el_path, report = folder / "elements.json", folder / "identify_report.json"
-    if family_of(machine).target("identify") == "chain":
-        from .measurement import identify_chain_files
-        res = identify_chain_files(machine, sweeps, el_path, report=report, noise_um=m["noise_um"],
-                                   n_boot=s["bootstrap"], seed=s["seed"])[0]
-        return el_path, float(res.sigma_um if m["noise_um"] is None else m["noise_um"])
-    from .identification import identify_elements
-    ident = identify_elements(machine, sweeps, el_path, report=report, noise_um=m["noise_um"], n_boot=s["bootstrap"],
-                              seed=s["seed"])
-    return ident.elements_path, float(ident.smooth.noise_um)
+    res = identify_chain_files(machine, sweeps, el_path, report=report, noise_um=m["noise_um"],
+                               n_boot=s["bootstrap"], seed=s["seed"])[0]
+    return el_path, noise_um(res)
 
 
 def _train(machine, el_path: Path, folder: Path, s: dict, name: str) -> tuple:

@@ -1,6 +1,7 @@
 """The measurement side of every machine tool (a chain file, the built-in grinder, a ``kind = "grinder"`` file read
-as its chain): ``simulate``, ``sweeps``, ``identify`` and ``diagnose`` (``errormap/chain_truth.py``,
-``chain_sweeps.py``, ``identification.py``, ``diagnosis/chain_loop.py``)."""
+as its chain): ``simulate``, ``sweeps`` and ``diagnose``, and the truth overlay of ``identify`` (:func:`truth_in_gauge`;
+the identification itself: :mod:`.identification`). ``errormap/chain_truth.py``, ``chain_sweeps.py`` and
+``diagnosis/chain_loop.py`` underneath."""
 from __future__ import annotations
 
 import json
@@ -130,32 +131,6 @@ def sweeps_chain(machine, out, seed=None, truth_file=None, effects=(), family="d
         "tracker pose: seeded, unknown to the identification",
         "each axis swept with the others parked at the lower ends of their strokes"])
     return path, len(cols["axis"]), what
-
-
-def identify_chain_files(machine, sweep_files, out, report=None, noise_um=None, n_boot: int | None = None,
-                         seed: int = 0, gauge: str = "station-mean", smooth: bool = True) -> tuple:
-    """Identify from the sweep file(s) of one tracker set-up in ``gauge``; write the element set (smoothed by
-    :func:`errormap.identification.smooth_chain` unless ``smooth=False``), ``OUT.cov.npz`` (Gauss–Newton's
-    σ̂²·(JᵀJ)⁻¹, σ̂ the known tracker σ ``noise_um`` when given, or with ``n_boot`` the residual bootstrap's,
-    :func:`errormap.identification.bootstrap_covariance`; through the smoother when smoothed) and the report."""
-    from errormap.identification import ChainIdentification, bootstrap_covariance, smooth_chain
-    from errormap.sweeps import read_sweeps
-    sweeps = read_sweeps(sweep_files, machine)
-    res = ChainIdentification(noise_um=noise_um, gauge=gauge).fit(sweeps, machine).result_
-    if n_boot is not None:
-        res = bootstrap_covariance(sweeps, machine, res, n_boot, seed, gauge=gauge)
-    if smooth:
-        res = smooth_chain(res, machine)
-    from errormap.chain_covariance import save_chain_covariance
-    cov_path = save_chain_covariance(res, companion_path(out, ".cov.npz"))
-    report = Path(report) if report else companion_path(out, ".report.json")
-    info = res.to_dict()
-    info.update({"sweeps": [str(s) for s in sweep_files], "machine": machine.name, "machine_file": machine.path,
-                 "machine_sha256": machine.sha256, "elements_file": str(out), "covariance_file": str(cov_path),
-                 "iso230_names": dict(zip(machine.slot_names, machine.iso_names))})
-    write_json(report, info)
-    el_path = res.elements_.save(out)
-    return res, el_path, cov_path, report
 
 
 def truth_in_gauge(machine, truth, gauge: str = "station-mean", stations: dict | None = None):
