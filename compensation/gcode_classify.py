@@ -538,12 +538,14 @@ def _arc_geometry(st, move, arc_words, scale, ax: AxisWords, first) -> dict:
                                              first, pair=f"{u_c}/{v_c}", both=f"{u_c} and {v_c}", **tols)}
 
 
-ARC_RADIUS_RULES = {"fanuc": "; Fanuc: parameter 3410 sets the tolerance, a spiral within it, alarm PS0020 beyond; the "
-                             "value is the machine's"}
+ARC_RADIUS_RULES = {"fanuc": "; Fanuc: parameter 3410 sets the tolerance; manuals differ on the path within it"}
 """What decides, on a dialect's controller, whether an arc whose radii differ more than the reader allows runs (named in
-the refusal). Fanuc (Series 0i/16i "tolerance of arc radius", parameter 3410; 15i: 2410): within it the CNC cuts the
-spiral whose radius changes linearly with the centre angle, as the reader reads it; beyond it, an alarm. The value
-is set per machine and is not in the program, so the reader keeps its own bound."""
+the refusal). Fanuc: parameter 3410 (16/18 series; 15i: 2410) is the machine's limit, P/S alarm 020 beyond it. The
+path within it is not one rule: the 16/18/160/180-C lathe operator's manual says the tool "moves in a straight line
+along one of the axes after reaching the end point" (which axis is not given), the 15i/150i-MA manual (B-63324EN)
+that the radius changes linearly with the centre angle (a spiral, with parameter 2410). So the reader keeps its own
+bound (:data:`compensation.gcode_words.ARC_RADIUS_TOL_MM`, a rounding of the program's words) and refuses more
+rather than take the machine's tolerance: beyond a rounding, which path the controller cuts is not known."""
 
 
 def plane_arc(u0, v0, u1, v1, mode, arc_words, centre_words, arc_abs, scale, first, pair, both,

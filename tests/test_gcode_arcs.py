@@ -4,17 +4,26 @@ The error field is the simulated truth itself (the chain field of ``make_chain_t
 machine driven with the written commands reaches ``forward(q) + E(q)``: the TRUE residual.
 It is sampled densely along every written chord (what the controller interpolates: linear
 in the axes between consecutive vertices), not only at the vertices, and measured as the
-distance to the nominal arc in the WCS.
+distance to the nominal arc in the WCS. Last, a Fanuc program's arcs whose start and end radii differ: read
+within a rounding, refused beyond it with the controller's rule named.
 """
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 
+from benchmarks.suite.gcode_corpus import STYLE_TABLES, independent_check, style_tables
+from compensation.app.cli import main
 from compensation.nc_state import MACHINE, read_work_offsets
 from compensation.pathio import read_path, replan
 from compensation.solvers import solve
+from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import forward
 from errormap.chain_truth import make_chain_truth
+from errormap.machine import load_machine
+from program_checks import TOL_POINT_UM
 
 MCS = read_work_offsets(MACHINE)
 """The G-code programs here are written in machine coordinates (the grinder's axes): read with
@@ -66,3 +75,58 @@ def test_compensated_arc_within_chord_tolerance_along_the_chords(tmp_path, grind
     miss = _distance_to_arc_um(grinder, forward(grinder, raw) + 1e-3 * truth.predict(raw),
                                (x0, z0 + radius_mm), radius_mm, a)
     assert miss.max() > 10 * ARC_TOL_UM
+
+
+FANUC_ARCS = """%
+O1001 (ARCS WITHIN THE ROUNDING OF THEIR WORDS)
+G21 G17 G40 G49 G80 G90
+T1 M6
+G54 G0 X0. Y0. S3000 M3
+G43 Z5. H1
+G1 Z-1. F300.
+G2 X30. Y10. I15. J5. F600.
+G3 X25. Y18.66 I-10. J0.
+G2 X{x} Y10. I5. J-8.66
+G0 Z5.
+M5
+M30
+%
+"""
+"""A Fanuc program written from the operator's manual's circular interpolation (G17; I J the vector from the start
+point to the centre; G2 clockwise, G3 counter-clockwise): the first arc exact, the second's end Y rounded to 0.01 mm
+(its radii differ by 0.22 μm), the third's end X as ``{x}``: ``40.`` (centre (30, 10), radii 9.99978 and 10 mm:
+0.22 μm) or ``40.004`` (4.22 μm: more than a rounding)."""
+
+
+def test_fanuc_arcs_read_within_rounding_and_refused_beyond_with_the_rule_named(tmp_path, capsys, monkeypatch):
+    """Fanuc's parameter 3410 is the machine's tolerance, but its manuals differ on the path within it (16/18-C:
+    "moves in a straight line along one of the axes after reaching the end point"; 15i: a spiral, parameter 2410):
+    arcs within the reader's rounding bound are compensated and pass the independent check (non-motion lines
+    byte-identical, every programmed point reached by the TRUE machine within 1 μm); an arc beyond it is refused by
+    line and word, naming parameter 3410 and that the manuals differ, in one line under 300 characters."""
+    truth = ChainElementSet.random(load_machine("mill-xyz"), 101, 10.0, 11).save(tmp_path / "truth.json")
+    tables = ["--work-offsets", str(STYLE_TABLES / "offsets.csv"), "--tool-table", str(STYLE_TABLES / "tools.csv")]
+
+    monkeypatch.chdir(tmp_path)  # the refusal names the program as given: a short relative path
+
+    def compensate(x, name):
+        (tmp_path / name).write_text(FANUC_ARCS.format(x=x))
+        prog = Path(name)
+        rc = main(["compensate", name, "--machine", "mill-xyz", "--model", str(truth), "--truth", str(truth),
+                   "--method", "exact", "--out", prog.stem, "--dialect", "fanuc", *tables])
+        return prog, rc
+
+    prog, rc = compensate("40.", "o1001.nc")
+    assert rc == 0
+    e = json.loads((tmp_path / "o1001" / "compensate_summary.json").read_text())["files"][0]
+    assert e["dialect"] == "fanuc" and e["true"]["max_um"] < TOL_POINT_UM
+    assert e["true_uncompensated"]["max_um"] > 10 * TOL_POINT_UM  # the check below has teeth
+    verdict = independent_check(prog, tmp_path / "o1001" / prog.name, "fanuc", truth, *style_tables())
+    assert verdict.startswith("ok: "), verdict
+    capsys.readouterr()
+    prog, rc = compensate("40.004", "o1002.nc")
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert rc == 2 and not (tmp_path / "o1002" / prog.name).exists()
+    assert "error: o1002.nc: line 10, column 4: 'X40.004': arc start and end radii differ by 4.220 μm" in err, err
+    assert "(more than 2 μm; Fanuc: parameter 3410 sets the tolerance; manuals differ on the path within it)" in err
+    assert len(err.split("error: ", 1)[1]) < 300 and " ... " not in err, err
