@@ -301,6 +301,8 @@ class _Parser:
 
 
 MACRO_WORDS = ("WHILE", "GOTO", "END", "THEN", "IF", "DO")
+# Two-letter forms (WH, GO, TH, SI, RO ...) stay refused: no FANUC operator's manual text at hand lists which words
+# a control reads abbreviated (second-hand notes name functions only, all but POW; none names the macro words).
 
 
 def _not_a_function(s: str, i: int, name: str) -> tuple:
