@@ -18,6 +18,10 @@ from .nc_cycles import cycle_pass
 
 MAX_SEGMENTS_PER_MOVE = 100_000
 """A move split or linearised into more pieces than this is refused (a tolerance far too tight)."""
+MAX_PATH_POINTS = 10_000_000
+"""Vertices of one file at most, checked before any is placed: ``compensate`` holds about 1.2 kB per vertex
+from reading to writing (1.18 GB peak for 1,000,000 vertices measured, docs/decisions/020-benchmark-notebook.md
+"G-code end to end"), so this bounds a file at about 12 GB."""
 
 
 def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None,
@@ -128,7 +132,8 @@ def refined_pieces(n, E, f, tol_um: float, field_at) -> np.ndarray:
     every move, which decide moves of one or two pieces without evaluating again; ``field_at(rows (r,), owner
     (N,), u (N,)) -> (N, 3)``: the field at parameters ``u`` of the moves ``rows[owner]``. A move over tolerance
     gets ``max(n + 1, ⌈n·√(d/tol)⌉)`` pieces (``d`` its largest deviation; the deviation falls as ``1/n²``) and
-    is checked again; one past :data:`MAX_SEGMENTS_PER_MOVE` is left there (the caller refuses it)."""
+    is checked again; past :data:`MAX_SEGMENTS_PER_MOVE` a move, or :data:`MAX_PATH_POINTS` all, the counts are
+    left there (the caller refuses them)."""
     n = np.array(n, dtype=int)
     todo = n > 2
     for c in (1, 2):
@@ -143,9 +148,9 @@ def refined_pieces(n, E, f, tol_um: float, field_at) -> np.ndarray:
         else:
             todo[sel] = True
     while todo.any():
-        rows = np.flatnonzero(todo & (n <= MAX_SEGMENTS_PER_MOVE))
-        if not rows.size:
-            break
+        rows = np.flatnonzero(todo)
+        if n.max() > MAX_SEGMENTS_PER_MOVE or n.sum() > MAX_PATH_POINTS:
+            break  # refused by the caller
         per = 2 * n[rows] + 1
         owner = np.repeat(np.arange(rows.size), per)
         local = np.arange(owner.size) - np.repeat(np.cumsum(per) - per, per)
@@ -204,10 +209,24 @@ def _by_length(max_segment_mm, nominal) -> bool:
     return by_length
 
 
-def _too_many(program, line0: int, count: int, arc_tolerance_um: float) -> InputError:
-    return InputError(f"{program.path}: line {line0 + 1}: the move needs {count} pieces for "
-                      f"{arc_tolerance_um:g} μm (more than {MAX_SEGMENTS_PER_MOVE}); "
-                      "raise --arc-tolerance-um")
+def _check_counts(program, counts, lines0, arc_tolerance_um: float, max_segment_mm) -> None:
+    """Refuse, before any vertex is placed, a move of more than :data:`MAX_SEGMENTS_PER_MOVE` pieces or a file of
+    more than :data:`MAX_PATH_POINTS` vertices, naming the option that sets them: ``counts`` (c,) pieces of the
+    compensated moves, ``lines0`` (c,) their 0-based lines."""
+    counts = np.asarray(counts, dtype=np.int64)
+    if not counts.size:
+        return
+    by_length = max_segment_mm is not None and not isinstance(max_segment_mm, str)
+    why = (f"no piece longer than {max_segment_mm:g} mm", "give a larger --max-segment-mm") if by_length else \
+        (f"{arc_tolerance_um:g} μm", "raise --arc-tolerance-um")
+    k = int(np.argmax(counts))
+    if counts[k] > MAX_SEGMENTS_PER_MOVE:
+        raise InputError(f"{program.path}: line {int(lines0[k]) + 1}: the move needs {int(counts[k]):,} pieces for "
+                         f"{why[0]} (more than {MAX_SEGMENTS_PER_MOVE:,}); {why[1]}")
+    total = int(counts.sum())
+    if total > MAX_PATH_POINTS:
+        raise InputError(f"{program.path}: the program needs {total:,} vertices for {why[0]}, more than the limit of "
+                         f"{MAX_PATH_POINTS:,} points per file; {why[1]} or split the program")
 
 
 @dataclass
@@ -287,9 +306,7 @@ def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, fr
         n_fld = np.array([pos.get(id(m), 1) for m in comp], dtype=int)
     counts = np.maximum(n_arc, n_fld)
     counts[[i for i, m in enumerate(comp) if m.synced]] = 1  # a spindle-synchronised line stays one line
-    big = np.flatnonzero(counts > MAX_SEGMENTS_PER_MOVE)
-    if big.size:
-        raise _too_many(program, comp[big[0]].index, counts[big[0]], arc_tolerance_um)
+    _check_counts(program, counts, [m.index for m in comp], arc_tolerance_um, max_segment_mm)
     verts = []
     for m, c in zip(comp, counts):
         if not np.all(np.isfinite(m.start)):
@@ -339,9 +356,7 @@ def plan_table(program: GProgram, arc_tolerance_um: float, field_=None, frames=N
             n = np.maximum(counts[idx], curvature_pieces(E, len(idx), pick, arc_tolerance_um))
             field_at = partial(_table_field, field_, start[idx], end[idx], arcs, shift)
             counts[idx] = refined_pieces(n, E.reshape(len(idx), len(f), 3), f, arc_tolerance_um, field_at)
-    big = np.flatnonzero(counts > MAX_SEGMENTS_PER_MOVE)
-    if big.size:
-        raise _too_many(program, t.line[rows[big[0]]], counts[big[0]], arc_tolerance_um)
+    _check_counts(program, np.where(known, counts, 1), t.line[rows], arc_tolerance_um, max_segment_mm)
     counts[~known] = 1  # a move whose start is unknown: its end alone
     objs = np.flatnonzero(t.obj[rows] >= 0)
     counts[[i for i in objs if t.objects[t.obj[rows[i]]].synced]] = 1  # spindle-synchronised: one line
