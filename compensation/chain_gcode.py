@@ -81,7 +81,8 @@ def field_pieces(moves, field, tol_um: float, shift=None, place=None, at_least=N
     ``c/(8 n²)``), then checked piece by piece and raised where it falls short (:func:`refined_pieces`).
     ``shift`` (m, k): machine minus program axes per move (work offset, tool length; None: zero); ``place``:
     ``(0-based lines (n,), program axes (n, k)) -> machine axes (n, k)`` instead of the shift (a program in TCP
-    mode); ``at_least`` (m,): counts the pieces may not go below (an arc's chords). Shape (m,) int ≥ 1."""
+    mode); ``at_least`` (m,): counts the pieces may not go below (an arc's chords). An arc's (or spline's) chords
+    are checked with their own deviation from the curve added. Shape (m,) int ≥ 1."""
     if not moves:
         return np.zeros(0, dtype=int)
     f, pick = curvature_parameters()
@@ -90,13 +91,14 @@ def field_pieces(moves, field, tol_um: float, shift=None, place=None, at_least=N
     if at_least is not None:
         n = np.maximum(n, at_least)
 
-    def field_at(rows, owner, u):  # the field at parameters u of the moves rows[owner]
+    def field_at(rows, owner, u):  # the field and the program axes at parameters u of the moves rows[owner]
         pick_moves = [moves[r] for r in rows]
         q = np.concatenate([move_points(m, u[owner == i]) for i, m in enumerate(pick_moves)])
         if place is not None:
-            return field.predict(place(np.repeat([m.index for m in pick_moves], np.bincount(owner)), q))
-        return field.predict(q if shift is None else q + np.asarray(shift, dtype=float)[rows][owner])
-    return refined_pieces(n, E.reshape(len(moves), len(f), 3), f, tol_um, field_at)
+            return field.predict(place(np.repeat([m.index for m in pick_moves], np.bincount(owner)), q)), q
+        return field.predict(q if shift is None else q + np.asarray(shift, dtype=float)[rows][owner]), q
+    curved = np.array([m.arc is not None for m in moves], dtype=bool)
+    return refined_pieces(n, E.reshape(len(moves), len(f), 3), f, tol_um, field_at, curved)
 
 
 def _move_samples(moves, f, shift, place) -> np.ndarray:
@@ -125,21 +127,24 @@ def curvature_pieces(E, m: int, pick, tol_um: float) -> np.ndarray:
     return np.maximum(1, np.ceil(np.sqrt(c / (8.0 * tol_um)))).astype(int)
 
 
-def refined_pieces(n, E, f, tol_um: float, field_at) -> np.ndarray:
+def refined_pieces(n, E, f, tol_um: float, field_at, curved=None) -> np.ndarray:
     """Equal pieces per move (m,), raised from the estimate ``n`` until every piece passes the check: the field
     at the piece's midpoint differs from the mean of the field at its ends by at most ``tol_um`` (the straight
-    interpolation's deviation there; Euclidean, μm). ``E`` (m, u, 3): the field at the parameters ``f`` (u,) of
-    every move, which decide moves of one or two pieces without evaluating again; ``field_at(rows (r,), owner
-    (N,), u (N,)) -> (N, 3)``: the field at parameters ``u`` of the moves ``rows[owner]``. A move over tolerance
+    interpolation's deviation there; Euclidean, μm), plus, on a ``curved`` (m,) bool move (an arc, a spline), the
+    chord's own distance from the curve there (μm, axis space: the two add at worst). ``E`` (m, u, 3): the field at
+    the parameters ``f`` (u,) of every move, which decide straight moves of one or two pieces without evaluating
+    again; ``field_at(rows (r,), owner (N,), u (N,)) -> ((N, 3) μm, (N, k) mm)``: the field and the program axes at
+    parameters ``u`` of the moves ``rows[owner]``. A move over tolerance
     gets ``max(n + 1, ⌈n·√(d/tol)⌉)`` pieces (``d`` its largest deviation; the deviation falls as ``1/n²``) and
     is checked again; past :data:`MAX_SEGMENTS_PER_MOVE` a move, or :data:`MAX_PATH_POINTS` all, the counts are
     left there (the caller refuses them)."""
     n = np.array(n, dtype=int)
-    todo = n > 2
+    curved = np.zeros(len(n), bool) if curved is None else np.asarray(curved, dtype=bool)
+    todo = (n > 2) | curved
     for c in (1, 2):
         want = np.arange(2 * c + 1) / (2 * c)
         at = np.minimum(np.searchsorted(f, want), len(f) - 1)
-        sel = np.flatnonzero(n == c)
+        sel = np.flatnonzero((n == c) & ~curved)
         if sel.size and np.array_equal(f[at], want):
             e = E[sel][:, at]
             d = np.linalg.norm(e[:, 1::2] - 0.5 * (e[:, 0:-1:2] + e[:, 2::2]), axis=2).max(axis=1)
@@ -154,9 +159,10 @@ def refined_pieces(n, E, f, tol_um: float, field_at) -> np.ndarray:
         per = 2 * n[rows] + 1
         owner = np.repeat(np.arange(rows.size), per)
         local = np.arange(owner.size) - np.repeat(np.cumsum(per) - per, per)
-        e = np.asarray(field_at(rows, owner, local / (2.0 * n[rows][owner])))
+        e, q = field_at(rows, owner, local / (2.0 * n[rows][owner]))
         mid = np.flatnonzero(local % 2 == 1)
-        dev = np.linalg.norm(e[mid] - 0.5 * (e[mid - 1] + e[mid + 1]), axis=1)
+        dev = np.linalg.norm(np.asarray(e)[mid] - 0.5 * (np.asarray(e)[mid - 1] + np.asarray(e)[mid + 1]), axis=1)
+        dev += 1e3 * np.linalg.norm(q[mid] - 0.5 * (q[mid - 1] + q[mid + 1]), axis=1) * curved[rows][owner[mid]]
         d = np.zeros(rows.size)
         np.maximum.at(d, owner[mid], dev)
         n[rows] = _grown(n[rows], d, tol_um)
@@ -355,7 +361,8 @@ def plan_table(program: GProgram, arc_tolerance_um: float, field_=None, frames=N
             E = _field_chained(field_, q.reshape(len(idx), len(f), -1))
             n = np.maximum(counts[idx], curvature_pieces(E, len(idx), pick, arc_tolerance_um))
             field_at = partial(_table_field, field_, start[idx], end[idx], arcs, shift)
-            counts[idx] = refined_pieces(n, E.reshape(len(idx), len(f), 3), f, arc_tolerance_um, field_at)
+            curved = np.isin(np.arange(len(idx)), list(arcs))
+            counts[idx] = refined_pieces(n, E.reshape(len(idx), len(f), 3), f, arc_tolerance_um, field_at, curved)
     _check_counts(program, np.where(known, counts, 1), t.line[rows], arc_tolerance_um, max_segment_mm)
     counts[~known] = 1  # a move whose start is unknown: its end alone
     objs = np.flatnonzero(t.obj[rows] >= 0)
@@ -386,15 +393,15 @@ def _field_chained(field_, q) -> np.ndarray:
 
 
 def _table_field(field_, start, end, arcs, shift, rows, owner, u) -> np.ndarray:
-    """The field (N, 3) at parameters ``u`` (N,) of the moves ``rows[owner]`` of ``start``/``end`` (m, k) (linear;
-    ``arcs`` {row: GMove} along their arc), shifted by ``shift`` (m, k) (None: zero): :func:`refined_pieces`'s
-    ``field_at`` for a program read in bulk."""
+    """The field (N, 3) and the program axes (N, k) at parameters ``u`` (N,) of the moves ``rows[owner]`` of
+    ``start``/``end`` (m, k) (linear; ``arcs`` {row: GMove} along their arc), the field shifted by ``shift`` (m, k)
+    (None: zero): :func:`refined_pieces`'s ``field_at`` for a program read in bulk."""
     r = rows[owner]
     q = start[r] + u[:, None] * (end[r] - start[r])
     for j in set(rows.tolist()) & set(arcs):
         at = r == j
         q[at] = move_points(arcs[j], u[at])
-    return np.asarray(field_.predict(q if shift is None else q + shift[r]))
+    return np.asarray(field_.predict(q if shift is None else q + shift[r])), q
 
 
 def _table_points(start, end, f, arcs) -> np.ndarray:

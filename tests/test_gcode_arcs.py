@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from compensation.nc_state import MACHINE, read_work_offsets
-from compensation.pathio import read_path, replan
 from compensation.solvers import solve
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import forward
 from errormap.chain_truth import make_chain_truth
+from path_files import read_as_compensate
 
 MCS = read_work_offsets(MACHINE)
 """The G-code programs here are written in machine coordinates (the grinder's axes): read with
@@ -46,10 +46,9 @@ def test_compensated_arc_within_chord_tolerance_along_the_chords(tmp_path, grind
     src = tmp_path / "arc.nc"
     # a half circle (G3, counter-clockwise), centre (x0, z0 + r), from (x0, z0) to (x0, z0 + 2r)
     src.write_text(f"G21 G90 G18\nG1 X{x0} Z{z0} A{a} F100\nG3 X{x0} Z{z0 + 2 * radius_mm} K{radius_mm}\nM30\n")
-    tp = read_path(src, grinder, arc_tolerance_um=ARC_TOL_UM, work_offsets=MCS)
-    if segments == "auto":
-        tp = replan(tp, grinder, max_segment_mm="auto", field=truth)
-    res = solve("exact", truth, tp.targets_mm, grinder, target_axes=tp.axes)
+    tp = read_as_compensate(src, grinder, truth if segments == "auto" else None, arc_tolerance_um=ARC_TOL_UM,
+                            work_offsets=MCS, max_segment_mm="auto" if segments == "auto" else None)
+    res = solve("exact", truth, forward(grinder, tp.axes), grinder, target_axes=tp.axes)
     q = np.round(res.axes, 6)  # what the file holds
     s = np.linspace(0.0, 1.0, SAMPLES_PER_CHORD)
     dense = (q[:-1, None, :] + s[None, :, None] * (q[1:] - q[:-1])[:, None, :]).reshape(-1, 3)
