@@ -304,7 +304,7 @@ def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, fr
         shift = frames.shift([m.index for m in with_start], program.axis_words.words) if frames is not None else None
         place = partial(frames.place, words=program.axis_words.words) if rotated else None
         if program.tcp is not None and frames is not None and machine is not None:
-            place = partial(program.tcp.place, machine, program, frames)
+            place = partial(program.tcp.place, machine, program, frames, count=False)
         pieces = (length_pieces(with_start, nominal, max_segment_mm, shift, place) if by_length
                   else field_pieces(with_start, field_, arc_tolerance_um, shift, place,
                                     at_least=[n_arc[i] for i, m in enumerate(comp) if np.all(np.isfinite(m.start))]))
