@@ -10,8 +10,9 @@ addresses. Two truth shapes: the element profiles alone, and with the three effe
 
 Paths: the paper's variable-helix flute (7 turns) written as G-code at 400, 40 and 10 points per turn;
 single 20 mm G1 moves across the X stroke (X = x0 → x0 + 20, x0 = 0, 20, …, 180) at Z = 5 mm, A = 0°, 90°.
-Per path: compensated with ``--max-segment-mm`` ``none`` (the program's points only: the plain approach,
-the anchor), ``auto`` (chord tolerance 0.5 μm) and a fixed 1 mm.
+Per path: read and planned as ``volcomp compensate`` reads it (``read_tool_path``: the chain planner,
+:func:`compensation.chain_gcode.plan_chain_gcode`), compensated with ``--max-segment-mm`` ``none`` (the program's
+points only: the plain approach, the anchor), ``auto`` (tolerance 0.5 μm, the default) and a fixed 1 mm.
 
     python -m benchmarks.run toolpath
 """
