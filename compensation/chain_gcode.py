@@ -18,6 +18,10 @@ from .nc_cycles import cycle_pass
 
 MAX_SEGMENTS_PER_MOVE = 100_000
 """A move split or linearised into more pieces than this is refused (a tolerance far too tight)."""
+MAX_PATH_POINTS = 10_000_000
+"""Vertices of one file at most, checked before any is placed: ``compensate`` holds about 1.2 kB per vertex
+from reading to writing (1.18 GB peak for 1,000,000 vertices measured, docs/decisions/020-benchmark-notebook.md
+"G-code end to end"), so this bounds a file at about 12 GB."""
 
 
 def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None,
@@ -70,18 +74,31 @@ CURVATURE_STEP = 0.25
 """Second difference step, as a share of the move."""
 
 
-def field_pieces(moves, field, tol_um: float, shift=None, place=None) -> np.ndarray:
+def field_pieces(moves, field, tol_um: float, shift=None, place=None, at_least=None) -> np.ndarray:
     """Pieces per move so that the straight interpolation between compensated vertices stays within
-    ``tol_um`` of the field along it: a piece of a move whose field has second derivative ``c``
-    (μm per unit of the move's parameter squared) deviates by ``c/(8 n²)``, so ``n = ⌈√(c/(8 tol))⌉``;
-    ``c`` is the largest second difference of the field along the move at
-    :data:`CURVATURE_FRACTIONS` (step :data:`CURVATURE_STEP` of the move); ``shift`` (m, k): machine minus
-    program axes per move (work offset, tool length; None: zero); ``place``: ``(0-based lines (n,), program
-    axes (n, k)) -> machine axes (n, k)`` instead of the shift (a program in TCP mode). Shape (m,) int ≥ 1."""
+    ``tol_um`` of the field along it: an estimate from the field's second differences
+    (:func:`curvature_pieces`: a piece of a move whose field has second derivative ``c`` deviates by
+    ``c/(8 n²)``), then checked piece by piece and raised where it falls short (:func:`refined_pieces`).
+    ``shift`` (m, k): machine minus program axes per move (work offset, tool length; None: zero); ``place``:
+    ``(0-based lines (n,), program axes (n, k)) -> machine axes (n, k)`` instead of the shift (a program in TCP
+    mode); ``at_least`` (m,): counts the pieces may not go below (an arc's chords). An arc's (or spline's) chords
+    are checked with their own deviation from the curve added. Shape (m,) int ≥ 1."""
     if not moves:
         return np.zeros(0, dtype=int)
     f, pick = curvature_parameters()
-    return curvature_pieces(field.predict(_move_samples(moves, f, shift, place)), len(moves), pick, tol_um)
+    E = np.asarray(field.predict(_move_samples(moves, f, shift, place)))
+    n = curvature_pieces(E, len(moves), pick, tol_um)
+    if at_least is not None:
+        n = np.maximum(n, at_least)
+
+    def field_at(rows, owner, u):  # the field and the program axes at parameters u of the moves rows[owner]
+        pick_moves = [moves[r] for r in rows]
+        q = np.concatenate([move_points(m, u[owner == i]) for i, m in enumerate(pick_moves)])
+        if place is not None:
+            return field.predict(place(np.repeat([m.index for m in pick_moves], np.bincount(owner)), q)), q
+        return field.predict(q if shift is None else q + np.asarray(shift, dtype=float)[rows][owner]), q
+    curved = np.array([m.arc is not None for m in moves], dtype=bool)
+    return refined_pieces(n, E.reshape(len(moves), len(f), 3), f, tol_um, field_at, curved)
 
 
 def _move_samples(moves, f, shift, place) -> np.ndarray:
@@ -108,6 +125,58 @@ def curvature_pieces(E, m: int, pick, tol_um: float) -> np.ndarray:
     E = np.asarray(E).reshape(m, -1, 3)
     c = np.abs(E[:, pick[:, 0]] - 2 * E[:, pick[:, 1]] + E[:, pick[:, 2]]).max(axis=(1, 2)) / CURVATURE_STEP ** 2
     return np.maximum(1, np.ceil(np.sqrt(c / (8.0 * tol_um)))).astype(int)
+
+
+def refined_pieces(n, E, f, tol_um: float, field_at, curved=None) -> np.ndarray:
+    """Equal pieces per move (m,), raised from the estimate ``n`` until every piece passes the check: the field
+    at the piece's midpoint differs from the mean of the field at its ends by at most ``tol_um`` (the straight
+    interpolation's deviation there; Euclidean, μm), plus, on a ``curved`` (m,) bool move (an arc, a spline), the
+    chord's own distance from the curve there (μm, axis space: the two add at worst). ``E`` (m, u, 3): the field at
+    the parameters ``f`` (u,) of every move, which decide straight moves of one or two pieces without evaluating
+    again; ``field_at(rows (r,), owner (N,), u (N,)) -> ((N, 3) μm, (N, k) mm)``: the field and the program axes at
+    parameters ``u`` of the moves ``rows[owner]``. A move over tolerance
+    gets ``max(n + 1, ⌈n·√(d/tol)⌉)`` pieces (``d`` its largest deviation; the deviation falls as ``1/n²``) and
+    is checked again; past :data:`MAX_SEGMENTS_PER_MOVE` a move, or :data:`MAX_PATH_POINTS` all, the counts are
+    left there (the caller refuses them)."""
+    n = np.array(n, dtype=int)
+    curved = np.zeros(len(n), bool) if curved is None else np.asarray(curved, dtype=bool)
+    todo = (n > 2) | curved
+    for c in (1, 2):
+        want = np.arange(2 * c + 1) / (2 * c)
+        at = np.minimum(np.searchsorted(f, want), len(f) - 1)
+        sel = np.flatnonzero((n == c) & ~curved)
+        if sel.size and np.array_equal(f[at], want):
+            e = E[sel][:, at]
+            d = np.linalg.norm(e[:, 1::2] - 0.5 * (e[:, 0:-1:2] + e[:, 2::2]), axis=2).max(axis=1)
+            n[sel] = _grown(n[sel], d, tol_um)
+            todo[sel] = d > tol_um
+        else:
+            todo[sel] = True
+    while todo.any():
+        rows = np.flatnonzero(todo)
+        if n.max() > MAX_SEGMENTS_PER_MOVE or n.sum() > MAX_PATH_POINTS:
+            break  # refused by the caller
+        per = 2 * n[rows] + 1
+        owner = np.repeat(np.arange(rows.size), per)
+        local = np.arange(owner.size) - np.repeat(np.cumsum(per) - per, per)
+        e, q = field_at(rows, owner, local / (2.0 * n[rows][owner]))
+        mid = np.flatnonzero(local % 2 == 1)
+        dev = np.linalg.norm(np.asarray(e)[mid] - 0.5 * (np.asarray(e)[mid - 1] + np.asarray(e)[mid + 1]), axis=1)
+        dev += 1e3 * np.linalg.norm(q[mid] - 0.5 * (q[mid - 1] + q[mid + 1]), axis=1) * curved[rows][owner[mid]]
+        d = np.zeros(rows.size)
+        np.maximum.at(d, owner[mid], dev)
+        n[rows] = _grown(n[rows], d, tol_um)
+        todo[:] = False
+        todo[rows[d > tol_um]] = True
+    return n
+
+
+def _grown(n, d, tol_um: float) -> np.ndarray:
+    """Pieces (r,) for moves of ``n`` pieces whose largest midpoint deviation is ``d`` (r,) μm: unchanged within
+    ``tol_um``, else ``max(n + 1, ⌈n·√(d/tol)⌉)``."""
+    over = d > tol_um
+    grown = np.maximum(n + 1, np.ceil(n * np.sqrt(np.where(over, d, tol_um) / tol_um) - 1e-9).astype(int))
+    return np.where(over, grown, n)
 
 
 LENGTH_SAMPLES = 16
@@ -146,10 +215,24 @@ def _by_length(max_segment_mm, nominal) -> bool:
     return by_length
 
 
-def _too_many(program, line0: int, count: int, arc_tolerance_um: float) -> InputError:
-    return InputError(f"{program.path}: line {line0 + 1}: the move needs {count} pieces for "
-                      f"{arc_tolerance_um:g} μm (more than {MAX_SEGMENTS_PER_MOVE}); "
-                      "raise --arc-tolerance-um")
+def _check_counts(program, counts, lines0, arc_tolerance_um: float, max_segment_mm) -> None:
+    """Refuse, before any vertex is placed, a move of more than :data:`MAX_SEGMENTS_PER_MOVE` pieces or a file of
+    more than :data:`MAX_PATH_POINTS` vertices, naming the option that sets them: ``counts`` (c,) pieces of the
+    compensated moves, ``lines0`` (c,) their 0-based lines."""
+    counts = np.asarray(counts, dtype=np.int64)
+    if not counts.size:
+        return
+    by_length = max_segment_mm is not None and not isinstance(max_segment_mm, str)
+    why = (f"no piece longer than {max_segment_mm:g} mm", "give a larger --max-segment-mm") if by_length else \
+        (f"{arc_tolerance_um:g} μm", "raise --arc-tolerance-um")
+    k = int(np.argmax(counts))
+    if counts[k] > MAX_SEGMENTS_PER_MOVE:
+        raise InputError(f"{program.path}: line {int(lines0[k]) + 1}: the move needs {int(counts[k]):,} pieces for "
+                         f"{why[0]} (more than {MAX_SEGMENTS_PER_MOVE:,}); {why[1]}")
+    total = int(counts.sum())
+    if total > MAX_PATH_POINTS:
+        raise InputError(f"{program.path}: the program needs {total:,} vertices for {why[0]}, more than the limit of "
+                         f"{MAX_PATH_POINTS:,} points per file; {why[1]} or split the program")
 
 
 @dataclass
@@ -221,16 +304,15 @@ def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, fr
         shift = frames.shift([m.index for m in with_start], program.axis_words.words) if frames is not None else None
         place = partial(frames.place, words=program.axis_words.words) if rotated else None
         if program.tcp is not None and frames is not None and machine is not None:
-            place = partial(program.tcp.place, machine, program, frames)
+            place = partial(program.tcp.place, machine, program, frames, count=False)
         pieces = (length_pieces(with_start, nominal, max_segment_mm, shift, place) if by_length
-                  else field_pieces(with_start, field_, arc_tolerance_um, shift, place))
+                  else field_pieces(with_start, field_, arc_tolerance_um, shift, place,
+                                    at_least=[n_arc[i] for i, m in enumerate(comp) if np.all(np.isfinite(m.start))]))
         pos = {id(m): p for m, p in zip(with_start, pieces)}
         n_fld = np.array([pos.get(id(m), 1) for m in comp], dtype=int)
     counts = np.maximum(n_arc, n_fld)
     counts[[i for i, m in enumerate(comp) if m.synced]] = 1  # a spindle-synchronised line stays one line
-    big = np.flatnonzero(counts > MAX_SEGMENTS_PER_MOVE)
-    if big.size:
-        raise _too_many(program, comp[big[0]].index, counts[big[0]], arc_tolerance_um)
+    _check_counts(program, counts, [m.index for m in comp], arc_tolerance_um, max_segment_mm)
     verts = []
     for m, c in zip(comp, counts):
         if not np.all(np.isfinite(m.start)):
@@ -268,18 +350,20 @@ def plan_table(program: GProgram, arc_tolerance_um: float, field_=None, frames=N
             f = np.linspace(0.0, 1.0, LENGTH_SAMPLES + 1)
         else:
             f, pick = curvature_parameters()
-        q = _table_points(start[idx], end[idx], f, {int(j): moves[i] for i, j in zip(moves, np.searchsorted(idx, list(moves))) if known[i]})
+        arcs = {int(j): moves[i] for i, j in zip(moves, np.searchsorted(idx, list(moves))) if known[i]}
+        q = _table_points(start[idx], end[idx], f, arcs)
         if shift is not None:
-            q = q + np.repeat(np.asarray(shift, dtype=float), len(f), axis=0)
+            shift = np.asarray(shift, dtype=float)
+            q = q + np.repeat(shift, len(f), axis=0)
         if by_length:
-            pieces = _polyline_pieces(nominal, q, len(idx), max_segment_mm)
+            counts[idx] = np.maximum(counts[idx], _polyline_pieces(nominal, q, len(idx), max_segment_mm))
         else:
-            pieces = curvature_pieces(_field_chained(field_, q.reshape(len(idx), len(f), -1)), len(idx), pick,
-                                      arc_tolerance_um)
-        counts[idx] = np.maximum(counts[idx], pieces)
-    big = np.flatnonzero(counts > MAX_SEGMENTS_PER_MOVE)
-    if big.size:
-        raise _too_many(program, t.line[rows[big[0]]], counts[big[0]], arc_tolerance_um)
+            E = _field_chained(field_, q.reshape(len(idx), len(f), -1))
+            n = np.maximum(counts[idx], curvature_pieces(E, len(idx), pick, arc_tolerance_um))
+            field_at = partial(_table_field, field_, start[idx], end[idx], arcs, shift)
+            curved = np.isin(np.arange(len(idx)), list(arcs))
+            counts[idx] = refined_pieces(n, E.reshape(len(idx), len(f), 3), f, arc_tolerance_um, field_at, curved)
+    _check_counts(program, np.where(known, counts, 1), t.line[rows], arc_tolerance_um, max_segment_mm)
     counts[~known] = 1  # a move whose start is unknown: its end alone
     objs = np.flatnonzero(t.obj[rows] >= 0)
     counts[[i for i in objs if t.objects[t.obj[rows[i]]].synced]] = 1  # spindle-synchronised: one line
@@ -306,6 +390,18 @@ def _field_chained(field_, q) -> np.ndarray:
     E[need] = np.asarray(field_.predict(q[need]))
     E[joined, 0] = E[np.flatnonzero(joined) - 1, -1]  # every last point is evaluated (u ≥ 2)
     return E.reshape(m * u, 3)
+
+
+def _table_field(field_, start, end, arcs, shift, rows, owner, u) -> np.ndarray:
+    """The field (N, 3) and the program axes (N, k) at parameters ``u`` (N,) of the moves ``rows[owner]`` of
+    ``start``/``end`` (m, k) (linear; ``arcs`` {row: GMove} along their arc), the field shifted by ``shift`` (m, k)
+    (None: zero): :func:`refined_pieces`'s ``field_at`` for a program read in bulk."""
+    r = rows[owner]
+    q = start[r] + u[:, None] * (end[r] - start[r])
+    for j in set(rows.tolist()) & set(arcs):
+        at = r == j
+        q[at] = move_points(arcs[j], u[at])
+    return np.asarray(field_.predict(q if shift is None else q + shift[r])), q
 
 
 def _table_points(start, end, f, arcs) -> np.ndarray:

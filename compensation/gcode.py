@@ -35,7 +35,7 @@ from .gcode_write import _comment_safe, _fixed_str, _with_header, fmt, render_pr
 MAX_PROGRAM_BYTES = 2**30
 """Bytes of a G-code file, checked before it is read: a compensated line is about 30 bytes, so
 1 GiB is over 30 million lines, three times the vertices a file may have
-(:data:`compensation.pathio.MAX_PATH_POINTS`); the parser holds about 1.2 kB a line."""
+(:data:`compensation.chain_gcode.MAX_PATH_POINTS`); the parser holds about 1.2 kB a line."""
 BULK_MIN_RUN = 32
 """Runs of bulk lines shorter than this go through the per-line classifier (no gain)."""
 

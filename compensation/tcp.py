@@ -79,16 +79,17 @@ class TcpProgram:
             self._machines[key] = machine_with_tool(machine, key)
         return self._machines[key]
 
-    def place(self, machine, program, frames, lines0, q_prog) -> np.ndarray:
+    def place(self, machine, program, frames, lines0, q_prog, count: bool = True) -> np.ndarray:
         """Machine axes (n, k) of program axes ``q_prog`` (n, k) on 0-based ``lines0`` (n,): TCP lines by
-        :func:`tcp_axes`, the others by the work offset and tool length shift."""
+        :func:`tcp_axes`, the others by the work offset and tool length shift; ``count`` False: points the
+        planner samples, not counted in :attr:`machine_tool_points`."""
         lines0 = np.asarray(lines0, dtype=np.int64)
         words = program.axis_words.words
         out = np.asarray(q_prog, dtype=float) + frames.shift(lines0, words)
         on = self.active(lines0)
         if on.any():
             off, tool = frames.at(lines0[on])
-            out[on] = tcp_axes(self, machine, program, lines0[on], np.asarray(q_prog, float)[on], off, tool)
+            out[on] = tcp_axes(self, machine, program, lines0[on], np.asarray(q_prog, float)[on], off, tool, count)
         return out
 
     def program_axes(self, machine, program, frames, lines0, axes, fallback) -> np.ndarray:
@@ -412,7 +413,7 @@ def check_mode_changes(prog, pre: TcpProgram) -> None:
                           "gives no absolute Z: the tip's height under the new tool length is not the program's")
 
 
-def tcp_axes(pre: TcpProgram, machine, program, lines0, q_prog, offset, tool_mm) -> np.ndarray:
+def tcp_axes(pre: TcpProgram, machine, program, lines0, q_prog, offset, tool_mm, count: bool = True) -> np.ndarray:
     """Machine axes (n, k) of TCP points: tip ``q_prog[:, linear] + offset`` (workpiece frame, mm), rotary
     axes as programmed, the linear axes by the chain's nominal inverse at the tool length ``tool_mm`` (n,).
     Refused (InputError naming the line and the switching word): no tool length, a rotary work offset, a
@@ -428,7 +429,8 @@ def tcp_axes(pre: TcpProgram, machine, program, lines0, q_prog, offset, tool_mm)
 
     unset = np.flatnonzero(~np.isfinite(tool_mm))
     bad = [k for k in unset if not machine_tool_under_g49(pre, machine, lines0[k])]
-    pre.machine_tool_points = max(pre.machine_tool_points, len(unset) - len(bad))
+    if count:  # the largest set of points placed at once (the vertices), not the planner's samples
+        pre.machine_tool_points = max(pre.machine_tool_points, len(unset) - len(bad))
     if bad:
         raise InputError(f"{where(bad[0])}: tool-centre-point control with no tool length active: give 'G43 Hn' "
                          "(or the dialect's tool call) and the tool in --tool-table")

@@ -16,11 +16,28 @@ def write_targets_csv(path, targets_mm, comments=()) -> Path:
     return write_csv(path, dict(zip(TARGET_COLUMNS, t.T)), header_comments=comments, float_fmt="%.9f")
 
 
-def read_as_compensate(path, machine, **settings):
-    """The tool path as ``compensate`` reads it (settings: :class:`CompensateSettings` fields)."""
+def read_as_compensate(path, machine, field_=None, **settings):
+    """The tool path as ``compensate`` reads it (settings: :class:`CompensateSettings` fields; ``field_``: the
+    error field that splits G-code moves with ``max_segment_mm="auto"``, the default; without one no move is
+    split)."""
     from compensation.app.workflows.compensate import CompensateSettings
     from compensation.app.workflows.compensate_paths import read_tool_path
-    return read_tool_path(path, machine, CompensateSettings("exact", "", Path("."), **settings))
+    return read_tool_path(path, machine, CompensateSettings("exact", "", Path("."), **settings), field_)
+
+
+def render_gcode(tp, axes, header=(), machine=None) -> tuple:
+    """``(text, groups)`` of a G-code tool path with its vertices at ``axes`` (n, k) machine axes: the text
+    ``compensate`` writes (the program's axes: minus its work offset and tool length; ``machine`` for a program
+    in TCP mode), and ``groups[i]`` the output lines of source line i (:func:`compensation.gcode.render_program`,
+    which writes the same text)."""
+    from compensation.app.workflows.compensate_paths import program_axes
+    from compensation.chain_gcode import render_chain_axes
+    from compensation.gcode import render_program
+    job = tp.source
+    axes = program_axes(tp, np.array(axes, dtype=float), machine)[:, list(tp.columns)]
+    text = render_chain_axes(job.program, axes, job.counts, header=header)
+    groups = render_program(job.program, np.split(axes, np.cumsum(job.counts)[:-1]), header=header)[1]
+    return text, groups
 
 
 def outcome(tp, dst, machine, axes, commands_mm=None, comments=()):

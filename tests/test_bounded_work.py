@@ -72,12 +72,12 @@ def test_a_table_at_the_limits_is_read(tmp_path, monkeypatch):
 
 def test_a_program_over_the_byte_limit_is_refused_unread(tmp_path, grinder, monkeypatch):
     from compensation import gcode
-    from compensation.pathio import read_path
+    from path_files import read_as_compensate
     monkeypatch.setattr(gcode, "MAX_PROGRAM_BYTES", 1000)
     src = tmp_path / "big.nc"
     src.write_text("G21 G90 G18\n" + "G1 X100. Z0.3 A0 F100\n" * 100)
     with pytest.raises(eio.InputError, match=r"big.nc: .* GiB exceeds the limit of .* per program"):
-        read_path(src, grinder)
+        read_as_compensate(src, grinder)
 
 
 def test_a_table_over_the_memory_bound_is_refused_unread(tmp_path, monkeypatch):

@@ -6,7 +6,7 @@ import pytest
 
 from compensation.app.cli import main
 from compensation.nc_state import MACHINE, read_work_offsets
-from compensation.pathio import read_path, write_axes_gcode
+from compensation.pathio import write_axes_gcode
 from compensation.toolpath import flute_path
 from path_files import read_as_compensate, write_targets_csv
 from errormap.chain_field import ChainField
@@ -50,10 +50,11 @@ def test_batch_writes_each_file_and_summary(setup, grinder, capsys):
     assert [e["points"] for e in summary["files"]] == [40, 40]
     assert all(e["model_max_um"] < TOL_MODEL_RESIDUAL_UM for e in summary["files"])
     # the written commands land on the targets under the model: E(axes) cancels the correction
-    src, res = read_path(nc, grinder, work_offsets=MCS), read_path(out / "flute.nc", grinder, work_offsets=MCS)
+    src = read_as_compensate(nc, grinder, work_offsets=MCS)
+    res = read_as_compensate(out / "flute.nc", grinder, work_offsets=MCS)
     from errormap.chain_kernel import forward
     reached = forward(grinder, res.axes) + 1e-3 * field.predict(res.axes)
-    assert np.abs(reached - src.targets_mm).max() < 1e-3 * TOL_MODEL_RESIDUAL_UM + TOL_MM
+    assert np.abs(reached - forward(grinder, src.axes)).max() < 1e-3 * TOL_MODEL_RESIDUAL_UM + TOL_MM
     assert np.abs(res.axes[:, 2] - src.axes[:, 2]).max() < 180.0  # A stays on its turn
     # a targets CSV comes back as compensated WCS commands p_r
     assert read_as_compensate(out / "flute.csv", grinder).kind == "csv-targets"
@@ -216,8 +217,8 @@ def test_rapids_and_block_delete_options(setup, grinder, capsys):
     assert main(base + ["--out", str(out), "--block-delete", "off", "--rapids", "compensate"]) == 0
     note, *lines = (out / "rapid.nc").read_text().splitlines()
     assert note == MCS_NOTE and lines[1].startswith("G0 X") and lines[1] != "G0 X10 Z30 A0" and lines[4].startswith("/G1 X")
-    assert len(read_path(out / "rapid.nc", grinder, rapids="compensate", block_delete="off",
-                         work_offsets=MCS)) == 5
+    assert len(read_as_compensate(out / "rapid.nc", grinder, rapids="compensate", block_delete="off",
+                                  work_offsets=MCS)) == 5
 
 
 def test_kept_rapid_outside_the_strokes_is_refused(setup, capsys):

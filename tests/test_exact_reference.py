@@ -11,7 +11,6 @@ import numpy as np
 from chain_fixtures import grinder_variant
 import pytest
 
-from compensation.gcode_kernels import linear_path_lengths_mm
 from compensation.solvers.exact import solved_axes
 from errormap.machine import load_machine
 from errormap.chain_kernel import NominalChain
@@ -24,9 +23,6 @@ coordinate (4.5e-11 mm at 200 mm, 1.1e-10 mm at 500 mm), so two exact solvers ma
 twice that; measured 3.0e-11 mm (grinder) and 1.2e-10 mm (mill) on 100,000 points. 1e-9 mm is
 issue 26's bound."""
 RESIDUAL_TOL_UM = 1e-4      # the solvers' own success threshold (tol_um)
-PATH_TOL_MM = 1e-11
-"""Path lengths vs the closed form: round-off of 16 chords between ~200 mm tool points (measured
-8e-14 mm on 1,000,000 moves)."""
 CONSTANT_TOL_MM = 1e-12     # chain constants vs the closed form's: round-off of ~500 mm sums
 
 
@@ -82,48 +78,3 @@ def test_fused_ga_refuses_a_chain_of_another_form(name, why):
         closed_form_constants(load_machine(name))
 
 
-def grinder_polyline_lengths(m, start, end, samples):
-    """Readable reference (main's ``_polyline_lengths``): the grinder's nominal tool point
-    ``(c_x - x, M(a)·(t_y, c_h + z))`` at ``samples + 1`` equally spaced axes, chords summed."""
-    cx, ty, ch = grinder_constants(m)
-    t = np.arange(samples + 1) / samples
-    q = start[:, None, :] + t[None, :, None] * (end - start)[:, None, :]
-    a = np.deg2rad(q[..., 2])
-    h = ch + q[..., 1]
-    p = np.stack([cx - q[..., 0], np.cos(a) * ty + np.sin(a) * h, np.cos(a) * h - np.sin(a) * ty], axis=-1)
-    return np.linalg.norm(np.diff(p, axis=1), axis=2).sum(axis=1)
-
-
-@pytest.mark.parametrize("theta1_deg", [None, 7.0])
-def test_path_lengths_from_the_chain_equal_the_closed_form(theta1_deg):
-    m = load_machine()
-    m = m if theta1_deg is None else grinder_variant({"theta1_deg": theta1_deg, "l3": -150.0})
-    rng = np.random.default_rng(3)
-    n = 20_000
-    start = rng.uniform(m.stroke_lo, m.stroke_hi, (n, 3))
-    start[:, 2] = rng.uniform(-720.0, 720.0, n)
-    end = start + rng.normal(0.0, [1.0, 0.5, 30.0], (n, 3))
-    end[:10] = start[:10]  # zero-length moves
-    got = linear_path_lengths_mm(m, start, end, 16)
-    np.testing.assert_allclose(got, grinder_polyline_lengths(m, start, end, 16), rtol=0, atol=PATH_TOL_MM)
-    assert np.all(got[:10] == 0.0)
-
-
-@pytest.mark.parametrize("name", ["five-axis-ac", "mill-xyz", "lathe-xzc"])
-def test_path_lengths_on_a_chain_file_equal_the_chain_polyline(name):
-    """Any chain: the kernel's polyline equals the chain's own nominal tool point
-    (:meth:`MachineTool.nominal`, the numpy chain) at the samples. Each move keeps a random subset
-    of its axes still, so every branch of the kernel runs: a straight line, a leading rotation
-    alone, rotations walked per sample, rigid ops skipped in front."""
-    mt = load_machine(name)
-    rng = np.random.default_rng(4)
-    n, samples = 2000, 8
-    k = len(mt.axes)
-    start = rng.uniform(mt.stroke_lo, mt.stroke_hi, (n, k))
-    step = rng.normal(0.0, 2.0, start.shape) * np.where(mt.stroke_hi - mt.stroke_lo > 360, 10.0, 1.0)
-    end = start + step * (rng.random((n, k)) < 0.5)
-    t = np.arange(samples + 1) / samples
-    q = start[:, None, :] + t[None, :, None] * (end - start)[:, None, :]
-    p = mt.nominal(q.reshape(-1, k)).reshape(n, samples + 1, 3)
-    ref = np.linalg.norm(np.diff(p, axis=1), axis=2).sum(axis=1)
-    np.testing.assert_allclose(linear_path_lengths_mm(mt, start, end, samples), ref, rtol=0, atol=PATH_TOL_MM)

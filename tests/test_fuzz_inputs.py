@@ -393,10 +393,10 @@ def test_fuzz_main_compensate_checks_its_output(sim, machine, tally, data, arc, 
     on the input's targets under the model (read back and checked), or one line naming the file or
     the option."""
     from compensation.nc_state import MACHINE, read_work_offsets
-    from compensation.pathio import read_path
     from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
     from errormap.chain_kernel import forward
+    from path_files import read_as_compensate
     el = sim / "sim" / "truth_elements.json"
     raw = data.draw(hostile_bytes(PROGRAM, table=False))
     with tempfile.TemporaryDirectory() as d:
@@ -409,13 +409,13 @@ def test_fuzz_main_compensate_checks_its_output(sim, machine, tally, data, arc, 
             field = ChainField(machine, ChainElementSet.load(el, machine))
             seg_mm = {"auto": "auto", "none": None}.get(seg) if seg in ("auto", "none") else float(seg)
             mcs = read_work_offsets(MACHINE)  # PROGRAM is in machine coordinates
-            src = read_path(p, machine, arc_tolerance_um=float(arc), max_segment_mm=seg_mm, field=field, work_offsets=mcs)
-            res = read_path(out / p.name, machine, max_segment_mm=None, work_offsets=mcs)
+            src = read_as_compensate(p, machine, field, arc_tolerance_um=float(arc), max_segment_mm=seg_mm,
+                                     work_offsets=mcs)
+            res = read_as_compensate(out / p.name, machine, max_segment_mm=None, work_offsets=mcs)
             lands = forward(machine, res.axes) + 1e-3 * field.predict(res.axes)
-            # the writer chords arcs and splits moves by its own rule (the chain's planning, in axis space): the end
-            # of every programmed block (this reader's last point of each source line) is landed by a written point
+            # the end of every programmed block (the last point of each source line) is landed by a written point
             last = np.r_[src.lines[1:] != src.lines[:-1], True]
-            ends = np.linalg.norm(src.targets_mm[last][:, None, :] - lands[None], axis=2).min(axis=1)
+            ends = np.linalg.norm(forward(machine, src.axes[last])[:, None, :] - lands[None], axis=2).min(axis=1)
             _check_output("compensate", ends.max() < TOL_LANDING_MM, (argv, len(res), len(src), ends.max()))
 
 

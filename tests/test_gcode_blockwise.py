@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import compensation.gcode as g
-from compensation import pathio
-from compensation.nc_state import MACHINE, read_work_offsets
+from compensation.chain_gcode import plan_chain_gcode, render_chain_axes
+from compensation.solvers.chain_exact import nominal_and_jacobian
 from errormap.chain_field import ChainField
 from errormap.io import InputError
 from errormap.chain_truth import make_chain_truth
@@ -50,14 +50,15 @@ def _read(path, fast, **kw):
 
 
 def _job_outputs(prog, machine, field, max_segment):
-    job = pathio.plan_gcode(prog, machine, 0.5, max_segment, field if max_segment == "auto" else None)
-    tp = pathio.gcode_toolpath(job, machine, prog.path)
+    job = plan_chain_gcode(prog, 0.5, field if max_segment == "auto" else None, max_segment_mm=max_segment,
+                           nominal=lambda a: nominal_and_jacobian(machine, a)[0])
     # stand-in compensated vertices: every number changes, some by less than the last decimal
-    axes = tp.axes + 1e-3 * np.sin(np.arange(tp.axes.size, dtype=float)).reshape(-1, 3)
-    text, groups = pathio.render_gcode(job, axes, header=["compensated by volcomp (test)"])
-    return (tp.axes.tobytes(), tp.lines.tolist(), job.kept_axes.tobytes(), job.kept_lines.tolist(),
-            [len(p) for p in job.params], job.max_segment_mm, job.curvature_um_per_mm2,
-            text.encode("latin-1"), [list(x) for x in groups])
+    axes = job.axes + 1e-3 * np.sin(np.arange(job.axes.size, dtype=float)).reshape(-1, 3)
+    header = ["compensated by volcomp (test)"]
+    text = render_chain_axes(prog, axes, job.counts, header=header)
+    groups = g.render_program(prog, np.split(axes, np.cumsum(job.counts)[:-1]), header=header)[1]
+    return (job.axes.tobytes(), job.lines.tolist(), job.kept_axes.tobytes(), job.kept_lines.tolist(),
+            job.counts.tolist(), text.encode("latin-1"), [list(x) for x in groups])
 
 
 def _same(path, machine, field, options=OPTIONS, segments=(None, 0.5, "auto")):
@@ -304,30 +305,3 @@ def test_format_fixed_writes_what_fmt_writes(decimals):
     assert got == [g.fmt(x, decimals) for x in v.tolist()]
     with pytest.raises(ValueError, match="Expected finite values below"):
         gs.format_fixed(np.array([1.0, 2.0 ** 60]), decimals)
-
-
-@pytest.mark.parametrize("seg", ["auto", 0.05, None])
-def test_replan_is_a_fresh_plan_bit_for_bit(tmp_path, grinder, field, seg):
-    """replan gives the tool path a fresh plan gives, bit for bit."""
-    path = tmp_path / "gen.nc"
-    path.write_bytes(_program(2, LINES_PER_PROGRAM, incremental=False).encode("latin-1"))
-    tp0 = pathio.read_path(path, grinder, work_offsets=read_work_offsets(MACHINE))  # G54 read as machine zero
-    tp = pathio.replan(tp0, grinder, max_segment_mm=seg, field=field)
-    ref = pathio.gcode_toolpath(pathio.plan_gcode(tp0.source.program, grinder, 0.5, seg, field), grinder, path)
-    for a, b in ((tp.axes, ref.axes), (tp.targets_mm, ref.targets_mm), (tp.lines, ref.lines)):
-        assert a.shape == b.shape and a.tobytes() == b.tobytes()
-
-
-def test_curvature_samples_one_short_move_per_window():
-    """Of a run of moves shorter than AUTO_SAMPLE_MM, the first move starting in each
-    AUTO_SHORT_WINDOW_MM of path is sampled; every longer move is."""
-    short = pathio.AUTO_SAMPLE_MM / 10  # 40 short moves make 1 mm
-    lengths = np.array([short] * 100 + [5.0] + [short] * 10)
-    keep = pathio._curvature_sampled(lengths)
-    starts = np.cumsum(lengths) - lengths
-    want = [k for k in range(100) if k == 0 or np.floor(starts[k] / pathio.AUTO_SHORT_WINDOW_MM)
-            != np.floor(starts[k - 1] / pathio.AUTO_SHORT_WINDOW_MM)]
-    assert np.flatnonzero(keep[:100]).tolist() == want and len(want) == 3  # 100 moves of 0.025 mm: 2.5 mm
-    assert keep[100] and keep[101]  # the long move, and the first short move after it
-    assert keep.sum() == len(want) + 2 + (np.floor(starts[102:] / pathio.AUTO_SHORT_WINDOW_MM)
-                                          != np.floor(starts[101:-1] / pathio.AUTO_SHORT_WINDOW_MM)).sum()

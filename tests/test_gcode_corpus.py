@@ -19,12 +19,12 @@ from hypothesis import strategies as st
 from compensation.app.cli import main
 from compensation.gcode import tokenize
 from compensation.nc_state import MACHINE, read_work_offsets
-from compensation.pathio import read_path, render_gcode, replan
 from compensation.solvers import solve
 from errormap.chain_field import ChainField
 from errormap.io import InputError
 from errormap.chain_kernel import forward
 from errormap.chain_truth import make_chain_truth
+from path_files import read_as_compensate, render_gcode
 
 CORPUS = Path(__file__).parent / "data" / "gcode_corpus"
 AXES = ("X", "Z", "A")
@@ -78,7 +78,7 @@ def test_corpus_is_large_and_mixed():
 def test_refused_programs_name_line_column_and_word(path, grinder):
     exp = expectation(path)
     with pytest.raises(InputError) as err:
-        read_path(path, grinder, **read_options(exp))
+        read_as_compensate(path, grinder, **read_options(exp))
     msg = str(err.value)
     assert msg.startswith(f"{path}: line {exp['line']}, column {exp['col']}: "), msg
     assert exp["word"].lower() in msg.lower(), msg
@@ -98,10 +98,11 @@ def test_compensated_programs_change_only_their_motion(path, grinder, field):
     exp = expectation(path)
     opts = read_options(exp)
     seg = float(exp["max-segment"]) if "max-segment" in exp else "auto"
-    tp = replan(read_path(path, grinder, **opts), grinder, max_segment_mm=seg, field=field)
-    res = solve("exact", field, tp.targets_mm, grinder, target_axes=tp.axes)
+    tp = read_as_compensate(path, grinder, field, max_segment_mm=seg, **opts)
+    targets = forward(grinder, tp.axes)
+    res = solve("exact", field, targets, grinder, target_axes=tp.axes)
     assert res.success.all()
-    text, groups = render_gcode(tp.source, res.axes)
+    text, groups = render_gcode(tp, res.axes)
     prog = tp.source.program
     compensated = {m.index: m for m in prog.moves if m.compensate}
     for i, line in enumerate(prog.lines):
@@ -128,7 +129,7 @@ def test_compensated_programs_change_only_their_motion(path, grinder, field):
     assert np.abs(back.axes[:, :2] - res.axes[:, :2]).max() <= TOL_REREAD_MM
     assert np.abs(back.axes[:, 2] - res.axes[:, 2]).max() <= TOL_REREAD_DEG + 1e-12
     landed = forward(grinder, back.axes) + 1e-3 * field.predict(back.axes)
-    assert np.abs(landed - tp.targets_mm).max() < TOL_LANDING_MM
+    assert np.abs(landed - targets).max() < TOL_LANDING_MM
 
 
 def _reread(text, path, grinder, opts):
@@ -136,7 +137,7 @@ def _reread(text, path, grinder, opts):
     with tempfile.TemporaryDirectory() as d:
         p = Path(d) / path.name
         p.write_bytes(text.encode("latin-1"))
-        return read_path(p, grinder, **opts)
+        return read_as_compensate(p, grinder, **opts)
 
 
 def test_cli_batch_over_the_corpus(tmp_path, grinder, capsys):
@@ -205,17 +206,19 @@ def programs(draw):
 def test_random_programs_keep_every_other_line_and_read_back(tmp_path, grinder, text, seed, rapids):
     p = tmp_path / "rand.nc"
     p.write_bytes(text.encode("latin-1"))
-    tp = read_path(p, grinder, rapids=rapids, max_segment_mm=0.3, work_offsets=read_work_offsets(MACHINE))
+    # units as written: a random program's A may span a few degrees (the unit check would ask if it is radians)
+    tp = read_as_compensate(p, grinder, rapids=rapids, max_segment_mm=0.3, work_offsets=read_work_offsets(MACHINE),
+                            units="as-written")
     rng = np.random.default_rng(seed)
     comp = tp.axes + rng.uniform(-2e-4, 2e-4, tp.axes.shape) * np.array([1.0, 1.0, 10.0])
-    out, groups = render_gcode(tp.source, comp)
+    out, groups = render_gcode(tp, comp)
     compensated = {m.index for m in tp.source.program.moves if m.compensate}
     for i, line in enumerate(tp.source.program.lines):
         if i not in compensated:
             assert groups[i] == [line]
     q = tmp_path / "back.nc"
     q.write_bytes(out.encode("latin-1"))
-    back = read_path(q, grinder, rapids=rapids, work_offsets=read_work_offsets(MACHINE))
+    back = read_as_compensate(q, grinder, rapids=rapids, work_offsets=read_work_offsets(MACHINE), units="as-written")
     assert back.axes.shape == comp.shape
     assert np.abs(back.axes[:, :2] - comp[:, :2]).max() <= TOL_REREAD_MM
     assert np.abs(back.axes[:, 2] - comp[:, 2]).max() <= TOL_REREAD_DEG + 1e-12

@@ -111,20 +111,20 @@ def test_splines_every_sampled_point_reached_by_the_true_machine(run, mill):
 
 
 @pytest.mark.parametrize("tol_um", [DEFAULT_ARC_TOLERANCE_UM, 5.0])
-def test_chords_within_half_the_arc_tolerance_of_the_exact_curve(mill, tol_um):
-    """The reader's chords (vertices at k/c, :func:`compensation.pathio.plan_gcode`) against the exact curve
-    sampled densely: every curve point within ``tol_um / 2`` of its chord (the geometric half of the arc
-    tolerance, as for arcs)."""
-    from compensation.pathio import plan_gcode
+def test_chords_within_the_arc_tolerance_of_the_exact_curve(mill, tol_um):
+    """The planner's chords (vertices at k/c, :func:`compensation.chain_gcode.plan_chain_gcode`) against the exact
+    curve sampled densely: every curve point within ``tol_um`` of its chord (the whole arc tolerance, as for
+    arcs)."""
+    from compensation.chain_gcode import plan_chain_gcode
     prog = parse_program(PROG, axis_words=AxisWords.of(mill), fast=False, dialect="linuxcnc")
-    job = plan_gcode(prog, mill, arc_tolerance_um=tol_um)
+    job = plan_chain_gcode(prog, tol_um, max_segment_mm=None)
     comp = [m for m in prog.moves if m.compensate]
-    for m, t in zip(comp, job.params):
+    for m, c in zip(comp, job.counts):
         if m.kind != "spline":
             continue
-        dev = _chord_deviation_mm(CONTROL_MM[m.index], np.concatenate([[0.0], t]))
-        assert dev * 1e3 <= tol_um / 2, (m.index, dev * 1e3)
-        assert len(t) > 1
+        dev = _chord_deviation_mm(CONTROL_MM[m.index], np.arange(c + 1) / c)
+        assert dev * 1e3 <= tol_um, (m.index, dev * 1e3)
+        assert c > 1
 
 
 PRELUDE = "G21 G90 G17\nG0 X0 Y0 Z0\nG1 Z-1 F100\n"

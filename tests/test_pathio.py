@@ -1,11 +1,11 @@
-"""CSV tool paths (compensation.pathio)."""
+"""CSV tool paths and the plain G-code writer (compensation.pathio)."""
 import json
 
 import numpy as np
 import pytest
 
 from compensation.nc_state import MACHINE, read_work_offsets
-from compensation.pathio import align_turns, read_path, write_axes_gcode
+from compensation.pathio import align_turns, write_axes_gcode
 from compensation.toolpath import flute_path
 from errormap.io import InputError, sidecar_path
 from errormap.chain_kernel import forward
@@ -65,7 +65,7 @@ def test_bad_csv_names_row_and_column(tmp_path, grinder, text, match):
 
 def test_plain_gcode_writer_reads_back(tmp_path, grinder):
     ax = flute_path(turns=1, points_per_turn=20).axes(grinder)
-    tp = read_path(write_axes_gcode(tmp_path / "f.nc", ax, header=["flute"]), grinder, work_offsets=MCS)
+    tp = read_as_compensate(write_axes_gcode(tmp_path / "f.nc", ax, header=["flute"]), grinder, work_offsets=MCS)
     assert np.abs(tp.axes - ax).max() < TOL_MM
 
 

@@ -10,8 +10,9 @@ addresses. Two truth shapes: the element profiles alone, and with the three effe
 
 Paths: the paper's variable-helix flute (7 turns) written as G-code at 400, 40 and 10 points per turn;
 single 20 mm G1 moves across the X stroke (X = x0 → x0 + 20, x0 = 0, 20, …, 180) at Z = 5 mm, A = 0°, 90°.
-Per path: compensated with ``--max-segment-mm`` ``none`` (the program's points only: the plain approach,
-the anchor), ``auto`` (chord tolerance 0.5 μm) and a fixed 1 mm.
+Per path: read and planned as ``volcomp compensate`` reads it (``read_tool_path``: the chain planner,
+:func:`compensation.chain_gcode.plan_chain_gcode`), compensated with ``--max-segment-mm`` ``none`` (the program's
+points only: the plain approach, the anchor), ``auto`` (tolerance 0.5 μm, the default) and a fixed 1 mm.
 
     python -m benchmarks.run toolpath
 """
@@ -70,50 +71,57 @@ def programs(machine, tmp: Path, quick: bool) -> dict:
 def along_moves_um(truth, tp, command_axes, samples: int) -> np.ndarray:
     """|true residual| (μm) at ``samples`` points along every written segment, flattened.
 
-    ``tp``: the planned G-code tool path; ``command_axes`` (n, 3) what is written at its vertices (the
-    nominal axes for the uncompensated program). A segment runs from the previous vertex of the same move
-    (or the move's nominal start) to the vertex.
+    ``tp``: the G-code tool path as ``compensate`` reads and plans it (``read_tool_path``: a
+    :class:`compensation.chain_gcode.ChainGCodeJob`, each move in equal pieces); ``command_axes`` (n, k) what is
+    written at its vertices (the nominal axes for the uncompensated program). A segment runs from the previous
+    vertex of the same move (or the move's nominal start) to the vertex.
     """
     from compensation.gcode import move_points
-    from errormap.chain_kernel import forward
+    from compensation.solvers.chain_exact import nominal_and_jacobian
     s = np.linspace(0.0, 1.0, samples)[1:]
-    res, k, prev_cmd = [], 0, None
-    for m, t in zip(tp.source.compensated_moves, tp.source.params):
+    job, res, k, prev_cmd = tp.source, [], 0, None
+    for m, c in zip([m for m in job.program.moves if m.compensate], job.counts):
+        t = np.arange(1, c + 1) / c
         t_prev = np.concatenate([[0.0], t[:-1]])
-        cmds = command_axes[k:k + len(t)]
-        k += len(t)
-        if not m.start_known or prev_cmd is None:
+        cmds = command_axes[k:k + c]
+        k += c
+        if not np.all(np.isfinite(m.start)) or prev_cmd is None:
             prev_cmd = cmds[-1]
             continue
         starts = np.vstack([prev_cmd[None], cmds[:-1]])
-        cmd = (starts[:, None, :] + s[None, :, None] * (cmds - starts)[:, None, :]).reshape(-1, 3)
+        cmd = (starts[:, None, :] + s[None, :, None] * (cmds - starts)[:, None, :]).reshape(-1, cmds.shape[1])
         target = move_points(m, (t_prev[:, None] + s[None, :] * (t - t_prev)[:, None]).ravel())
         reached = truth.tool_point(cmd, **truth.default_conditions(len(cmd)))
-        res.append(1e3 * np.linalg.norm(reached - forward(truth.machine, target), axis=1))
+        res.append(1e3 * np.linalg.norm(reached - nominal_and_jacobian(truth.machine, target)[0], axis=1))
         prev_cmd = cmds[-1]
     return np.concatenate(res)
 
 
 def run_seed(seed: int, quick: bool) -> list[dict]:
     """Rows ``{truth, path, split, vertices, max_um}`` for one truth seed (uncompensated and every split)."""
+    from compensation.app.workflows.compensate import CompensateSettings
+    from compensation.app.workflows.compensate_paths import read_tool_path
     from compensation.nc_state import MACHINE, read_work_offsets
-    from compensation.pathio import read_path, replan
     from compensation.solvers import solve
     from errormap.machine import load_machine
     from errormap.chain_truth import make_chain_truth
+    from compensation.solvers.chain_exact import nominal_and_jacobian
     machine, rows = load_machine(), []
     with tempfile.TemporaryDirectory() as d:
         progs = programs(machine, Path(d), quick)
+        settings = lambda seg: CompensateSettings("exact", "", Path(d), rapids="keep", max_segment_mm=seg,  # noqa: E731
+                                                  work_offsets=read_work_offsets(MACHINE))
         for shape, effects in (("elements", ()),) + ((() if quick else (("elements + effects", EFFECTS),))):
             truth = make_chain_truth(machine, seed, effects=effects)
             field = TruthField(truth)
             for name, path in progs.items():
-                base = read_path(path, machine, work_offsets=read_work_offsets(MACHINE))
+                base = read_tool_path(path, machine, settings(None))
                 rows.append({"truth": shape, "path": name, "split": "uncompensated", "vertices": len(base),
                              "max_um": float(along_moves_um(truth, base, base.axes, SAMPLES).max())})
                 for label, seg in SPLITS[:2] if quick else SPLITS:
-                    tp = replan(base, machine, max_segment_mm=seg, field=field)
-                    q = np.round(solve("exact", field, tp.targets_mm, machine, target_axes=tp.axes).axes, 6)
+                    tp = read_tool_path(path, machine, settings(seg), field)
+                    targets = nominal_and_jacobian(machine, tp.axes)[0]
+                    q = np.round(solve("exact", field, targets, machine, target_axes=tp.axes).axes, 6)
                     rows.append({"truth": shape, "path": name, "split": label, "vertices": len(tp),
                                  "max_um": float(along_moves_um(truth, tp, q, SAMPLES).max())})
     return rows

@@ -132,7 +132,6 @@ def no_assumed_zero() -> dict:
     """``{"no table" | "--work-offsets machine": (programs, read, refused)}`` (module docstring)."""
     from compensation.app.workflows.compensate import CompensateSettings
     from compensation.nc_state import MACHINE
-    from compensation.pathio import read_path
     from errormap.io import InputError
     data = ROOT / "tests" / "data"
     grinder, mill = load_machine(), load_machine("mill-xyz")
@@ -143,12 +142,10 @@ def no_assumed_zero() -> dict:
         read = refused = 0
         for p in corpus + mills:
             try:
-                if p in corpus:
-                    text = p.read_text("latin-1")
-                    opts = {"block_delete": v for v in ("off", "on") if f"block-delete={v}" in text}
-                    read_path(p, grinder, work_offsets=frame, **opts)
-                else:
-                    read_tool_path(p, mill, CompensateSettings("exact", "", Path("."), work_offsets=frame))
+                text = p.read_text("latin-1")
+                opts = {"block_delete": v for v in ("off", "on") if f"block-delete={v}" in text}
+                read_tool_path(p, grinder if p in corpus else mill,
+                               CompensateSettings("exact", "", Path("."), work_offsets=frame, **opts))
                 read += 1
             except InputError:
                 refused += 1
