@@ -179,7 +179,9 @@ def _one_line_exit2(capsys, args, *needles):
 def test_cli_refusals(tmp_path, capsys, mill):
     _one_line_exit2(capsys, ["simulate", "--machine", "mill-xyz", "--effect", "harmonic", "--out", str(tmp_path / "s")],
                     "--effect", "harmonic")
-    _one_line_exit2(capsys, ["simulate", "--effect", "periodic:X", "--out", str(tmp_path / "g")], "grinder")
+    # the grinder is a chain: its effects by the chain's names, an axis it has not refused naming the ones it has
+    _one_line_exit2(capsys, ["simulate", "--effect", "periodic:Q", "--out", str(tmp_path / "g")], "periodic:Q",
+                    "['X', 'Z']")
     # a sweep file with an axis the mill does not have
     t = make_chain_truth(mill, 0)
     cols = simulated_sweeps(t, noise_um=1.0, seed=0)
