@@ -12,29 +12,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, ELEMENT_NAMES, X_ELEMENTS, Z_ELEMENTS
+from .elements import ELEMENT_NAMES
 from .grinder_file import ELEMENT_SLOTS
 
 ISO_NAME = dict(ELEMENT_SLOTS)
 """Project element name -> ISO 230-1 name (one-to-one): the grinder chain's slots and their ISO names."""
 ISO_NAMES = tuple(ISO_NAME[k] for k in ELEMENT_NAMES)
 """The 23 ISO names, in ELEMENT_NAMES order."""
-
-ISO_MEANING = {
-    "EXX": "positioning error of X", "EYX": "straightness of X in Y", "EZX": "straightness of X in Z",
-    "EAX": "roll of X (about X)", "EBX": "pitch of X (about Y)", "ECX": "yaw of X (about Z)",
-    "EXZ": "straightness of Z in X", "EYZ": "straightness of Z in Y", "EZZ": "positioning error of Z",
-    "EAZ": "angular error of Z about X", "EBZ": "angular error of Z about Y", "ECZ": "roll of Z (about Z)",
-    "EXA": "axial error motion of A", "EYA": "radial error motion of A in Y", "EZA": "radial error motion of A in Z",
-    "EAA": "angular positioning error of A", "EBA": "tilt error motion of A about Y",
-    "ECA": "tilt error motion of A about Z",
-    "EY0A": "offset of the A axis line in Y", "EZ0A": "offset of the A axis line in Z",
-    "EB0A": "tilt of the A axis line about Y", "EC0A": "tilt of the A axis line about Z",
-    "EB0Z": "squareness of Z to X (about Y)",
-}
-BODY_OF = {**{k: "X" for k in X_ELEMENTS}, **{k: "Z" for k in Z_ELEMENTS}, **{k: "A" for k in A_ELEMENTS},
-           "dy_oa": "A", "dz_oa": "A", "ey_oa": "A", "ez_oa": "A", "s_xz": "Z"}
-CARRIES = {"X": "workpiece", "Z": "wheel (tool)", "A": "workpiece"}
 
 
 def label(name: str) -> str:
@@ -65,14 +49,3 @@ def axis_from_mcs(mt, word: str, axes, iso, offset_mm=None) -> np.ndarray:
     e = iso[:, 3:]
     d = iso[:, :3] - 1e-3 * np.cross(e, r)
     return np.concatenate([np.einsum("nji,nj->ni", R, d), np.einsum("nji,nj->ni", R, e)], axis=1)
-
-
-def map_rows() -> list[dict]:
-    """The documented map as rows (element, iso, meaning, body, carries, unit) for tables and reports."""
-    rows = []
-    for k in ELEMENT_NAMES:
-        b = BODY_OF[k]
-        rows.append({"element": k, "iso": ISO_NAME[k], "meaning": ISO_MEANING[ISO_NAME[k]],
-                     "body": b, "carries": CARRIES[b], "constant": k in CONSTANT_ELEMENTS,
-                     "unit": "um" if k.startswith("d") else "urad"})
-    return rows
