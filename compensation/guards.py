@@ -99,10 +99,6 @@ class GuardError(ValueError):
         super().__init__(report.summary(self.guards) + f"\n(override explicitly with --allow {allow_hint})")
 
 
-def _fmt(values, fmt="%.6g") -> np.ndarray:
-    return np.array([fmt % v for v in values], dtype=object)
-
-
 ON_BALL_REL = 1e-6
 """A correction within this fraction of the ball radius counts as on its surface."""
 
