@@ -13,8 +13,6 @@ import numpy as np
 from .field import JACOBIAN, PREDICT_AND_JACOBIAN, CalibratedVolume
 from .machine_tool import MachineTool
 
-CHUNK = 4096  # points per numpy pass: the reference keeps (chunk, n_et + 1, 4, 4) frames
-
 
 class ChainField:
     """A machine-tool chain with its element set as an error field (module docstring).
@@ -25,12 +23,11 @@ class ChainField:
 
     kind = "chain"
 
-    def __init__(self, machine: MachineTool, elements, chunk: int = CHUNK):
+    def __init__(self, machine: MachineTool, elements):
         if elements.machine is not machine and elements.machine.slot_names != machine.slot_names:
             raise ValueError("the element set belongs to another machine")
         self.machine = machine
         self.elements = elements
-        self.chunk = chunk
 
     @property
     def capabilities(self) -> frozenset:
