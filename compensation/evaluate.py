@@ -10,7 +10,6 @@ simulated machine tool with ``machine``, ``spatial_error(axes, **conditions) -> 
 figures)."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +17,7 @@ import numpy as np
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_kernel import NominalChain
 from errormap.chain_truth import ChainTruth
-from errormap.io import InputError, read_document_text
+from errormap.io import InputError, read_json_object
 from errormap.machine import made_on
 from errormap.stats import residual_stats
 
@@ -32,16 +31,6 @@ CHAIN_TRUTH_FORMAT = "volcomp-chain-truth/1"
 PARAMETER_NAMES = {"x_frac": "p_frac", "z_frac": "q_frac"}
 """A truth.json without a ``format`` key (a ``kind = "grinder"`` file's simulate folder) names the stroke fractions
 of its two-axis effects by its axes; the chain's effects name them by their order (first, second axis)."""
-
-
-def _read_json(path: Path, what: str) -> dict:
-    try:
-        d = json.loads(read_document_text(path, what))
-    except (json.JSONDecodeError, RecursionError) as exc:
-        raise InputError(f"{path}: not valid JSON: {exc}") from None
-    if not isinstance(d, dict):
-        raise InputError(f"{path}: expected a JSON object ({what}), got {type(d).__name__}")
-    return d
 
 
 def _effects(info: dict, path: Path, mt) -> dict:
@@ -74,7 +63,7 @@ def load_truth(spec, machine) -> ChainTruth:
             raise InputError(f"{p.parent}: not a simulate folder (no truth.json)")
     elif not p.is_file():
         raise InputError(f"{p}: no such simulate folder or element-set file")
-    d = _read_json(p, "a truth or element-set file")
+    d = read_json_object(p, "a truth or element-set file")
     fmt = d.get("format")
     if fmt == CHAIN_TRUTH_FORMAT or (fmt is None and "effects" in d):
         if fmt == CHAIN_TRUTH_FORMAT and d.get("machine_sha256") and machine.sha256 and not made_on(machine, d["machine_sha256"]):

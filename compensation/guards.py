@@ -1,7 +1,7 @@
 """Guards on compensated commands: the search ball, the axis strokes, the calibrated volume and convergence
-(docs/reference/tool-paths.md, "Guards"). A job whose commands fail a guard stops with :class:`GuardError`,
-which lists every offending point with its reasons, unless the user overrides that guard explicitly
-(``allow``; the CLI's ``--allow``). Every method passes through :func:`check`: the guards look at the
+(docs/reference/tool-paths.md, "Guards"). A job whose commands fail a guard is refused, every offending point
+listed with its reasons (:attr:`GuardReport.blocking`, :meth:`GuardReport.point_reasons`), unless the user
+overrides that guard explicitly (``allow``; the CLI's ``--allow``). Every method passes through :func:`check`: the guards look at the
 result, never at how it was obtained.
 
 Guard names (the keys of ``allow`` and of :attr:`GuardReport.violations`): ``ball`` (``|p_r - p_d| >
@@ -24,8 +24,6 @@ from .solvers.base import BALL_RADIUS_UM
 
 GUARDS = ("ball", "stroke", "volume", "convergence")
 AXIS_NAMES = GRINDER_AXES
-MAX_LISTED = 20
-"""Offending points spelled out in a GuardError message (all are in its attributes)."""
 
 
 @dataclass
@@ -66,41 +64,6 @@ class GuardReport:
             if k < len(v) and v[k] == index:
                 out.append(f"{g}: {self.reasons[g][k]}")
         return out
-
-    def summary(self, guards=None, max_listed: int = MAX_LISTED) -> str:
-        """Counts per guard and the first ``max_listed`` offending points with their reasons."""
-        guards = list(guards) if guards is not None else [g for g in GUARDS if len(self.violations.get(g, []))]
-        counts = ", ".join(f"{g}: {len(self.violations[g])}" for g in guards)
-        idx = np.unique(np.concatenate([self.violations[g] for g in guards])) if guards else []
-        lines = [f"{len(idx)} of {self.n_points} points fail guards ({counts})"]
-        for i in idx[:max_listed]:
-            lines.append(f"  point {int(i)}: " + "; ".join(r for r in self.point_reasons(int(i))
-                                                          if r.split(":")[0] in guards))
-        if len(idx) > max_listed:
-            lines.append(f"  ... and {len(idx) - max_listed} more")
-        return "\n".join(lines)
-
-
-class GuardError(ValueError):
-    """Compensated commands failed guards that were not overridden.
-
-    ``report`` is the full :class:`GuardReport`; ``indices`` the offending points of the
-    blocking guards (sorted); ``reasons`` maps each such index to its list of reasons.
-    """
-
-    def __init__(self, report: GuardReport):
-        self.report = report
-        blocking = report.blocking
-        self.guards = tuple(g for g in GUARDS if g in blocking)
-        self.indices = np.unique(np.concatenate([blocking[g] for g in self.guards]))
-        self.reasons = {int(i): [r for r in report.point_reasons(int(i)) if r.split(":")[0] in self.guards]
-                        for i in self.indices}
-        allow_hint = ", ".join(self.guards)
-        super().__init__(report.summary(self.guards) + f"\n(override explicitly with --allow {allow_hint})")
-
-
-def _fmt(values, fmt="%.6g") -> np.ndarray:
-    return np.array([fmt % v for v in values], dtype=object)
 
 
 ON_BALL_REL = 1e-6
@@ -238,17 +201,6 @@ def check(result, machine, field, allow=(), volume_tol: float = 1e-9, stroke_tol
         found["volume"] = _merge(found["volume"], _targets(volume_violations(target_axes, field, volume_tol, names)))
     return GuardReport(n_points=len(result.axes), violations={g: v[0] for g, v in found.items()},
                        reasons={g: v[1] for g, v in found.items()}, allowed=allowed)
-
-
-def enforce(result, machine, field, allow=(), **tolerances) -> GuardReport:
-    """:func:`check`, then raise :class:`GuardError` if a guard that was not allowed failed.
-
-    Returns the report (with any allowed violations, for the caller to print as warnings).
-    """
-    report = check(result, machine, field, allow, **tolerances)
-    if report.blocking:
-        raise GuardError(report)
-    return report
 
 
 def violations(result, machine, field=None, **tolerances) -> list[tuple[int, str]]:

@@ -778,7 +778,7 @@ def field_with_tool(field_, machine_at_tool):
 
     from errormap.chain_field import ChainField
     if isinstance(field_, ChainField):
-        return ChainField(machine_at_tool, field_.elements, field_.chunk)
+        return ChainField(machine_at_tool, field_.elements)
     truth = getattr(field_, "truth", None)
     if truth is not None and hasattr(truth, "effects"):
         return type(field_)(dataclasses.replace(truth, machine=machine_at_tool))

@@ -3,8 +3,8 @@
 Schema: ``docs/reference/file-formats.md`` and ``docs/explanation/serial-arms.md`` (joint columns
 ``q1_deg … qN_deg``, the tool point ``x_mm, y_mm, z_mm``; optional ``sigma_mm``, ``temp_c``, ``time_s``,
 ``session``, a 6-DoF orientation as ``qw, qx, qy, qz`` or ``rx_rad, ry_rad, rz_rad`` with ``sigma_rad``).
-Recognised by content: the schema's columns, or the laser-tracker grid layout read as measured = target + dif
-(:func:`convert_tracker_grid`). Refused, with one line naming file, row and column: metres where mm are
+Recognised by content: the schema's columns, or the laser-tracker grid layout read as measured = target + dif.
+Refused, with one line naming file, row and column: metres where mm are
 declared, radians where degrees are, joint values outside the machine's limits, non-positive ``sigma_mm``."""
 from __future__ import annotations
 
@@ -223,12 +223,3 @@ def write_arm_poses(path, chain, poses: ArmPoses, comments=()) -> None:
         if poses.sigma_rad is not None:
             cols["sigma_rad"] = poses.sigma_rad
     write_csv(path, cols, header_comments=comments, float_fmt="%.10g")
-
-
-def convert_tracker_grid(src, dst, chain) -> ArmPoses:
-    """Convert a tracker-grid file (``joint_k``, ``x_t``, ``x_dif`` …) to the schema: measured = target + dif."""
-    p = read_arm_poses(src, chain)
-    if p.layout != "tracker-grid":
-        raise InputError(f"{src}: already in the measured-pose schema (columns {chain.joint_columns})")
-    write_arm_poses(dst, chain, p, comments=(f"converted from: {src}", "measured = target + dif"))
-    return p

@@ -111,17 +111,3 @@ def random_joints(lo_deg, hi_deg, n, seed) -> np.ndarray:
     """``n`` joint vectors uniform in the box [lo, hi] (per joint), shape (n, nq)."""
     rng = spawn_rngs(seed, 1)[0]
     return rng.uniform(lo_deg, hi_deg, (n, len(lo_deg)))
-
-
-def measure_6dof(chain, truth: ArmTruth, q, noise_mm, noise_rad, seed, source="simulated") -> ArmPoses:
-    """6-DoF tracker measurements: :func:`measure`'s tool points (N(0, noise_mm²) per component) and the true
-    tool-frame orientation turned by a random rotation vector, N(0, noise_rad²) per component; ``sigma_mm`` and
-    ``sigma_rad`` stated (the tracker's accuracies)."""
-    from scipy.spatial.transform import Rotation
-    rng = spawn_rngs(seed, 1)[0]
-    q = np.asarray(q, float)
-    F = chain.fk(q + truth.joint_sag_deg(chain, q), truth.errors)
-    xyz = F[:, :3, 3] + rng.normal(0, noise_mm, (len(q), 3))
-    rot = Rotation.from_rotvec(rng.normal(0, noise_rad, (len(q), 3))).as_matrix() @ F[:, :3, :3]
-    return ArmPoses(q, xyz, np.full(len(q), float(noise_mm)), None, None, np.arange(2, len(q) + 2), source, "schema",
-                    rot, np.full(len(q), float(noise_rad)))

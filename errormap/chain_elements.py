@@ -21,7 +21,9 @@ from .machine_tool import MachineTool
 from .machine_tool_file import FULL_TURN_DEG
 
 ELEMENTS_FORMAT = "volcomp-elements/1"
-MAX_ELEMENT_VALUE = 1e6  # μm or μrad: no element of a machine tool reaches a metre or a radian (as elements.py)
+# No element of a machine tool reaches a metre (μm) or a radian (μrad), nor a station a kilometre:
+# beyond this a value is a unit or typing mistake (and 1e308 would overflow the HTM products)
+MAX_ELEMENT_VALUE = 1e6
 MIN_STATIONS = 4         # a cubic spline needs 4 stations
 TURN_TOL_DEG = 1e-9      # stations of a full-turn axis span 360° to this
 

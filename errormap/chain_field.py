@@ -4,48 +4,14 @@
 point in the workpiece frame; ``jacobian(axes) -> (n, 3, k)`` μm per mm / per deg; ``predict_and_jacobian``;
 ``error_jacobian(axes) -> (n, 3, P)`` μm per μm / per μrad (at the nominal chain). ``k`` =
 ``machine.axis_columns``, ``P`` = ``machine.slot_names``. Axis Jacobian:
-``dE/dq = [J_q(q, e) − J_q(q, 0) + J_e(q, e)·de/dq] / 1e-3``. :func:`predict_numpy` /
-:func:`predict_and_jacobian_numpy` are the readable references the compiled kernel
-(:mod:`errormap.chain_kernel`, what :class:`ChainField` computes through) is tested against."""
+``dE/dq = [J_q(q, e) − J_q(q, 0) + J_e(q, e)·de/dq] / 1e-3``, computed by the compiled kernel
+(:mod:`errormap.chain_kernel`; tested against a readable numpy reference in ``tests/chain_reference.py``)."""
 from __future__ import annotations
 
 import numpy as np
 
 from .field import JACOBIAN, PREDICT_AND_JACOBIAN, CalibratedVolume
-from .machine_tool import UM_MM, MachineTool
-from .chain_elements import ChainElementSet
-
-CHUNK = 4096  # points per numpy pass: the reference keeps (chunk, n_et + 1, 4, 4) frames
-
-
-def predict_numpy(machine: MachineTool, elements: ChainElementSet, axes, chunk: int = CHUNK) -> np.ndarray:
-    """Spatial error (μm), (n, k) -> (n, 3): element values pushed through the numpy chain."""
-    axes = np.atleast_2d(np.asarray(axes, dtype=float))
-    return machine.spatial_error(axes, elements.values(axes), chunk=chunk)
-
-
-def predict_and_jacobian_numpy(machine: MachineTool, elements: ChainElementSet, axes, chunk: int = CHUNK):
-    """``(E (n, 3) μm, dE/d(axes) (n, 3, k))`` by the numpy chain (the reference)."""
-    axes = np.atleast_2d(np.asarray(axes, dtype=float))
-    n, k = axes.shape
-    E = np.empty((n, 3))
-    J = np.empty((n, 3, k))
-    ch = machine.chain
-    col = {a.word: j for j, a in enumerate(machine.axes)}
-    own = np.array([col[s.axis] if s.is_function else -1 for s in machine.slots])
-    for s in range(0, n, chunk):
-        q = axes[s:s + chunk]
-        v = elements.values(q)
-        dv = elements.slopes(q)
-        F = ch.frames(q, v)
-        F0 = ch.frames(q)
-        E[s:s + chunk] = (F[:, -1, :3, 3] - F0[:, -1, :3, 3]) / UM_MM
-        Jq = ch.joint_jacobian(q, v, frames=F) - ch.joint_jacobian(q, frames=F0)
-        Je = ch.error_jacobian(q, v, frames=F)          # (m, 3, P) mm per μm/μrad
-        for p in np.flatnonzero(own >= 0):
-            Jq[:, :, own[p]] += Je[:, :, p] * dv[:, p, None]
-        J[s:s + chunk] = Jq / UM_MM
-    return E, J
+from .machine_tool import MachineTool
 
 
 class ChainField:
@@ -57,12 +23,11 @@ class ChainField:
 
     kind = "chain"
 
-    def __init__(self, machine: MachineTool, elements, chunk: int = CHUNK):
+    def __init__(self, machine: MachineTool, elements):
         if elements.machine is not machine and elements.machine.slot_names != machine.slot_names:
             raise ValueError("the element set belongs to another machine")
         self.machine = machine
         self.elements = elements
-        self.chunk = chunk
 
     @property
     def capabilities(self) -> frozenset:
@@ -103,7 +68,7 @@ class ChainField:
 
     def predict(self, axes) -> np.ndarray:
         """Spatial error (μm), shape (n, 3), at axes (n, k): one compiled pass per point
-        (:mod:`errormap.chain_kernel`), equal to :func:`predict_numpy` to round-off (tested)."""
+        (:mod:`errormap.chain_kernel`), equal to the numpy reference to round-off (tested)."""
         return self._compiled().predict(self._axes(axes))
 
     __call__ = predict

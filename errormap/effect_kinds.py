@@ -98,7 +98,6 @@ _BY_ALIAS = {a: k for k in EFFECT_KINDS for a in (k.name, *k.aliases)}
 
 DIAGNOSED_KINDS = tuple(k.name for k in EFFECT_KINDS if k.diagnosed)
 """The kinds the diagnosis library fits, in its order of preference."""
-SIMULATED_KINDS = tuple(k.name for k in EFFECT_KINDS if k.simulator)
 SIMULATOR_NAMES = tuple(k.simulator for k in EFFECT_KINDS if k.simulator)
 """The names the simulator knows its effects by (``--effect``, ``truth.json``)."""
 TRUTH_ONLY = tuple(k.simulator for k in EFFECT_KINDS if k.truth_only)

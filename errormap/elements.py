@@ -23,7 +23,6 @@ ELEMENT_NAMES = FUNCTION_ELEMENTS + CONSTANT_ELEMENTS
 
 AXIS_OF = {**{k: "x_mm" for k in X_ELEMENTS}, **{k: "z_mm" for k in Z_ELEMENTS},
            **{k: "a_deg" for k in A_ELEMENTS}}
-AXIS_COLUMN = {"x_mm": 0, "z_mm": 1, "a_deg": 2}
 IDX = {k: i for i, k in enumerate(ELEMENT_NAMES)}
 """Column of each element in :data:`ELEMENT_NAMES` order (the grinder chain's slot order)."""
 
@@ -38,11 +37,6 @@ def element_unit(name: str) -> str:
 def default_stations(machine: MachineTool, n: int = 21) -> dict:
     """``n`` equally spaced stations over each stroke (the paper: every 1/20; A every 18°)."""
     return {k: np.linspace(*machine.strokes[k], n) for k in ("x_mm", "z_mm", "a_deg")}
-
-
-# No element of a machine tool reaches a metre (μm) or a radian (μrad), nor a station a kilometre:
-# beyond this a value is a unit or typing mistake (and 1e308 would overflow the HTM products)
-MAX_ELEMENT_VALUE = 1e6
 
 
 def check_profile(name: str, values, stations, column: str) -> np.ndarray:

@@ -16,7 +16,7 @@ import scipy.linalg
 from scipy.spatial.transform import Rotation
 
 from .settings import keep_settings
-from .io import NPY_ERRORS, InputError
+from .io import InputError
 from .machine_tool import AXIS_WORDS, MachineTool
 from .chain_elements import ChainElementSet
 from .chain_normal import BlockLayout, BlockNormal, Undecided
@@ -199,18 +199,6 @@ class ChainIdentificationResult:
                 "iterations": self.iterations, "condition": self.condition,
                 "unobservable": self.unobservable, "warnings": self.warnings,
                 "constants": self.elements_.constants, "covariance": dict(self.covariance_info)}
-
-
-def load_covariance(path) -> tuple[list, np.ndarray, np.ndarray]:
-    """``(slot names, stations, cov)`` of a file :func:`errormap.chain_covariance.save_chain_covariance` wrote."""
-    try:
-        d = np.load(path, allow_pickle=False)
-        if str(d["format"]) != COV_FORMAT:
-            raise InputError(f"{path}: key 'format': expected {COV_FORMAT!r}, got {str(d['format'])!r}")
-        return [str(s) for s in d["slot"]], d["station"].astype(int), d["cov"].astype(float)
-    except NPY_ERRORS as exc:
-        raise InputError(f"{path}: not a readable chain covariance file ({exc}); a truncated or damaged copy? "
-                         "Run `volcomp identify` again to write it") from None
 
 
 def _squareness_toward(machine: MachineTool, name: str) -> int:
@@ -740,11 +728,6 @@ def station_error_rms(machine: MachineTool, elements: ChainElementSet, truth: Ch
     return float(np.sqrt(np.mean(np.concatenate(err) ** 2)))
 
 
-def identify_chain(sweeps, machine: MachineTool, **settings) -> ChainIdentificationResult:
-    """Identify every slot of ``machine`` from ``sweeps`` (:class:`ChainIdentification` settings)."""
-    return ChainIdentification(**settings).fit(sweeps, machine).result_
-
-
-__all__ = ["ChainIdentification", "ChainIdentificationResult", "bootstrap_covariance", "identify_chain",
-           "load_covariance", "parameter_vector", "resampled_sweeps", "root_axis", "smooth_chain",
+__all__ = ["ChainIdentification", "ChainIdentificationResult", "bootstrap_covariance",
+           "parameter_vector", "resampled_sweeps", "root_axis", "smooth_chain",
            "station_error_rms", "AXIS_WORDS"]

@@ -108,6 +108,17 @@ def read_json(path, what: str = "a JSON document"):
         raise InputError(f"{path}: JSON nested too deeply to be {what}") from None
 
 
+def read_json_object(path, what: str = "a JSON object") -> dict:
+    """:func:`read_json` of a JSON object; a missing file or another JSON value: InputError naming the file."""
+    try:
+        d = read_json(path, what)
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file ({what})") from None
+    if not isinstance(d, dict):
+        raise InputError(f"{path}: expected a JSON object ({what}), got {type(d).__name__}")
+    return d
+
+
 def decode_text(raw: bytes, path) -> str:
     """UTF-8 text of a file's bytes; a leading UTF-8 BOM (Excel's "CSV UTF-8") is dropped.
 

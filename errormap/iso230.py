@@ -34,14 +34,3 @@ def axis_from_mcs(mt, word: str, axes, iso, offset_mm=None) -> np.ndarray:
     e = iso[:, 3:]
     d = iso[:, :3] - 1e-3 * np.cross(e, r)
     return np.concatenate([np.einsum("nji,nj->ni", R, d), np.einsum("nji,nj->ni", R, e)], axis=1)
-
-
-def map_rows() -> list[dict]:
-    """The documented map as rows (element, iso, meaning, body, carries, unit) for tables and reports."""
-    rows = []
-    for k in ELEMENT_NAMES:
-        b = BODY_OF[k]
-        rows.append({"element": k, "iso": ISO_NAME[k], "meaning": ISO_MEANING[ISO_NAME[k]],
-                     "body": b, "carries": CARRIES[b], "constant": k in CONSTANT_ELEMENTS,
-                     "unit": "um" if k.startswith("d") else "urad"})
-    return rows

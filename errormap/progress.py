@@ -1,4 +1,4 @@
-"""Progress on stderr, the one helper the project uses: ``for i in progress(range(n), "label")``.
+"""Progress on stderr, the one helper the project uses: ``with Progress(n, "label") as p: ... p.update()``.
 
 Backed by `tqdm <https://tqdm.github.io/>`_ with terminal detection: a bar is drawn only when
 the stream is a terminal (tqdm's ``disable=None``), so CI logs and redirected output stay clean.
@@ -12,7 +12,7 @@ import sys
 
 from tqdm import tqdm
 
-__all__ = ["Progress", "progress"]
+__all__ = ["Progress"]
 
 
 class Progress:
@@ -52,12 +52,3 @@ class Progress:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-def progress(iterable, label: str, total: int | None = None, enabled: bool = True):
-    """Yield the items of ``iterable`` while showing a :class:`Progress` of ``total`` (default ``len``)."""
-    total = len(iterable) if total is None else total
-    with Progress(total, label, enabled=enabled) as p:
-        for item in iterable:
-            yield item
-            p.update()

@@ -1,15 +1,11 @@
-"""Batched rigid transforms as (rotation, translation) pairs, pytransform3d style.
+"""Batched rotations, cross-product matrices and point checks.
 
-Rotations are arrays of shape (n, 3, 3), translations (n, 3). Angles in rad unless
-the name says otherwise. ``rot_xyz(e)`` is the exact small-error rotation
-``RotX(ex) · RotY(ey) · RotZ(ez)`` used for every error element.
+Rotations are arrays of shape (n, 3, 3), points (n, 3). Angles in rad unless
+the name says otherwise.
 """
 from __future__ import annotations
 
 import numpy as np
-
-MM_PER_UM = 1e-3
-RAD_PER_URAD = 1e-6
 
 
 def check_points(points, name: str = "points", width: int = 3) -> np.ndarray:
@@ -54,12 +50,6 @@ def rot_z(angle_rad) -> np.ndarray:
     return rot_about(2, angle_rad)
 
 
-def rot_xyz(eps_rad) -> np.ndarray:
-    """Exact error rotation RotX(ex)·RotY(ey)·RotZ(ez); ``eps_rad`` shape (n, 3) -> (n, 3, 3)."""
-    e = np.asarray(eps_rad, dtype=float)
-    return rot_x(e[:, 0]) @ rot_y(e[:, 1]) @ rot_z(e[:, 2])
-
-
 def skew(v) -> np.ndarray:
     """Cross-product matrices: ``skew(v) @ w == cross(v, w)``; v shape (n, 3) -> (n, 3, 3)."""
     v = np.asarray(v, dtype=float)
@@ -76,23 +66,3 @@ def skew(v) -> np.ndarray:
 def apply(R: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Batched ``R @ v``: R shape (n, 3, 3) or (3, 3), v shape (n, 3) -> (n, 3)."""
     return np.einsum("...ij,...j->...i", R, v)
-
-
-# -- rigid transforms as (R (n,3,3), t (n,3)) pairs ------------------------------------------
-def compose(a, b):
-    """``a·b`` for batched rigid transforms ``(R, t)``; shapes broadcast over the batch."""
-    Ra, ta = a
-    Rb, tb = b
-    return Ra @ Rb, apply(Ra, tb) + ta
-
-
-def invert(a):
-    """Inverse of a batched rigid transform ``(R, t)``."""
-    R, t = a
-    Rt = np.swapaxes(R, -1, -2)
-    return Rt, -apply(Rt, t)
-
-
-def error_transform(d_um, e_urad):
-    """``Trans(δ)·Rot(ε)`` for δ (n,3) μm and ε (n,3) μrad -> (R (n,3,3), t (n,3) mm)."""
-    return rot_xyz(np.asarray(e_urad, dtype=float) * RAD_PER_URAD), np.asarray(d_um, dtype=float) * MM_PER_UM

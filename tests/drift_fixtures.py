@@ -1,10 +1,11 @@
-"""A seeded drift log for the drift tests (a dict of columns, as the CSV reader's input)."""
+"""A seeded drift log for the drift tests (a dict of columns, as the CSV reader's input), and a simulator's columns as
+a DriftLog in memory (the commands read the simulator's CSV instead)."""
 from __future__ import annotations
 
 import numpy as np
 from scipy import signal
 
-from errormap.diagnosis.drift import lagged
+from errormap.diagnosis.drift import DriftLog, lagged
 
 
 def _lowpass(u, dt_s, tau_s):
@@ -56,3 +57,11 @@ def simulate_drift_log(seed: int = 0, n: int = 2160, dt_s: float = 10.0, n_senso
         cols[f"{ch}_um"] = d + rng.normal(0, noise_um, n)
     cols["_truth"] = truth
     return cols
+
+
+def drift_log_of(cols: dict, path: str = "<sim>") -> DriftLog:
+    """A simulator's columns (``time_s``, ``temp_<sensor>_c``, ``<channel>_um``, optional
+    ``speed_rpm``; ``"_truth"`` and other keys ignored) as a :class:`~errormap.diagnosis.drift.DriftLog`
+    named ``path``: temperatures by sensor (°C), displacements by channel (μm), arrays as given."""
+    return DriftLog(cols["time_s"], {k[5:-2]: v for k, v in cols.items() if k.startswith("temp_")},
+                    {k[:-3]: v for k, v in cols.items() if k.endswith("_um")}, cols.get("speed_rpm"), path)

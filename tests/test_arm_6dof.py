@@ -8,9 +8,11 @@ from scipy.spatial.transform import Rotation
 
 from errormap.arm_calibration import ExtendedChain, fit_model, fit_slots, identifiable_slots
 from errormap.arm_poses import read_arm_poses, write_arm_poses
-from errormap.arm_simulate import draw_truth, measure_6dof, random_joints
+from errormap.arm_poses import ArmPoses
+from errormap.arm_simulate import draw_truth, random_joints
 from errormap.io import InputError
 from errormap.machine import load_machine
+from errormap.seeds import spawn_rngs
 
 NOISE_MM = 0.02
 LEVER_MM = 150.0                       # the tracker's orientation noise: NOISE_MM / this (the default weighting)
@@ -29,6 +31,19 @@ HELD_OUT_RATIO_MAX = 0.95
 SLOTS_POSITION, SLOTS_6DOF = 27, 30
 """Identified UR5 slots on 30 random poses from positions (docs/explanation/serial-arms.md: 27 of 36 on the real grid) and with the tool
 frame's orientation (+ base.rz / link1.dtheta, link6.dtheta, link6.dalpha / beta, less link2/3.dd: 30)."""
+
+
+def measure_6dof(chain, truth, q, noise_mm, noise_rad, seed, source="simulated") -> ArmPoses:
+    """Simulated 6-DoF tracker poses: the true tool points plus N(0, noise_mm²) per component (as
+    errormap.arm_simulate.measure) and the true tool-frame orientation turned by a random rotation vector,
+    N(0, noise_rad²) per component; ``sigma_mm`` and ``sigma_rad`` stated (the tracker's accuracies)."""
+    rng = spawn_rngs(seed, 1)[0]
+    q = np.asarray(q, float)
+    F = chain.fk(q + truth.joint_sag_deg(chain, q), truth.errors)
+    xyz = F[:, :3, 3] + rng.normal(0, noise_mm, (len(q), 3))
+    rot = Rotation.from_rotvec(rng.normal(0, noise_rad, (len(q), 3))).as_matrix() @ F[:, :3, :3]
+    return ArmPoses(q, xyz, np.full(len(q), float(noise_mm)), None, None, np.arange(2, len(q) + 2), source, "schema",
+                    rot, np.full(len(q), float(noise_rad)))
 
 
 @pytest.fixture(scope="module")

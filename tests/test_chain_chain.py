@@ -13,7 +13,6 @@ from errormap.chain_kernel import error_jacobian, spatial_error
 from errormap.io import InputError
 from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
-from errormap.chain_field import ChainField, predict_and_jacobian_numpy
 
 TOL_EQUIV_UM = 1e-9
 """Two exact evaluations of the same transforms in different operation order: tool points of

@@ -13,7 +13,7 @@ import pytest
 from compensation.app.cli import main
 from errormap.io import read_table, write_csv
 from errormap.machine import load_machine
-from errormap.identification import load_covariance
+from errormap.chain_covariance import read_chain_covariance
 from errormap.chain_truth import make_chain_truth
 from errormap.chain_sweeps import simulated_sweeps
 from errormap.sweeps import write_sweeps
@@ -65,8 +65,8 @@ def test_bootstrap_covariance_agrees_with_gauss_newton_and_feeds_the_band(tmp_pa
     assert "residual bootstrap, 24 draws" in capsys.readouterr().out
     assert json.loads((tmp_path / "B.report.json").read_text())["covariance"] == {
         "method": "residual-bootstrap", "n_boot": N_BOOT, "seed": 0}
-    sg, stg, G = load_covariance(tmp_path / "G.cov.npz")
-    sb, stb, B = load_covariance(tmp_path / "B.cov.npz")
+    sg, stg, G = read_chain_covariance(tmp_path / "G.cov.npz", None)
+    sb, stb, B = read_chain_covariance(tmp_path / "B.cov.npz", None)
     assert sg == sb and np.array_equal(stg, stb)
     assert (tmp_path / "G.json").read_text() == (tmp_path / "B.json").read_text()
     dg, db = np.diagonal(G), np.diagonal(B)

@@ -6,7 +6,8 @@ import pytest
 
 from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
-from errormap.chain_field import ChainField, predict_and_jacobian_numpy, predict_numpy
+from chain_reference import predict_and_jacobian_numpy, predict_numpy
+from errormap.chain_field import ChainField
 from errormap.chain_kernel import CompiledChain, error_jacobian
 
 from chain_fixtures import axes_beyond_strokes

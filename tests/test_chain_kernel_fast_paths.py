@@ -10,7 +10,7 @@ from numba import njit
 from errormap.chain_kernel import forward, inverse
 from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
-from errormap.chain_field import predict_and_jacobian_numpy, predict_numpy
+from chain_reference import predict_and_jacobian_numpy, predict_numpy
 from errormap.chain_kernel import SMALL_ANGLE_RAD, CompiledChain, _cos_sin, closed_form_solver
 
 from chain_fixtures import axes_beyond_strokes, grinder_variant

@@ -191,7 +191,8 @@ def _eligible_keys(sel, ch):
 @pytest.mark.slow   # one selection on a 46 h log at 120 s (~6 CPU s)
 def test_the_default_rule_chooses_the_eligible_candidate_of_largest_mean_gain():
     from errormap.diagnosis.drift_models import DriftSelector
-    from errormap.diagnosis.drift_sim import SIMULATORS, drift_log_of
+    from drift_fixtures import drift_log_of
+    from errormap.diagnosis.drift_sim import SIMULATORS
     log = drift_log_of(SIMULATORS["lumped"](0, dt_s=120.0, shift_at=0.6, n_dropouts=0))
     plain = DriftSelector(fit_fraction=0.6).fit(log)        # the default: largest mean gain
     picked = 0

@@ -83,7 +83,8 @@ def test_band_grows_with_the_models_gamma_and_round_trips(tmp_path):
 @pytest.mark.slow   # two selections on a 46 h log at 120 s (~12 CPU s)
 def test_rho_power_band_in_a_fitted_model():
     from errormap.diagnosis.drift_models import DriftSelector
-    from errormap.diagnosis.drift_sim import SIMULATORS, drift_log_of
+    from drift_fixtures import drift_log_of
+    from errormap.diagnosis.drift_sim import SIMULATORS
     log = drift_log_of(SIMULATORS["lumped"](0, dt_s=120.0, shift_at=0.6, n_dropouts=0))
     sel = DriftSelector(fit_fraction=0.6, band_rule="rho_power").fit(log)
     plain = DriftSelector(fit_fraction=0.6).fit(log)        # the default band

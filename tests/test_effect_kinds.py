@@ -11,7 +11,7 @@ from compensation.app.cli import main
 from errormap import effect_kinds as ek
 from errormap.diagnosis import effects as fx
 from errormap.chain_elements import ChainElementSet
-from errormap.elements import IDX
+from errormap.elements import A_ELEMENTS, IDX, X_ELEMENTS, Z_ELEMENTS
 from errormap.chain_truth import (CHAIN_TRUTH_ONLY as OUT_OF_CATALOGUE, EFFECT_DEFAULTS, ChainTruth as TruthGrinder,
                                   independent_effect_parameters, random_axes)
 from errormap.effect_kinds import SIMULATOR_NAMES as EFFECT_NAMES
@@ -22,6 +22,16 @@ SAME_PHYSICS_UM = 1e-9
 """The simulator's sinusoid and the diagnosis's basis with the same parameters are the same
 formula evaluated in a different order (sin(w + φ) against A·cosφ·sin w + A·sinφ·cos w): they
 agree to float rounding of μm/μrad-sized values, far below a nanometre."""
+KIND_AXES = {k: ek.effect_kind(k).axes(("x", "z"), ("a",)) for k in ek.DIAGNOSED_KINDS}
+"""The grinder's axes of each diagnosed kind, from the registry."""
+AXIS_ELEMENTS = {"x": X_ELEMENTS, "z": Z_ELEMENTS, "a": A_ELEMENTS, "x*z": X_ELEMENTS + Z_ELEMENTS}
+
+
+def reference(machine, conditions):
+    """The terms' references (errormap.diagnosis.effects.Context.ref): strokes, 20 °C, the first time_s."""
+    t = conditions.get("time_s")
+    return {"strokes": {k: tuple(machine.strokes[k]) for k in ("x_mm", "z_mm", "a_deg")}, "ref_temp_c": 20.0,
+            "ref_time_s": float(np.min(t)) if t is not None else 0.0}
 
 
 def test_every_name_is_registered_once():
@@ -48,18 +58,18 @@ def test_simulator_draws_registered_kinds_only():
 def test_the_diagnosis_fits_exactly_the_diagnosed_kinds(grinder):
     """Its library, the axes of each kind (generic in the registry, the grinder's words here)
     and a basis for every kind, from the registry."""
-    assert fx.KINDS == ek.DIAGNOSED_KINDS == ("thermal", "drift", "reversal", "periodic", "harmonic", "interaction")
-    assert fx.KIND_AXES == {"thermal": ("x", "z"), "drift": ("x", "z"), "reversal": ("x", "z", "a"),
+    assert ek.DIAGNOSED_KINDS == ("thermal", "drift", "reversal", "periodic", "harmonic", "interaction")
+    assert KIND_AXES == {"thermal": ("x", "z"), "drift": ("x", "z"), "reversal": ("x", "z", "a"),
                             "periodic": ("x", "z"), "harmonic": ("a",), "interaction": ("x*z",)}
-    assert not set(ek.TRUTH_ONLY) & set(fx.KINDS)
+    assert not set(ek.TRUTH_ONLY) & set(ek.DIAGNOSED_KINDS)
     rng = np.random.default_rng(SEED)
     axes = random_axes(grinder, N_POINTS, rng)
     cond = {"temp_c": 20 + rng.random(N_POINTS), "time_s": np.arange(N_POINTS) * 10.0,
             **{f"dir_{a}": rng.choice([-1.0, 1.0], N_POINTS) for a in "xza"}}
-    ctx = fx.Context.build(grinder, axes, cond, fx.reference(grinder, cond))
-    for kind in fx.KINDS:
+    ctx = fx.Context.build(grinder, axes, cond, reference(grinder, cond))
+    for kind in ek.DIAGNOSED_KINDS:
         spec = ek.diagnosed_kind(kind)
-        cand = fx.Candidate(kind, fx.KIND_AXES[kind][0], fx.AXIS_ELEMENTS[fx.KIND_AXES[kind][0]][0])
+        cand = fx.Candidate(kind, KIND_AXES[kind][0], AXIS_ELEMENTS[KIND_AXES[kind][0]][0])
         b = fx.basis(cand, ctx, period_mm=10.0, order=40)
         assert b.shape == (N_POINTS, spec.n_linear) and np.all(np.isfinite(b))
         term = fx.EffectTerm(cand, np.ones(spec.n_linear), ctx.ref, 10.0 if kind == "periodic" else None,
@@ -85,8 +95,8 @@ def test_simulator_alias_is_the_same_physics_as_the_diagnosis_kind(grinder, sim,
     assert set(by_name.effects) == set(TruthGrinder(grinder, el, {sim: params}).effects) == {f"{canonical}:{axis_word}"}
     amp = params.get("amplitude_um", params.get("amplitude_urad"))
     coef = amp * np.array([np.cos(params["phase_rad"]), np.sin(params["phase_rad"])])
-    ctx = fx.Context.build(grinder, axes, {}, fx.reference(grinder, {}))
-    axis = fx.KIND_AXES[canonical][0]
+    ctx = fx.Context.build(grinder, axes, {}, reference(grinder, {}))
+    axis = KIND_AXES[canonical][0]
     fitted_form = fx.basis(fx.Candidate(canonical, axis, element), ctx, **basis_args) @ coef
     np.testing.assert_allclose(by_alias, fitted_form, rtol=0, atol=SAME_PHYSICS_UM)
     np.testing.assert_allclose(by_name.element_values(axes)[:, IDX[element]], by_alias, rtol=0, atol=0)

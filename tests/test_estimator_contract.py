@@ -76,7 +76,8 @@ def _pkm_calibration():
 
 def _drift():
     from errormap.diagnosis.drift_models import OLSFamily, RidgeBankFamily
-    from errormap.diagnosis.drift_sim import drift_log_of, simulate_lumped_log
+    from drift_fixtures import drift_log_of
+    from errormap.diagnosis.drift_sim import simulate_lumped_log
     log = drift_log_of(simulate_lumped_log(seed=0, hours=8.0, dt_s=60.0, n_sensors=8, n_dropouts=0))
     return DriftSelector(families=(OLSFamily(), RidgeBankFamily())), (log,), (log,), ("model_", "chosen_")
 

@@ -86,7 +86,7 @@ def test_field_equals_reference_pipeline_and_periodic_in_a(grinder):
     cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": el.wrap("a_deg", axes[:, 2])}
     v_ref = np.stack([_element_spline(el, k)(cols[AXIS_OF[k]]) for k in FUNCTION_ELEMENTS]
                      + [np.full(len(axes), el.constants[k]) for k in CONSTANT_ELEMENTS], axis=1)
-    field = ChainField(grinder, el, chunk=700)  # several chunks, the last one partial
+    field = ChainField(grinder, el)
     np.testing.assert_allclose(field.predict(axes), grinder.spatial_error(axes, v_ref),
                                rtol=0, atol=TOL_CLOSED_FORM_UM)
     # whole turns of A leave the error unchanged (to the round-off of cos/sin of large angles)

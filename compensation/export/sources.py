@@ -3,13 +3,10 @@ terms of a ``diagnosis.json``, for any machine tool. A ``kind = "grinder"`` file
 diagnosis files keep their own formats (read here); a chain's are read by the chain's readers."""
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 import numpy as np
 
 from errormap.effect_kinds import diagnosed_kind, effect_kind
-from errormap.io import InputError, read_document_text, sha256_file
+from errormap.io import InputError, read_json_object, sha256_file
 from errormap.grinder_file import is_grinder_chain
 from errormap.machine import made_on
 
@@ -111,23 +108,13 @@ def reversal_from_diagnosis(path, model: ModelError) -> tuple:
     machine = model.machine
     if model.elements is None or getattr(model.field, "elements", model.elements) is not model.elements:
         raise ValueError("--diagnosis needs an element-set model (the reversal is added to its elements)")
-    doc = _diagnosis_doc(path)
+    doc = read_json_object(path, "a diagnosis")
     if is_grinder_chain(machine) and not (isinstance(doc, dict) and "machine" in doc):  # the grinder's older diagnosis
         back, left = backlash_from_diagnosis(path, doc, machine)
         return ModelError(machine, model.elements, reversal={j.upper(): b for j, b in back.items()}), left
     from errormap.diagnosis.loop_model import ChainModelField
     terms, left = reversal_terms_from_diagnosis(doc, path, machine)
     return ModelError(machine, model.elements, field=ChainModelField(machine, model.elements, terms)), left
-
-
-def _diagnosis_doc(path) -> dict:
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such diagnosis file")
-    try:
-        return json.loads(read_document_text(path, "a diagnosis"))
-    except (json.JSONDecodeError, RecursionError) as exc:
-        raise InputError(f"{path}: not valid JSON: {exc}") from None
 
 
 def backlash_from_diagnosis(path, doc=None, machine=None) -> tuple[dict, list[str]]:
@@ -139,7 +126,7 @@ def backlash_from_diagnosis(path, doc=None, machine=None) -> tuple[dict, list[st
     element."""
     from errormap.machine import load_machine
     own = joint_elements(machine if machine is not None else load_machine())
-    d = _diagnosis_doc(path) if doc is None else doc
+    d = read_json_object(path, "a diagnosis") if doc is None else doc
     fmt = d.get("format") if isinstance(d, dict) else None
     if fmt is not None and fmt != CHECKS_DIAGNOSIS_FORMAT:  # by content; files from before the key: by 'effects'
         raise InputError(f"{path}: key 'format': {str(fmt)!r}; expected {CHECKS_DIAGNOSIS_FORMAT!r} (the "

@@ -15,7 +15,6 @@ import time
 import numpy as np
 
 from errormap.field import PREDICT_COLUMNS
-from errormap.chain_kernel import NominalChain
 from errormap.threads import limit_threads
 
 from .base import SolveResult
@@ -78,18 +77,6 @@ def field_error_um(field, axes, machine, chunk: int = FIELD_CHUNK) -> np.ndarray
                                 if PREDICT_COLUMNS in field.capabilities
                                 else np.asarray(field.predict(a), dtype=float).reshape(-1, 3))
     return out
-
-
-def forward_and_jacobian(machine, axes, jac: bool = True):
-    """Nominal tool point ``p`` (n, 3) mm and ``dp/d(axes)`` (n, 3, k) mm per mm / per deg of the
-    machine's chain (:class:`errormap.chain_kernel.NominalChain`: for the grinder its chain file, the
-    same one source as every chain), at ``axes`` (n, k). ``jac=False`` returns ``(p, None)``."""
-    return NominalChain(machine).forward_and_jacobian(axes, jac)
-
-
-def forward_jacobian(machine, axes) -> np.ndarray:
-    """``d p / d(axes)`` of the nominal forward kinematics, mm per mm / per deg, (n, 3, k)."""
-    return forward_and_jacobian(machine, axes)[1]
 
 
 def project_to_ball(d_um, radius_um) -> np.ndarray:

@@ -329,8 +329,8 @@ def solve_ga_chain(field, targets_mm, machine, *, target_axes=None, ball_um: flo
                    retries: int = RETRY_ROUNDS, polish: bool = True, rotary_limit_deg=None,
                    progress: bool = True):
     """PyGAD per target on a machine-tool chain (the reference GA, a loop over points on purpose): the
-    genes and fitness of :func:`chain_fitness` (module docstring), PyGAD's settings as
-    :func:`compensation.solvers.ga.solve_ga` (steady-state selection of 0.7·40 parents, single-point
+    genes and fitness of :func:`chain_fitness` (module docstring), PyGAD's settings the paper's
+    (:data:`compensation.solvers.ga.PAPER_GA`: steady-state selection of 0.7·40 parents, single-point
     crossover 0.7, random mutation ±1 gene unit with probability 0.2, elitism 1, offspring projected
     onto the gene ball). Point i's run depends only on ``(seed, i)`` (its own child Generator, which
     also draws PyGAD's ``random_seed``). Retries and polish as :func:`solve_batched_ga_chain`."""

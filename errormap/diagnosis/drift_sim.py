@@ -11,7 +11,6 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import expm
 
-from .drift import DriftLog
 
 
 def _discrete(A, B, dt_s):
@@ -275,11 +274,3 @@ def simulate_rod_log(seed: int = 0, hours: float = 40.0, dt_s: float = 20.0, n_s
 
 
 SIMULATORS = {"lumped": simulate_lumped_log, "rod": simulate_rod_log}
-
-
-def drift_log_of(cols: dict, path: str = "<sim>") -> DriftLog:
-    """A simulator's columns (``time_s``, ``temp_<sensor>_c``, ``<channel>_um``, optional
-    ``speed_rpm``; ``"_truth"`` and other keys ignored) as a :class:`~errormap.diagnosis.drift.DriftLog`
-    named ``path``: temperatures by sensor (°C), displacements by channel (μm), arrays as given."""
-    return DriftLog(cols["time_s"], {k[5:-2]: v for k, v in cols.items() if k.startswith("temp_")},
-                    {k[:-3]: v for k, v in cols.items() if k.endswith("_um")}, cols.get("speed_rpm"), path)

@@ -13,16 +13,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..effect_kinds import DIAGNOSED_KINDS, diagnosed_kind, effect_kind
-from ..elements import A_ELEMENTS, IDX, X_ELEMENTS, Z_ELEMENTS, element_unit
+from ..effect_kinds import diagnosed_kind
+from ..elements import IDX, element_unit
 from ..chain_kernel import error_jacobian
 
-KINDS = DIAGNOSED_KINDS
-"""The kinds of the library, from the registry (:mod:`errormap.effect_kinds`), in its order of preference."""
 WCS_ELEMENTS = ("dx", "dy", "dz")
-AXIS_ELEMENTS = {"x": X_ELEMENTS, "z": Z_ELEMENTS, "a": A_ELEMENTS, "x*z": X_ELEMENTS + Z_ELEMENTS}
-LINEAR_AXES, ROTARY_AXES = ("x", "z"), ("a",)
-KIND_AXES = {k: effect_kind(k).axes(LINEAR_AXES, ROTARY_AXES) for k in KINDS}
 AXIS_COL = {"x": 0, "z": 1, "a": 2}
 STROKE_KEY = {"x": "x_mm", "z": "z_mm", "a": "a_deg"}
 SECONDS_PER_HOUR = 3600.0
@@ -91,13 +86,6 @@ class Context:
         if axis == "a":
             return np.deg2rad(self.axes[:, 2])
         return self.axes[:, AXIS_COL[axis]] - self.ref["strokes"][STROKE_KEY[axis]][0]
-
-
-def reference(machine, conditions: dict, ref_temp_c: float = 20.0) -> dict:
-    """References of the terms: strokes, reference temperature, time origin (first time_s)."""
-    t = conditions.get("time_s")
-    return {"strokes": {k: tuple(machine.strokes[k]) for k in ("x_mm", "z_mm", "a_deg")},
-            "ref_temp_c": float(ref_temp_c), "ref_time_s": float(np.min(t)) if t is not None and len(t) else 0.0}
 
 
 def basis(cand: Candidate, ctx: Context, period_mm: float | None = None, order: int | None = None) -> np.ndarray:

@@ -21,7 +21,8 @@ from scipy.spatial.transform import Rotation
 from ..settings import keep_settings
 from ..io import InputError
 from ..threads import limit_threads
-from .hexapod import KinematicsError, forward_kinematics, inverse_kinematics, skew, workspace_poses
+from ..transforms import skew
+from .hexapod import KinematicsError, forward_kinematics, inverse_kinematics, workspace_poses
 from .machine_file import PKM
 from .poses import PoseData, check_pose_set
 from .pose_model import (machine_from_vector, parameter_names, parameter_vector, pose_errors_um, predict_poses,

@@ -67,14 +67,6 @@ def tool_axis_to_rotation(axis) -> np.ndarray:
     return Rotation.from_euler("ZXZ", tool_axis_euler(axis)).as_matrix()
 
 
-def skew(v: np.ndarray) -> np.ndarray:
-    """Cross-product matrices of vectors (..., 3) -> (..., 3, 3)."""
-    z = np.zeros(v.shape[:-1])
-    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
-                     np.stack([v[..., 2], z, -v[..., 0]], -1),
-                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
-
-
 # ---------------------------------------------------------------------------------------------
 # inverse kinematics (tool pose -> leg lengths), batched
 # ---------------------------------------------------------------------------------------------

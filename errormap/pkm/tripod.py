@@ -7,25 +7,12 @@ Leg ``i`` is ``p + a_i - b_i`` (platform centre ``p``, moving hinge ``a_i``, fix
 (``docs/explanation/parallel-kinematics.md``)."""
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
-from .hexapod import FKResult, forward_kinematics, inverse_kinematics, leg_vectors
+from .hexapod import inverse_kinematics, leg_vectors
 from .machine_file import PKM
 
-__all__ = ["inverse_kinematics_tripod", "forward_kinematics_tripod", "transfer_matrices", "leg_error_norm",
-           "sensitivity_map", "sensitivity_vs_lambda", "sensitivity_study", "tripod_with_radii"]
-
-
-def inverse_kinematics_tripod(machine: PKM, tool_tip_mm) -> np.ndarray:
-    """Platform positions (n, 3) -> leg lengths (n, 3), mm."""
-    return inverse_kinematics(machine, tool_tip_mm)
-
-
-def forward_kinematics_tripod(machine: PKM, legs_mm, **kw) -> FKResult:
-    """Leg lengths (n, 3) -> platform positions (``.x``, shape (n, 3)) by Newton."""
-    return forward_kinematics(machine, legs_mm, **kw)
+__all__ = ["transfer_matrices", "leg_error_norm", "sensitivity_vs_lambda", "sensitivity_study"]
 
 
 def transfer_matrices(machine: PKM, tool_tip_mm) -> dict:
@@ -46,24 +33,6 @@ def transfer_matrices(machine: PKM, tool_tip_mm) -> dict:
 def leg_error_norm(machine: PKM, tool_tip_mm) -> np.ndarray:
     """``K = ||A^-1||_inf`` (max absolute row sum of the leg-length transfer matrix), shape (n,)."""
     return np.abs(transfer_matrices(machine, tool_tip_mm)["f_l"]).sum(axis=2).max(axis=1)
-
-
-def tripod_with_radii(machine: PKM, base_radius_mm: float, platform_radius_mm: float) -> PKM:
-    """The same tripod with hinge circles scaled to new radii (joint angles kept)."""
-    b = machine.base_joints_mm / np.linalg.norm(machine.base_joints_mm[:, :2], axis=1, keepdims=True)
-    a = machine.platform_joints_mm / np.linalg.norm(machine.platform_joints_mm[:, :2], axis=1, keepdims=True)
-    return replace(machine, base_joints_mm=b * base_radius_mm, platform_joints_mm=a * platform_radius_mm)
-
-
-def sensitivity_map(machine: PKM, x_mm, y_mm, z_mm) -> np.ndarray:
-    """``K`` on the grid ``x_mm`` x ``y_mm`` x ``z_mm`` (1-D arrays), shape (nx, ny, nz); NaN where a leg is out of range."""
-    X, Y, Z = np.meshgrid(x_mm, y_mm, z_mm, indexing="ij")
-    p = np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)
-    K = leg_error_norm(machine, p)
-    legs = inverse_kinematics(machine, p)
-    out = np.any((legs < machine.leg_min_mm) | (legs > machine.leg_max_mm), axis=1)
-    K[out] = np.nan
-    return K.reshape(X.shape)
 
 
 def sensitivity_vs_lambda(machine: PKM, lambdas, offset_xy_mm=(0.0, 0.0)) -> np.ndarray:

@@ -62,8 +62,8 @@ def register(sub):
 
 def run_chain_diagnosis(args) -> int:
     """``volcomp report RUN``: the page of a chain's diagnose run (:mod:`compensation.app.reports.chain_diagnosis`)."""
-    from errormap.io import InputError
-    from ..reports.chain_diagnosis import read_json, write_chain_diagnosis_page
+    from errormap.io import InputError, read_json_object
+    from ..reports.chain_diagnosis import write_chain_diagnosis_page
     bad = [f for f, v in (("--model", args.model), ("--path", args.path), ("--flute", args.flute),
                           ("--truth", args.truth), ("--allow", args.allow)) if v]
     if bad:
@@ -72,7 +72,7 @@ def run_chain_diagnosis(args) -> int:
     run_dir = Path(args.run)
     if not run_dir.is_dir():
         raise UsageError(f"RUN {run_dir}: not a folder (a volcomp diagnose --machine output folder)")
-    head = read_json(run_dir / "model.json", "model.json of volcomp diagnose --machine")
+    head = read_json_object(run_dir / "model.json", "model.json of volcomp diagnose --machine")
     if head.get("family") is not None:    # an arm's or parallel machine's calibrate run: its page is written with it
         raise InputError(f"{run_dir / 'model.json'}: key 'family': {head.get('family')!r}, a calibrate run, whose page "
                          "is report.html beside it; report RUN shows a diagnose --machine run")
@@ -92,7 +92,7 @@ def run_chain_diagnosis(args) -> int:
             path = write_chain_diagnosis_page(run_dir, machine, None)
     print(f"wrote html: {path}")
     from ..reports.chain_diagnosis import verdict_failure
-    failed = verdict_failure(read_json(run_dir / "diagnosis.json", "diagnosis of volcomp diagnose --machine"))
+    failed = verdict_failure(read_json_object(run_dir / "diagnosis.json", "diagnosis of volcomp diagnose --machine"))
     if failed:   # shown, not refused: the page is how the user sees why
         print(f"report: verdict FAILED ({run_dir / 'diagnosis.json'}): {failed}")
     return 0

@@ -8,12 +8,11 @@ Nothing is recomputed: the page shows what the diagnosis measured.
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
-from errormap.io import InputError, read_document_text
+from errormap.io import InputError, read_json_object
 
 from .learned import learned_summary
 from .figures import pyplot
@@ -29,18 +28,6 @@ STAGE_NOTE = {"identified": "the sweeps' element set", "updated": "Gaussian upda
               "baseline_ols_linear": "baseline: OLS on the axes", "updated_plus_effects": "update + named effects",
               "learned_residual": "learned residual of the axes on what the loop leaves (kept only if it beats the "
                                   "loop on the held-out checks)"}
-
-
-def read_json(path: Path, what: str) -> dict:
-    try:
-        d = json.loads(read_document_text(path, "a diagnosis"))
-    except OSError:
-        raise InputError(f"{path}: no such file (a {what})") from None
-    except (json.JSONDecodeError, RecursionError) as exc:
-        raise InputError(f"{path}: not valid JSON ({exc})") from None
-    if not isinstance(d, dict):
-        raise InputError(f"{path}: expected a JSON object (a {what})")
-    return d
 
 
 def check_chain_diagnosis(doc: dict, path) -> None:
@@ -156,7 +143,7 @@ def chain_diagnosis_page(run_dir, machine) -> str:
     from errormap.diagnosis.loop_model import load_chain_model_file
     from errormap.chain_elements import ChainElementSet
     run_dir = Path(run_dir)
-    doc = read_json(run_dir / "diagnosis.json", "diagnosis of volcomp diagnose")
+    doc = read_json_object(run_dir / "diagnosis.json", "diagnosis of volcomp diagnose")
     check_chain_diagnosis(doc, run_dir / "diagnosis.json")
     model = load_chain_model_file(run_dir / "model.json", machine, learned="ignore")   # its elements only
     updated = model.elements
