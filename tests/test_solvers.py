@@ -8,7 +8,7 @@ from chain_fixtures import grinder_variant
 import pytest
 
 from compensation.solvers import METHODS, SolveResult, get_solver, solve
-from compensation.solvers._common import fold_a, project_to_ball
+from compensation.solvers._common import project_to_ball
 from compensation.solvers.exact import solve3
 from errormap.field import JACOBIAN, CalibratedVolume
 from errormap.chain_kernel import NominalChain, forward, inverse
@@ -204,8 +204,6 @@ def test_multi_turn_commands_keep_a_continuous(machine):
         r = solve(method, f, targets, machine, progress=False) if method == "exact" else solve(method, f, targets, machine)
         assert r.axes[:, 2].max() > 1000.0
         assert np.abs(np.diff(r.axes[:, 2])).max() < 5.0
-        # the field saw A folded into one turn: same error as at the folded axes
-        np.testing.assert_allclose(f.predict(fold_a(r.axes, machine)), f.predict(r.axes), atol=1e-9)
 
 
 def test_batched_ga_reaches_the_paper_residual(machine):
@@ -248,10 +246,3 @@ def test_input_is_validated_before_work(machine):
         solve("ga", f, np.zeros((1, 3)), machine, crossover_probability=1.5)
     with pytest.raises(TypeError):
         solve("exact", f, np.zeros((1, 3)), machine, no_such_option=1)
-
-
-def test_limited_a_stroke_does_not_fold(machine):
-    m = grinder_variant(edit=lambda d: next(j for j in d["work"] if j.get("axis") == "A").update(stroke=[0.0, 180.0]))
-    axes = np.array([[1.0, 1.0, 400.0]])
-    np.testing.assert_array_equal(fold_a(axes, m), axes)
-    np.testing.assert_allclose(fold_a(axes, machine)[0, 2], 40.0)
