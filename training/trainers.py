@@ -336,6 +336,8 @@ class TrainSettings:
     ``select_every`` accepted steps (see :func:`fit_field`); ``select_patience`` (> 0, LM with
     selection only): stop once that error has not improved for this many accepted steps (early
     stopping; 0 = off, the default, so ``max_iter`` or the goals decide). ``threads``: torch threads.
+    ``baseline_gate`` (default on): a network whose validation RMS is not below the plain OLS baseline's is
+    refused; off, it is returned with ``beats_baseline`` false in its metrics (a study of the trainer itself).
     """
 
     trainer: str = "lm"
@@ -357,6 +359,7 @@ class TrainSettings:
     threads: int | None = None
     physics: str = "none"
     physics_stations: int | None = None
+    baseline_gate: bool = True
 
     def __post_init__(self):
         for name, allowed in (("physics", PHYSICS), ("trainer", TRAINERS), ("init", INITS),
@@ -433,7 +436,7 @@ def fit_field(featurepoints, settings: TrainSettings | None = None, *, machine=N
     default random off-grid points of the same model from another stream of the seed. Selection keeps the
     iterate best over the volume, not on the grid (docs/reference/learned-stage.md); off without a reference
     and with ``select_best=False``. A network whose validation RMS is not below the OLS baseline's is refused
-    (InputError, nothing written), never returned."""
+    (InputError, nothing written; ``baseline_gate=False``: returned, ``beats_baseline`` false)."""
     s, t = _settings(settings, tracking, overrides)
     if out_dir is not None:
         check_run_folder(out_dir)
@@ -475,7 +478,7 @@ def fit_field(featurepoints, settings: TrainSettings | None = None, *, machine=N
         metrics.update({"selected_iteration": selector.best_iteration, "selection_max_um": selector.best_max_um})
     if s.physics != "none":
         metrics["physics_alone_kept"] = physics_kept_alone
-    if not metrics["beats_baseline"]:
+    if s.baseline_gate and not metrics["beats_baseline"]:
         raise InputError(f"{source or 'feature points'}: the trained network's validation RMS "
                          f"{metrics['val_rms_um']:.4g} μm is not below the plain OLS baseline's "
                          f"{metrics['baseline_ols_val_rms_um']:.4g} μm ({val_source}); model not written "
