@@ -210,7 +210,7 @@ class ChainMLPField(MLPField):
 class ChainPhysicsMLPField(PhysicsPart, ChainMLPField):
     """A chain network on the residual of the chain's own fitted element set:
     ``E = ChainField(machine, elements)(axes) + network(axes)`` (:class:`training.physics.PhysicsPart`;
-    the element set by :func:`training.physics.fit_chain_physics_elements` on the same feature
+    the element set by :func:`training.physics.fit_physics_elements` on the same feature
     points). Same capabilities, inputs and files as :class:`ChainMLPField`, plus
     ``physics_elements.json`` and ``physics_machine.toml`` (the machine file's bytes; refused on load
     when its SHA-256 is not the one the network records)."""

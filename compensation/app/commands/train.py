@@ -159,8 +159,8 @@ def _machine(fp):
     mf, name = fp.meta.get("machine_file"), fp.meta.get("machine")
     named = "axis_columns" in fp.meta
     if not named:
-        print(f"{src}: no header key 'axis_columns': read as the columns {', '.join(fp.axis_columns)} of the "
-              "built-in machine's feature points", file=sys.stderr)
+        print(f"{src}: no header key 'axis_columns': read as {', '.join(fp.axis_columns)} (the grinder's columns, "
+              "which a feature-point file without it holds)", file=sys.stderr)
     if named and not (mf and Path(mf).is_file()) and not name:
         raise InputError(f"{src}: header key 'machine': the feature points name no machine (nor a readable "
                          "machine_file)")
