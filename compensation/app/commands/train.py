@@ -119,7 +119,7 @@ def run(args) -> int:
     if res.history.stop_reason.startswith("time budget"):
         print(f"the wall-clock budget decided where training stopped; --max-iter {res.history.iterations} "
               "(without --max-time) reproduces this model")
-    _print_fit(args, res, "the element set", " (kept alone: the network did not improve it)"
+    _print_fit(args, res, "the chain's element set", " (kept alone: the network did not improve it)"
                if m.get("physics_alone_kept") else "")
     print(f"{'baseline (OLS)':<16}{m['baseline_ols_val_max_um']:>10.4f}{m['baseline_ols_val_rms_um']:>10.4f}"
           "   (affine least squares on the axes, same validation points)")
