@@ -208,16 +208,11 @@ def _read_network(src: ModelSource, machine, tracking_uri) -> Model:
 
 
 def _network(folder, machine):
-    """The trained network in ``folder``, as its ``config.json`` names it: a chain network (refused unless trained
-    on ``machine``) or the grinder's network of x, z, a."""
-    from .fields import CHAIN_NETWORK_FORMAT
-    folder = Path(folder)
-    doc = json.loads(read_document_text(folder / "config.json", "a trained model's config"))
-    if isinstance(doc, dict) and doc.get("format") == CHAIN_NETWORK_FORMAT:
-        from training.chain_model import ChainMLPField, check_machine
-        return check_machine(ChainMLPField.load(folder), machine, folder / "config.json")
-    from training.model import MLPField
-    return MLPField.load(folder)
+    """The trained network in ``folder``, as its ``config.json`` names it (:func:`training.chain_model.load_network`);
+    a network over a machine's named axis columns is refused unless trained on ``machine``."""
+    from training.chain_model import ChainMLPField, check_machine, load_network
+    net = load_network(Path(folder))
+    return check_machine(net, machine, Path(folder) / "config.json") if isinstance(net, ChainMLPField) else net
 
 
 def save_model_file(path, machine, elements=None, covariance=None, network_folder=None, kept_stage: str = "elements",

@@ -96,7 +96,7 @@ def test_error_line_is_one_line_and_bounded():
 
 def test_provenance_paths_resolve_relative_to_the_file(tmp_path, monkeypatch):
     """simulate run from one folder, the feature points used from another: elements_file still found."""
-    from training.trainers import reference_from_meta
+    from training.trainers import chain_reference, machine_from_meta
     work = tmp_path / "a"
     work.mkdir()
     monkeypatch.chdir(work)
@@ -111,7 +111,7 @@ def test_provenance_paths_resolve_relative_to_the_file(tmp_path, monkeypatch):
     for f in (work / "sim" / "featurepoints.csv", work / "fp" / "fp.csv"):
         fp = FeaturePoints.load(f)
         assert fp.meta["elements_file"] == str((work / "sim" / "truth_elements.json").resolve())
-        ref = reference_from_meta(fp.meta)
+        ref = chain_reference(machine_from_meta(fp.meta), fp.meta)
         assert ref is not None
         np.testing.assert_allclose(ref[1].predict(fp.axes), fp.errors_um, atol=TOL_UM)
 

@@ -7,7 +7,7 @@ import pytest
 from compensation.model_file import load_diagnosed_model
 from compensation.hybrid import LEARNED_FAMILIES, HybridField, LearnedResidual, TAPER_FRAC, learned_stage
 from compensation.solvers import solve
-from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN, check_field
+from errormap.field import GRINDER_AXES, JACOBIAN, PREDICT_AND_JACOBIAN, check_field
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import forward
 from errormap.chain_truth import make_chain_truth, random_axes
@@ -196,7 +196,7 @@ def test_hybrid_calibrated_volume_is_the_checks_box_and_the_guard_refuses_outsid
     axes = random_axes(grinder, 60, rng)
     axes[:, 0] = 50.0 + 100.0 * rng.random(60)      # checks only over X 50…150 mm, Z 10…50 mm
     axes[:, 1] = 10.0 + 40.0 * rng.random(60)
-    reg = ResidualRegressor(seed=SEED).fit(axis_features(axes)[0], NOISE_UM * rng.standard_normal((60, 3)))
+    reg = ResidualRegressor(seed=SEED).fit(axis_features(axes, GRINDER_AXES)[0], NOISE_UM * rng.standard_normal((60, 3)))
     lo, hi = axes[:, :2].min(0), axes[:, :2].max(0)
     base = ChainField(grinder, make_chain_truth(grinder, SEED).elements)
     hyb = HybridField(base, LearnedResidual(reg, lo, hi))
@@ -223,7 +223,7 @@ def test_hybrid_total_band_is_learned_band_plus_element_band(grinder):
     rng = np.random.default_rng(SEED + 5)
     axes = random_axes(grinder, 80, rng)
     r = _bump(grinder, axes) + NOISE_UM * rng.standard_normal(axes.shape)
-    reg = ResidualRegressor(seed=SEED, margin_se=0.0).fit(axis_features(axes)[0], r)
+    reg = ResidualRegressor(seed=SEED, margin_se=0.0).fit(axis_features(axes, GRINDER_AXES)[0], r)
     el = make_chain_truth(grinder, SEED).elements
     slots, stations = full_parameters(el)
     cov = (slots, stations, 0.25 * np.eye(len(slots)))
@@ -357,7 +357,7 @@ def test_solvers_on_a_hybrid_with_the_ensemble_family(grinder):
     rng = np.random.default_rng(SEED)
     axes = random_axes(grinder, 480, rng)
     r = _bump(grinder, axes) + NOISE_UM * rng.standard_normal(axes.shape)
-    f, _ = axis_features(axes)
+    f, _ = axis_features(axes, GRINDER_AXES)
     reg = ResidualRegressor(families=("ensemble",), seed=SEED).fit(f, r, groups=np.repeat(np.arange(10), 48))
     assert reg.chosen_ == "ensemble"
     learned = LearnedResidual(reg, axes[:, :2].min(0), axes[:, :2].max(0))

@@ -5,6 +5,8 @@ it; a term that stood in for a static error is replaced (split from tests/test_h
 import numpy as np
 import pytest
 
+from errormap.field import GRINDER_AXES
+
 from compensation.hybrid import TERM_CONSISTENT_Z, TERM_KEEP_Z, learned_stage
 from errormap.chain_truth import random_axes
 from test_hybrid import BUMP_RECOVERY_REL, NOISE_UM, SEED
@@ -123,7 +125,7 @@ def test_condition_term_coefficient_is_estimated_beside_a_static_field(grinder):
     c = np.zeros((TERM_COEF_N, 3))
     c[:, 2] = THERMAL_UM_PER_MM_C * (temp - 20.0) * (axes[:, 0] - x0)
     noise = NOISE_UM * rng.standard_normal((TERM_COEF_N, 3))
-    f = axis_features(axes)[0]
+    f = axis_features(axes, GRINDER_AXES)[0]
     groups = np.repeat(np.arange(10), TERM_COEF_N // 10)
     for gamma0 in (0.0, 0.5):
         r = noise.copy()

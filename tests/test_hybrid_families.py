@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from compensation.model_file import load_diagnosed_model
-from compensation.hybrid import INPUT_GROUPS, TAPER_FRAC, HybridField, LearnedResidual, axis_features
+from compensation.hybrid import TAPER_FRAC, axes_input_groups, HybridField, LearnedResidual, axis_features
 from compensation.solvers import solve
-from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN, check_field
+from errormap.field import GRINDER_AXES, JACOBIAN, PREDICT_AND_JACOBIAN, check_field
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import forward
 from errormap.chain_truth import make_chain_truth, random_axes
@@ -49,8 +49,8 @@ def learned(request, grinder):
     rng = np.random.default_rng(SEED)
     axes = random_axes(grinder, 480, rng)
     r = _tilt(grinder, axes) + NOISE_UM * rng.standard_normal(axes.shape)
-    f, _ = axis_features(axes)
-    reg = ResidualRegressor(families=(request.param,), seed=SEED, input_groups=INPUT_GROUPS["axes"]).fit(
+    f, _ = axis_features(axes, GRINDER_AXES)
+    reg = ResidualRegressor(families=(request.param,), seed=SEED, input_groups=axes_input_groups(GRINDER_AXES)).fit(
         f, r, groups=np.repeat(np.arange(10), 48))
     assert reg.chosen_ == request.param
     return LearnedResidual(reg, axes[:, :2].min(0), axes[:, :2].max(0))

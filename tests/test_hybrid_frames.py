@@ -5,6 +5,8 @@ import json
 import numpy as np
 import pytest
 
+from errormap.field import GRINDER_AXES
+
 from compensation.hybrid.stage import _fit_inputs
 from compensation.hybrid import (LEARNED_FRAMES, LearnedResidual, frame_key, input_features,
                                  learned_stage, split_frame_key, to_frame)
@@ -82,7 +84,7 @@ def _machine_frame_residual(grinder, n, seed):
 
 def test_learned_residual_in_the_machine_frame_jacobian_band_and_round_trip(grinder):
     axes, wr, r, rng = _machine_frame_residual(grinder, 80, SEED + 2)
-    f, _ = input_features(axes, "axes")
+    f, _ = input_features(axes, "axes", None, GRINDER_AXES)
     R = wr(axes)[0]
     reg = ResidualRegressor(seed=SEED, margin_se=0.0).fit(f, to_frame(r + 0.05 * rng.standard_normal(r.shape), R, "machine"))
     lr = LearnedResidual(reg, axes[:, :2].min(0), axes[:, :2].max(0), frame="machine", rotation=wr)
@@ -90,14 +92,14 @@ def test_learned_residual_in_the_machine_frame_jacobian_band_and_round_trip(grin
     P[0, :2] = axes[:, :2].max(0) + 3.0                         # in the taper outside the box too
     v, J = lr.predict_and_jacobian(P)
     RP = wr(P)[0]
-    g = reg.predict(input_features(P, "axes")[0]) * lr._taper(P)[0][:, None]
+    g = reg.predict(input_features(P, "axes", None, GRINDER_AXES)[0]) * lr._taper(P)[0][:, None]
     np.testing.assert_allclose(v, np.einsum("nji,nj->ni", RP, g), rtol=1e-12, atol=1e-12)
     h = 1e-4
     Jfd = np.stack([(lr.predict(P + h * e) - lr.predict(P - h * e)) / (2 * h) for e in np.eye(3)], -1)
     assert np.abs(J - Jfd).max() <= JAC_TOL_REL * np.abs(J).max()
     # the band: per-component variances of the machine frame turned into the work frame (norm kept)
     _, s = lr.predict(P, return_std=True)
-    _, s_m = reg.predict(input_features(P, "axes")[0], return_std=True)
+    _, s_m = reg.predict(input_features(P, "axes", None, GRINDER_AXES)[0], return_std=True)
     np.testing.assert_allclose((s ** 2).sum(1), (s_m ** 2).sum(1), rtol=1e-12)
     doc = json.loads(json.dumps(lr.to_dict()))
     assert doc["output_frame"] == "machine"

@@ -6,10 +6,13 @@ import json
 import numpy as np
 import pytest
 
-from compensation.hybrid import INPUT_SETS, LearnedResidual, input_features, work_features
+from compensation.hybrid import (INPUT_SETS, LearnedResidual, input_features, input_set_features, work_features,
+                                 work_radius)
 from compensation.hybrid.stage import _fit_inputs
 from errormap.chain_kernel import forward
+from errormap.field import GRINDER_AXES
 from errormap.grinder_file import rho0_mm
+from errormap.machine import load_machine
 from errormap.chain_truth import make_chain_truth, random_axes
 from training.residual import ResidualRegressor
 
@@ -49,33 +52,45 @@ LINEAR_SPAN_SQUARENESS_MIN = 0.99
 plus X's angular errors times the lever) wholly (measured 1 − 2e-9): the check can see absorption."""
 
 
+def test_work_radius_is_read_from_the_machine_file(grinder):
+    """ρ0 of the work-frame sets comes from the machine's chain: the grinder's geometry l1 + l4 − R − l6 − l8
+    to the bit; a machine without a rotary axis turning the work about its first linear axis has none."""
+    assert work_radius(grinder) == rho0_mm(grinder)
+    for name in ("mill-xyz", "five-axis-ac", "lathe-xzc"):
+        assert work_radius(load_machine(name)) is None
+    with pytest.raises(ValueError, match="only 'axes' exists here"):
+        input_features(np.zeros((1, 3)), "work", 0.1, ("x_mm", "y_mm", "z_mm"))
+
+
 def test_work_features_are_the_tool_point_in_the_work_frame(grinder):
     axes = random_axes(grinder, 200, np.random.default_rng(SEED))
-    f, J = work_features(axes, rho0_mm(grinder))
+    f, J = work_features(axes, work_radius(grinder))
     p = forward(grinder, axes)
     np.testing.assert_allclose(f[:, 1:], p[:, 1:], atol=WORK_POINT_TOL_MM, rtol=0)
     np.testing.assert_allclose(f[:, 0], axes[:, 0], atol=0, rtol=0)
     h = 1e-4
     for name in INPUT_SETS:
-        f, J = input_features(axes, name, rho0_mm(grinder))
-        assert f.shape == (200, len(INPUT_SETS[name])) and J.shape == (200, len(INPUT_SETS[name]), 3)
-        Jfd = np.stack([(input_features(axes + h * e, name, rho0_mm(grinder))[0]
-                         - input_features(axes - h * e, name, rho0_mm(grinder))[0]) / (2 * h) for e in np.eye(3)], -1)
+        f, J = input_features(axes, name, work_radius(grinder), GRINDER_AXES)
+        d = len(input_set_features(name, GRINDER_AXES))
+        assert f.shape == (200, d) and J.shape == (200, d, 3)
+        Jfd = np.stack([(input_features(axes + h * e, name, work_radius(grinder), GRINDER_AXES)[0]
+                         - input_features(axes - h * e, name, work_radius(grinder), GRINDER_AXES)[0]) / (2 * h)
+                        for e in np.eye(3)], -1)
         assert np.abs(J - Jfd).max() <= JAC_TOL_REL * np.abs(J).max()
     with pytest.raises(ValueError, match="rho0_mm"):
-        input_features(axes, "work", None)
+        input_features(axes, "work", None, GRINDER_AXES)
     with pytest.raises(ValueError, match="inputs"):
-        input_features(axes, "joints", rho0_mm(grinder))
+        input_features(axes, "joints", work_radius(grinder), GRINDER_AXES)
 
 
 @pytest.mark.parametrize("inputs", ["work", "axes+work"])
 def test_learned_residual_on_work_inputs_jacobian_and_round_trip(grinder, inputs):
     rng = np.random.default_rng(SEED + 1)
     axes = random_axes(grinder, 80, rng)
-    f, _ = input_features(axes, inputs, rho0_mm(grinder))
+    f, _ = input_features(axes, inputs, work_radius(grinder), GRINDER_AXES)
     r = np.c_[np.sin(axes[:, 0] / 40.0), 0.05 * axes[:, 1] * np.cos(np.deg2rad(axes[:, 2])), np.zeros(80)]
     reg = ResidualRegressor(seed=SEED, margin_se=0.0).fit(f, r + 0.05 * rng.standard_normal(r.shape))
-    lr = LearnedResidual(reg, axes[:, :2].min(0), axes[:, :2].max(0), inputs, rho0_mm(grinder))
+    lr = LearnedResidual(reg, axes[:, :2].min(0), axes[:, :2].max(0), inputs, work_radius(grinder))
     P = random_axes(grinder, 12, np.random.default_rng(SEED + 2))
     P[0, :2] = axes[:, :2].max(0) + 3.0                     # in the taper outside the box too
     v, J = lr.predict_and_jacobian(P)
@@ -83,7 +98,7 @@ def test_learned_residual_on_work_inputs_jacobian_and_round_trip(grinder, inputs
     Jfd = np.stack([(lr.predict(P + h * e) - lr.predict(P - h * e)) / (2 * h) for e in np.eye(3)], -1)
     assert np.abs(J - Jfd).max() <= JAC_TOL_REL * np.abs(J).max()
     doc = json.loads(json.dumps(lr.to_dict()))
-    assert doc["inputs"] == inputs and doc["features"] == list(INPUT_SETS[inputs])
+    assert doc["inputs"] == inputs and doc["features"] == list(input_set_features(inputs, GRINDER_AXES))
     back = LearnedResidual.from_dict(doc)
     np.testing.assert_allclose(back.predict(P), v, rtol=ROUND_TRIP_RTOL, atol=0)
     for key, bad, msg in (("rho0_mm", None, "rho0_mm"), ("inputs", "joints", "inputs"),
@@ -101,7 +116,7 @@ def test_learned_residual_file_without_inputs_is_the_axes_set(grinder):
     """A model.json written before the input sets (no ``inputs`` key) loads with the axes features."""
     rng = np.random.default_rng(SEED + 3)
     axes = random_axes(grinder, 40, rng)
-    f, _ = input_features(axes, "axes")
+    f, _ = input_features(axes, "axes", None, GRINDER_AXES)
     reg = ResidualRegressor(seed=SEED, margin_se=0.0).fit(f, rng.standard_normal((40, 3)))
     doc = LearnedResidual(reg, axes[:, :2].min(0), axes[:, :2].max(0)).to_dict()
     del doc["inputs"]
@@ -114,14 +129,14 @@ def test_input_set_choice_is_the_lowest_cv_rms_on_the_same_folds(grinder):
     chosen family has the lowest CV RMS."""
     rng = np.random.default_rng(SEED + 4)
     axes = random_axes(grinder, 120, rng)
-    wz = (rho0_mm(grinder) + axes[:, 1]) * np.cos(np.deg2rad(axes[:, 2]))
+    wz = (work_radius(grinder) + axes[:, 1]) * np.cos(np.deg2rad(axes[:, 2]))
     r = np.c_[0.1 * axes[:, 0] / 200.0 * wz, np.zeros(120), np.zeros(120)] + 0.3 * rng.standard_normal((120, 3))
-    feats = {n: input_features(axes, n, rho0_mm(grinder))[0] for n in INPUT_SETS}
+    feats = {n: input_features(axes, n, work_radius(grinder), GRINDER_AXES)[0] for n in INPUT_SETS}
     groups = np.repeat(np.arange(10), 12)
-    best, reg, table = _fit_inputs(feats, r, np.arange(120), groups, ("gp",), SEED)
+    best, reg, table = _fit_inputs(feats, r, np.arange(120), groups, ("gp",), SEED, GRINDER_AXES)
     fitted = [n for n in INPUT_SETS if table[n]["family"] != "none"]
     assert fitted and best == min(fitted, key=lambda n: table[n]["cv_rms"])
-    assert reg.n_features_in_ == len(INPUT_SETS[best])
+    assert reg.n_features_in_ == len(input_set_features(best, GRINDER_AXES))
     # the folds are the same for every input set: predicting zero has the same CV RMS on each
     assert len({round(table[n]["cv_rms_zero"], 12) for n in INPUT_SETS}) == 1
 

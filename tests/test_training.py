@@ -492,7 +492,7 @@ def test_selection_keeps_the_iterate_best_off_grid(tmp_path):
     el_path = el.save(tmp_path / "el.json")
     fp = make_feature_points(m, ChainField(m, el), n=5, meta={"elements_file": str(el_path)})
     kw = dict(max_time_s=120, max_iter=60, seed=0, track=False, quiet=True, threads=1, n_validation=2000,
-              hidden=(8, 8), activation="tanh", a_encoding="periodic")
+              hidden=(8, 8), activation="tanh", a_encoding="periodic", baseline_gate=False)  # the trainer studied
     best = fit_field(fp, select_best=True, n_select=2000, select_every=1, **kw)
     last = fit_field(fp, select_best=False, **kw)
     assert 1 <= best.metrics["selected_iteration"] <= last.metrics["iterations"]

@@ -210,7 +210,7 @@ class ChainMLPField(MLPField):
 class ChainPhysicsMLPField(PhysicsPart, ChainMLPField):
     """A chain network on the residual of the chain's own fitted element set:
     ``E = ChainField(machine, elements)(axes) + network(axes)`` (:class:`training.physics.PhysicsPart`;
-    the element set by :func:`training.physics.fit_chain_physics_elements` on the same feature
+    the element set by :func:`training.physics.fit_physics_elements` on the same feature
     points). Same capabilities, inputs and files as :class:`ChainMLPField`, plus
     ``physics_elements.json`` and ``physics_machine.toml`` (the machine file's bytes; refused on load
     when its SHA-256 is not the one the network records)."""
@@ -249,19 +249,12 @@ def check_machine(model: ChainMLPField, machine, where) -> ChainMLPField:
     return model
 
 
-# -- the plain baseline beside the trained network (training.trainers.fit_field) ---------
-def ols_baseline(model: ChainMLPField, train_axes, train_errors_um, eval_axes) -> np.ndarray:
-    """The plain baseline an engineer tries first: ordinary least squares of each error component on
-    the axis columns (affine; a full-turn rotary axis as cos/sin, as the network takes it), fitted on
-    the training points and evaluated at ``eval_axes``; (m, k) -> (m, 3) μm."""
-    def design(a):
-        cols = [np.ones(len(a))]
-        for j, per in enumerate(model.periodic):
-            if per:
-                r = np.deg2rad(a[:, j])
-                cols += [np.cos(r), np.sin(r)]
-            else:
-                cols.append(a[:, j])
-        return np.column_stack(cols)
-    coef = np.linalg.lstsq(design(np.asarray(train_axes, float)), np.asarray(train_errors_um, float), rcond=None)[0]
-    return design(np.asarray(eval_axes, float)) @ coef
+def load_network(folder):
+    """The trained network saved in ``folder``, as its ``config.json``'s ``format`` names it: a
+    :class:`ChainMLPField` (or its physics-first form) or an :class:`~training.model.MLPField` (or its)."""
+    d = Path(folder)
+    try:
+        doc = json.loads(read_document_text(d / "config.json", "a trained model's config"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{d / 'config.json'}: not valid JSON: {exc}") from None
+    return (ChainMLPField if isinstance(doc, dict) and doc.get("format") == CHAIN_FORMAT else MLPField).load(d)

@@ -30,6 +30,8 @@ from .physics import PHYSICS_FILES, PhysicsPart
 FORMAT = "volcomp-mlpfield/1"
 MODEL_FILES = ("scalers.json", "weights.npy")  # config.json records their SHA-256
 PAPER_HIDDEN = (10, 15, 25, 15, 10)
+INPUTS = ("x_mm", "z_mm", "a_deg")
+"""The axis columns the network takes: two linear axes and a full-turn rotary axis (the grinder's)."""
 ACTIVATIONS = {"sigmoid": torch.sigmoid, "tanh": torch.tanh, "softplus": torch.nn.functional.softplus}
 A_ENCODINGS = ("raw", "periodic")
 DTYPE = torch.float64
@@ -500,7 +502,7 @@ class MLPField:
     def config(self) -> dict:
         return {"format": FORMAT, "hidden": list(self.hidden), "activation": self.activation,
                 "a_encoding": self.a_encoding, "n_params": self.n_params,
-                "inputs": ["x_mm", "z_mm", "a_deg"], "outputs": ["dx_um", "dy_um", "dz_um"]}
+                "inputs": list(INPUTS), "outputs": ["dx_um", "dy_um", "dz_um"]}
 
     def scalers(self) -> dict:
         return {"in_lo": self.in_lo_, "in_hi": self.in_hi_, "a0_deg": self.a0_deg_,

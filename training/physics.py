@@ -5,15 +5,13 @@ machine's element set fitted by ONE minimum-norm linear least-squares solve to t
 ``E(axes) ≈ J(axes)·v(axes)`` (first-order error transfer), each axis-motion element a cubic interpolating
 B-spline through ``n_stations`` stations of its axis, and evaluated with the EXACT chain
 (:class:`errormap.chain_field.ChainField`). :func:`solve_station_values` is the solve,
-:func:`fit_chain_physics_elements` a chain's slots, :class:`PhysicsPart` the physical part of the networks.
+:func:`fit_physics_elements` a machine tool's slots, :class:`PhysicsPart` the physical part of the networks.
 docs/reference/learned-stage.md ("Physics first")."""
 from __future__ import annotations
 
 import numpy as np
 from scipy.interpolate import make_interp_spline
 
-from errormap.elements import AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS, IDX, default_stations
-from errormap.chain_kernel import error_jacobian
 
 PHYSICS = ("none", "first-order")
 """``--physics`` choices: no physical part (the paper's network alone), or the fitted element set."""
@@ -78,34 +76,9 @@ def _profile(free, n: int, periodic: bool) -> np.ndarray:
 
 
 def fit_physics_elements(machine, axes, errors_um, n_stations: int | None = None):
-    """The element set (``n_stations`` per axis) whose first-order field best fits ``errors_um``.
-
-    The grinder's chain (:func:`errormap.grinder_file.is_grinder_chain`): ``axes`` (n, 3) (x_mm, z_mm,
-    a_deg); another machine-tool chain: ``axes`` (n, k) in its axis columns; returns a
-    :class:`errormap.chain_elements.ChainElementSet`
-    (:func:`fit_chain_physics_elements`). ``errors_um`` (n, 3). One minimum-norm linear
-    least-squares solve (module doc, :func:`solve_station_values`) on the machine's stroke stations.
-    """
-    from errormap.grinder_file import is_grinder_chain
-    if not is_grinder_chain(machine):
-        return fit_chain_physics_elements(machine, axes, errors_um, n_stations)
-    axes = np.asarray(axes, float)
-    m = _n_stations(axes, n_stations)
-    st = default_stations(machine, m)
-    a0 = st["a_deg"][0]
-    J = error_jacobian(machine, axes)                                  # (n, 3, 23)
-    x_of = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": a0 + np.mod(axes[:, 2] - a0, 360.0)}
-    bases = {ax: _basis(st[ax], x_of[ax], ax == "a_deg") for ax in st}
-    free, const = solve_station_values(J, errors_um, [(IDX[k], bases[AXIS_OF[k]]) for k in FUNCTION_ELEMENTS],
-                                       [IDX[k] for k in CONSTANT_ELEMENTS])
-    functions = {k: _profile(f, st[AXIS_OF[k]].size, AXIS_OF[k] == "a_deg") for k, f in zip(FUNCTION_ELEMENTS, free)}
-    from errormap.chain_elements import ChainElementSet
-    return ChainElementSet(machine, st, functions, dict(zip(CONSTANT_ELEMENTS, const)), machine.name, machine.sha256)
-
-
-def fit_chain_physics_elements(machine, axes, errors_um, n_stations: int | None = None):
-    """A machine-tool chain's element set (its own slots, ``n_stations`` equally spaced stations over
-    each stroke with component errors, periodic on a full turn) fitted to ``errors_um`` (n, 3) at
+    """The element set whose first-order field best fits ``errors_um``: a machine tool's own slots (the grinder's
+    23 elements on its chain), ``n_stations`` equally spaced stations over
+    each stroke with component errors, periodic on a full turn, fitted to ``errors_um`` (n, 3) at
     ``axes`` (n, k) by :func:`solve_station_values` with the chain's error-transfer matrix
     (:func:`errormap.chain_kernel.error_jacobian`); returns a :class:`ChainElementSet`, evaluated
     exactly by :class:`errormap.chain_field.ChainField`."""

@@ -1,10 +1,10 @@
 """The learned field as an MLflow ``pyfunc`` model.
 
 A run's ``model/`` artifact is a pyfunc model folder (``MLmodel``: flavor ``python_function``, loader module
-``training.pyfunc``, signature x_mm, z_mm, a_deg -> dx_um, dy_um, dz_um; ``input_example.json``; the
-network's files of :meth:`training.model.MLPField.save`; ``machine.toml`` when known), so ``mlflow models
-serve`` and ``mlflow.pyfunc.load_model(...).predict(df)`` work on it and ``volcomp --model <run id>`` loads
-it. It predicts exactly what :meth:`training.model.MLPField.predict` does and applies no guard.
+``training.pyfunc``, signature the network's axis columns (x_mm, z_mm, a_deg on the grinder) -> dx_um, dy_um,
+dz_um; ``input_example.json``; the network's files (:meth:`training.model.MLPField.save`); ``machine.toml`` when
+known), so ``mlflow models serve`` and ``mlflow.pyfunc.load_model(...).predict(df)`` work on it and ``volcomp
+--model <run id>`` loads it. It predicts exactly what the network's ``predict`` does and applies no guard.
 docs/reference/file-formats.md."""
 from __future__ import annotations
 
@@ -13,47 +13,47 @@ from pathlib import Path
 
 import numpy as np
 
-INPUTS = ("x_mm", "z_mm", "a_deg")
 OUTPUTS = ("dx_um", "dy_um", "dz_um")
 
 
 class PyfuncField:
-    """What ``mlflow.pyfunc.load_model`` wraps: ``predict(DataFrame[x_mm, z_mm, a_deg]) ->
+    """What ``mlflow.pyfunc.load_model`` wraps: ``predict(DataFrame[<the network's axis columns>]) ->
     DataFrame[dx_um, dy_um, dz_um]`` (μm), one row per point."""
 
     def __init__(self, field):
         self.field = field
+        self.inputs = tuple(field.config()["inputs"])
 
     def predict(self, model_input, params=None):
         import pandas as pd
         df = pd.DataFrame(model_input)
-        missing = [c for c in INPUTS if c not in df.columns]
+        missing = [c for c in self.inputs if c not in df.columns]
         if missing:
-            raise ValueError(f"Expected columns {list(INPUTS)}, missing {missing}")
-        e = self.field.predict(df[list(INPUTS)].to_numpy(dtype=float))
+            raise ValueError(f"Expected columns {list(self.inputs)}, missing {missing}")
+        e = self.field.predict(df[list(self.inputs)].to_numpy(dtype=float))
         return pd.DataFrame(np.asarray(e, dtype=float), columns=list(OUTPUTS), index=df.index)
 
 
 def _load_pyfunc(data_path):
     """MLflow's entry point (``loader_module``): ``data_path`` is the ``model/`` folder itself."""
-    from .model import MLPField
-    return PyfuncField(MLPField.load(data_path))
+    from .chain_model import load_network
+    return PyfuncField(load_network(data_path))
 
 
 def save_pyfunc(model_dir, out_dir, machine_file=None) -> Path:
-    """Write the pyfunc folder ``out_dir`` (new) for the MLPField saved in ``model_dir``, with the
+    """Write the pyfunc folder ``out_dir`` (new) for the network saved in ``model_dir``, with the
     machine file when given, the signature and an input example; returns ``out_dir``."""
     import mlflow.pyfunc
     import pandas as pd
     from mlflow.models import Model, infer_signature
 
-    from .model import MLPField
+    from .chain_model import load_network
     model_dir, out_dir = Path(model_dir), Path(out_dir)
-    field = MLPField.load(model_dir)
-    lo, hi = np.asarray(field.in_lo_, dtype=float), np.asarray(field.in_hi_, dtype=float)
-    example = pd.DataFrame(lo + (hi - lo) * np.array([[0.25], [0.5], [0.75]]), columns=list(INPUTS))
+    field = PyfuncField(load_network(model_dir))
+    lo, hi = np.asarray(field.field.in_lo_, dtype=float), np.asarray(field.field.in_hi_, dtype=float)
+    example = pd.DataFrame(lo + (hi - lo) * np.array([[0.25], [0.5], [0.75]]), columns=list(field.inputs))
     mlflow.pyfunc.save_model(str(out_dir), loader_module="training.pyfunc",
-                             signature=infer_signature(example, PyfuncField(field).predict(example)),
+                             signature=infer_signature(example, field.predict(example)),
                              input_example=example, pip_requirements=["volcomp"])
     for p in model_dir.iterdir():
         shutil.copyfile(p, out_dir / p.name)

@@ -75,12 +75,12 @@ def _experiment_id(client, uri: str, name: str) -> str:
 
 def log_fit(params: dict, metrics: dict, history, model_dir, artifacts, *, tracking_uri=None,
             run_name=None, parent_run_id=None, tags=None, experiment: str = "volcomp-field",
-            machine_file=None, pyfunc: bool = True) -> str:
+            machine_file=None) -> str:
     """Record one fit as an MLflow run; returns its run id.
 
     ``history`` has ``loss`` and ``elapsed_s`` per iteration (logged as metric ``loss``
     with ``step`` = iteration); ``model_dir`` goes to artifact path ``model/`` (as a pyfunc model of the
-    grinder's network; ``pyfunc=False``: the folder as it is, a machine-tool chain's network);
+    network, :mod:`training.pyfunc`);
     ``artifacts`` (files) go to the run's root.
     """
     from mlflow.entities import Metric, Param
@@ -101,13 +101,10 @@ def log_fit(params: dict, metrics: dict, history, model_dir, artifacts, *, track
         ms += [Metric(k, float(v), now, 0) for k, v in metrics.items()]
         for i in range(0, len(ms), 1000):
             client.log_batch(rid, metrics=ms[i:i + 1000])
-        if not pyfunc:
-            client.log_artifacts(rid, str(model_dir), MODEL_ARTIFACT)
-        else:
-            with tempfile.TemporaryDirectory(prefix="volcomp-pyfunc-") as tmp:
-                from .pyfunc import save_pyfunc
-                client.log_artifacts(rid, str(save_pyfunc(model_dir, Path(tmp) / MODEL_ARTIFACT, machine_file)),
-                                     MODEL_ARTIFACT)
+        with tempfile.TemporaryDirectory(prefix="volcomp-pyfunc-") as tmp:
+            from .pyfunc import save_pyfunc
+            client.log_artifacts(rid, str(save_pyfunc(model_dir, Path(tmp) / MODEL_ARTIFACT, machine_file)),
+                                 MODEL_ARTIFACT)
         for a in artifacts:
             client.log_artifact(rid, str(a))
         status = "FINISHED"
@@ -235,11 +232,11 @@ def _model_version_source(uri: str, store: str) -> str:
 
 
 def load_field(spec: str, tracking_uri: str | None = None, loader=None):
-    """A trained :class:`~training.model.MLPField` from a run id, ``runs:/<id>[/path]``,
-    ``models:/<name>/<version>`` or a local model directory; ``loader(folder)`` another class's ``load``
-    (a machine-tool chain's :meth:`training.chain_model.ChainMLPField.load`)."""
-    from .model import MLPField
-    load = loader or MLPField.load
+    """A trained network from a run id, ``runs:/<id>[/path]``, ``models:/<name>/<version>`` or a local model
+    directory, as its ``config.json`` names it (:func:`training.chain_model.load_network`); ``loader(folder)``
+    another loader."""
+    from .chain_model import load_network
+    load = loader or load_network
     spec = str(spec).strip()
     p = Path(spec)
     if p.is_dir():

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from errormap.io import OUTPUT_LOCK_NAME, InputError, sha256_file
+from errormap.io import OUTPUT_LOCK_NAME, InputError
 from errormap.progress import Progress
 from errormap.seeds import spawn_seeds
 from errormap.stats import residual_stats
@@ -28,7 +28,7 @@ from errormap.threads import limit_threads
 
 from . import DEFAULT_MAX_ITER
 from .lm import LMSettings, TrainHistory, stop_reason, train_lm
-from .model import A_ENCODINGS, ACTIVATIONS, PAPER_HIDDEN, MLPField, PhysicsMLPField
+from .model import A_ENCODINGS, ACTIVATIONS, INPUTS, PAPER_HIDDEN, MLPField, PhysicsMLPField
 from .physics import MAX_STATIONS, MIN_STATIONS, PHYSICS
 
 TRAINERS = ("lm", "adam", "lbfgs")
@@ -184,23 +184,8 @@ def validation_points(machine, elements_or_field, n: int = 10_000, seed: int = 1
     return axes, f.predict(axes)
 
 
-def reference_from_meta(meta: dict):
-    """(machine, HTM field) from a feature-point file's provenance, or None when not available."""
-    from errormap.chain_elements import ChainElementSet
-    from errormap.chain_field import ChainField
-    from errormap.machine import load_machine, made_on
-    el = meta.get("elements_file")
-    if not el or not Path(el).is_file():
-        return None
-    mf = meta.get("machine_file") or None
-    if mf and not Path(mf).is_file() and made_on(load_machine(), meta.get("machine_sha256")):
-        mf = None  # the built-in machine, recorded by another installation's path
-    machine = load_machine(mf, expect_kind="grinder")
-    return machine, ChainField(machine, ChainElementSet.load(el, machine))
-
-
 def chain_reference(machine, meta: dict):
-    """(machine, its element set's field) named in a chain's feature points' ``elements_file``, or None."""
+    """(machine, its element set's field) named in the feature points' ``elements_file``, or None."""
     from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
     el = meta.get("elements_file")
@@ -238,13 +223,14 @@ def physics_metrics(model, axes, errors_um, val_axes, val_errors_um) -> dict:
 
 
 def machine_from_meta(meta: dict):
-    """The grinder the feature points were made on (their ``machine_file``, else the built-in one)."""
+    """The machine tool feature points without a given machine were made on: their ``machine_file``, else the
+    built-in default machine (the grinder's columns, what a feature-point file without ``axis_columns`` holds)."""
     from errormap.machine import load_machine, made_on
     mf = meta.get("machine_file") or None
     if mf and not Path(mf).is_file() and (meta.get("machine_sha256") in (None, "")
                                           or made_on(load_machine(), meta.get("machine_sha256"))):
         mf = None
-    return load_machine(mf, expect_kind="grinder")
+    return load_machine(mf, expect_kind="machine-tool" if mf else None)
 
 
 def data_hash(axes, errors) -> str:
@@ -350,6 +336,8 @@ class TrainSettings:
     ``select_every`` accepted steps (see :func:`fit_field`); ``select_patience`` (> 0, LM with
     selection only): stop once that error has not improved for this many accepted steps (early
     stopping; 0 = off, the default, so ``max_iter`` or the goals decide). ``threads``: torch threads.
+    ``baseline_gate`` (default on): a network whose validation RMS is not below the plain OLS baseline's is
+    refused; off, it is returned with ``beats_baseline`` false in its metrics (a study of the trainer itself).
     """
 
     trainer: str = "lm"
@@ -371,6 +359,7 @@ class TrainSettings:
     threads: int | None = None
     physics: str = "none"
     physics_stations: int | None = None
+    baseline_gate: bool = True
 
     def __post_init__(self):
         for name, allowed in (("physics", PHYSICS), ("trainer", TRAINERS), ("init", INITS),
@@ -433,36 +422,38 @@ def _settings(settings, tracking, overrides) -> tuple[TrainSettings, TrackSettin
 def fit_field(featurepoints, settings: TrainSettings | None = None, *, machine=None, validation=None,
               selection=None, tracking: TrackSettings | None = None, out_dir=None, quiet: bool = False,
               **overrides) -> FitResult:
-    """Train the network on feature points: an :class:`MLPField` on the grinder's (x, z, a) ones, recorded as
-    an MLflow run; with ``machine`` (a machine-tool chain) a :class:`~training.chain_model.ChainMLPField` over
-    its axis columns, held against the plain OLS baseline (:func:`_chain_run`).
+    """Train the network over a machine tool's axes on its feature points (:func:`network_for`), hold it against
+    the plain OLS baseline and record it as an MLflow run; the same path for every machine tool.
 
     ``featurepoints``: :class:`errormap.featurepoints.FeaturePoints` (axes (n, k), errors (n, 3) μm, meta).
-    ``settings``: :class:`TrainSettings`; ``tracking``: :class:`TrackSettings` (the run, the grinder's and a
-    chain's alike). Keyword ``overrides`` name fields of either (``fit_field(fp, max_iter=60,
-    track=False)``) and go through the same validation. ``validation``: ``(axes (m, k), errors (m, 3) μm)``;
-    when None, ``n_validation`` random off-grid points of the element set named in the feature points' meta
-    (``elements_file``), InputError if there is none. ``out_dir``: also save the model and ``metrics.json``
-    there (written as a set). ``selection`` (for ``select_best``): ``(axes (s, k), errors (s, 3) μm)``, never
-    the validation data; by default random off-grid points of the same model from another stream of the seed.
-    Selection keeps the iterate best over the volume, not on the grid (docs/reference/learned-stage.md); off
-    without a reference and with ``select_best=False``."""
+    ``machine``: the machine tool they were made on (None: :func:`machine_from_meta`).
+    ``settings``: :class:`TrainSettings`; ``tracking``: :class:`TrackSettings`. Keyword ``overrides`` name
+    fields of either (``fit_field(fp, max_iter=60, track=False)``) and go through the same validation.
+    ``validation``: ``(axes (m, k), errors (m, 3) μm)``; when None, ``n_validation`` random off-grid points of
+    the element set named in the feature points' meta (``elements_file``), InputError if there is none.
+    ``out_dir``: also save the model, the fit plots and ``metrics.json`` there (written as a set).
+    ``selection`` (for ``select_best``): ``(axes (s, k), errors (s, 3) μm)``, never the validation data; by
+    default random off-grid points of the same model from another stream of the seed. Selection keeps the
+    iterate best over the volume, not on the grid (docs/reference/learned-stage.md); off without a reference
+    and with ``select_best=False``. A network whose validation RMS is not below the OLS baseline's is refused
+    (InputError, nothing written; ``baseline_gate=False``: returned, ``beats_baseline`` false)."""
     s, t = _settings(settings, tracking, overrides)
     if out_dir is not None:
         check_run_folder(out_dir)
     axes, errors = np.asarray(featurepoints.axes, float), np.asarray(featurepoints.errors_um, float)
     meta, source = dict(getattr(featurepoints, "meta", {}) or {}), getattr(featurepoints, "source", "")
-    if machine is not None and tuple(featurepoints.axis_columns) != tuple(machine.axis_columns):
+    machine = machine if machine is not None else machine_from_meta(meta)
+    if tuple(featurepoints.axis_columns) != tuple(machine.axis_columns):
         raise InputError(f"{source or 'feature points'}: axis columns "
                          f"{', '.join(featurepoints.axis_columns)}; the machine {machine.name!r} has "
                          f"{', '.join(machine.axis_columns)}")
-    ref = reference_from_meta(meta) if machine is None else chain_reference(machine, meta)
+    ref = chain_reference(machine, meta)
     # the initial weights use the seed itself; validation and selection points its children
     streams = spawn_seeds(s.seed, 2)
     (val_axes, val_errors), val_source = _validation_data(s, validation, ref, meta, streams[VALIDATION_STREAM],
                                                           source, machine)
     t0 = time.process_time()
-    model, target = _model_and_target(machine, ref, meta, axes, errors, s)
+    model, target = _model_and_target(machine, axes, errors, s)
     selector = sel_errors = None
     if s.select_best and s.trainer == "lm" and (selection is not None or ref is not None):
         sel_axes, sel_errors = (tuple(np.asarray(v, float) for v in selection) if selection is not None
@@ -472,49 +463,88 @@ def fit_field(featurepoints, settings: TrainSettings | None = None, *, machine=N
         selector = _BestOnSelection(model, sel_axes, sel_errors, s.select_every, s.select_patience)
     hist = _train(model, axes, target, s, selector, quiet)
     physics_kept_alone = s.physics != "none" and keep_physics_alone(model, selector, sel_errors)
-    cpu = time.process_time() - t0
     metrics = fit_metrics("train", model.predict(axes), errors)
     metrics.update(fit_metrics("val", model.predict(val_axes), val_errors))
     if s.physics != "none":
         metrics.update(physics_metrics(model, axes, errors, val_axes, val_errors))
-    if machine is not None:   # the plain baseline beside the network, on the same validation points
-        from .chain_model import ols_baseline
-        base = fit_metrics("val", ols_baseline(model, axes, errors, val_axes), val_errors)
-        metrics.update({"baseline_ols_val_max_um": base["val_max_um"],
-                        "baseline_ols_val_rms_um": base["val_rms_um"],
-                        "beats_baseline": bool(metrics["val_rms_um"] < base["val_rms_um"]),
-                        "train_cpu_seconds": cpu})
-    metrics.update({"final_mse_scaled": hist.loss[-1] if hist.loss else float("nan"),
+    # the plain baseline beside the network, on the same validation points
+    base = fit_metrics("val", ols_baseline(periodic_axes(machine, s.a_encoding), axes, errors, val_axes), val_errors)
+    metrics.update({"baseline_ols_val_max_um": base["val_max_um"], "baseline_ols_val_rms_um": base["val_rms_um"],
+                    "beats_baseline": bool(metrics["val_rms_um"] < base["val_rms_um"]),
+                    "train_cpu_seconds": time.process_time() - t0,
+                    "final_mse_scaled": hist.loss[-1] if hist.loss else float("nan"),
                     "iterations": hist.iterations, "train_seconds": hist.seconds})
     if selector is not None:
         metrics.update({"selected_iteration": selector.best_iteration, "selection_max_um": selector.best_max_um})
     if s.physics != "none":
         metrics["physics_alone_kept"] = physics_kept_alone
-    if machine is not None:
-        return _chain_run(model, metrics, hist, s, t, machine, meta, axes, errors, len(val_axes), val_source,
-                          source, out_dir)
-    params = _fit_params(model, s, meta, hist, axes, errors, len(val_axes), val_source, selector is not None)
+    if s.baseline_gate and not metrics["beats_baseline"]:
+        raise InputError(f"{source or 'feature points'}: the trained network's validation RMS "
+                         f"{metrics['val_rms_um']:.4g} μm is not below the plain OLS baseline's "
+                         f"{metrics['baseline_ols_val_rms_um']:.4g} μm ({val_source}); model not written "
+                         "(more feature points, iterations or another network)")
+    params = _fit_params(model, s, machine, meta, hist, axes, errors, len(val_axes), val_source, selector is not None)
     run_id = None
     if t.track or out_dir is not None:
-        run_id = _write_run(model, axes, errors, ref, metrics, params, hist, s, t, meta, out_dir)
+        run_id = _write_run(model, axes, errors, ref, metrics, params, hist, s, t, machine, out_dir)
     return FitResult(model, metrics, run_id, hist.seconds, hist, params)
 
 
-def _model_and_target(machine, ref, meta: dict, axes, errors_um, s: TrainSettings):
-    """The untrained network (scalers fitted) and what it learns: the feature points' errors
-    (``physics="none"``), or what the element set fitted to the same points leaves (``"first-order"``,
-    :mod:`training.physics`); the grinder's :class:`MLPField` (``machine`` None) or the chain's
-    :class:`~training.chain_model.ChainMLPField`."""
+def uses_fused_network(machine) -> bool:
+    """True where the machine's axis columns are the ones :class:`MLPField` takes (two linear axes and a
+    full-turn rotary axis, :data:`training.model.INPUTS`): that network (its float32 and column paths, the
+    batched GA's fused fitness, the raw rotary input's seam closed) is the one trained there."""
+    return tuple(machine.axis_columns) == INPUTS and bool(machine.axes[2].full_turn)
+
+
+def periodic_axes(machine, a_encoding: str = "raw") -> list:
+    """One flag per axis of ``machine``: fed to a network as (cos, sin) — a full-turn rotary axis (the
+    fused network's: only with ``a_encoding="periodic"``), a rotary axis short of a turn with ``"periodic"``."""
+    fused = uses_fused_network(machine)
+    return [a.kind == "rotary" and ((a.full_turn and not fused) or a_encoding == "periodic") for a in machine.axes]
+
+
+def a_encoding_applies(machine) -> bool:
+    """Whether ``a_encoding`` changes the network of ``machine``: a rotary axis whose input is raw by default."""
+    return uses_fused_network(machine) or any(a.kind == "rotary" and not a.full_turn for a in machine.axes)
+
+
+def network_for(machine, s: TrainSettings):
+    """The untrained network over ``machine``'s axes (settings ``s``): :class:`MLPField` where
+    :func:`uses_fused_network`, else :class:`~training.chain_model.ChainMLPField`; the physics-first form of
+    either (:class:`PhysicsMLPField`, :class:`~training.chain_model.ChainPhysicsMLPField`) with ``s.physics``."""
+    from .chain_model import ChainMLPField, ChainPhysicsMLPField
     physics = s.physics != "none"
-    if machine is None:
-        model = (PhysicsMLPField if physics else MLPField)(s.hidden, s.activation, s.a_encoding)
-        machine = (ref[0] if ref is not None else machine_from_meta(meta)) if physics else None
-    else:
-        from .chain_model import ChainMLPField, ChainPhysicsMLPField
-        model = (ChainPhysicsMLPField if physics else ChainMLPField).for_machine(
-            machine, s.a_encoding, hidden=s.hidden, activation=s.activation)
+    if uses_fused_network(machine):
+        return (PhysicsMLPField if physics else MLPField)(s.hidden, s.activation, s.a_encoding)
+    return (ChainPhysicsMLPField if physics else ChainMLPField).for_machine(
+        machine, s.a_encoding, hidden=s.hidden, activation=s.activation)
+
+
+def ols_baseline(periodic, train_axes, train_errors_um, eval_axes) -> np.ndarray:
+    """The plain baseline an engineer tries first: ordinary least squares of each error component on
+    the axis columns (affine; an axis flagged in ``periodic`` as cos/sin, as the network takes it), fitted on
+    the training points and evaluated at ``eval_axes``; (m, k) -> (m, 3) μm."""
+    def design(a):
+        cols = [np.ones(len(a))]
+        for j, per in enumerate(periodic):
+            if per:
+                r = np.deg2rad(a[:, j])
+                cols += [np.cos(r), np.sin(r)]
+            else:
+                cols.append(a[:, j])
+        return np.column_stack(cols)
+    coef = np.linalg.lstsq(design(np.asarray(train_axes, float)), np.asarray(train_errors_um, float), rcond=None)[0]
+    return design(np.asarray(eval_axes, float)) @ coef
+
+
+def _model_and_target(machine, axes, errors_um, s: TrainSettings):
+    """The untrained network (:func:`network_for`, scalers fitted) and what it learns: the feature points'
+    errors (``physics="none"``), or what the element set fitted to the same points leaves (``"first-order"``,
+    :mod:`training.physics`)."""
+    model = network_for(machine, s)
     target = errors_um
-    if physics:
+    if s.physics != "none":
         from .physics import fit_physics_elements
         model.set_physics(machine, fit_physics_elements(machine, axes, errors_um, s.physics_stations))
         target = errors_um - model.physics_predict(axes)
@@ -530,14 +560,13 @@ def no_validation_message(source, meta: dict, columns) -> str:
             f"with {', '.join(columns)}, dx_um, dy_um, dz_um)")
 
 
-def _validation_data(s: TrainSettings, validation, ref, meta: dict, seed, source="", machine=None):
+def _validation_data(s: TrainSettings, validation, ref, meta: dict, seed, source, machine):
     """``((axes, errors), source)``: the given validation points, or random ones of the reference model."""
     if validation is not None:
         return tuple(np.asarray(v, float) for v in validation), "given"
     if ref is None:
-        columns = ("x_mm", "z_mm", "a_deg") if machine is None else machine.axis_columns
-        raise InputError(no_validation_message(source, meta, columns))
-    source = (f"{'HTM model' if machine is None else 'element set'} {meta.get('elements_file')} "
+        raise InputError(no_validation_message(source, meta, machine.axis_columns))
+    source = (f"element set {meta.get('elements_file')} "
               f"({s.n_validation} random points, SeedSequence({s.seed}) child {VALIDATION_STREAM})")
     return validation_points(ref[0], ref[1], n=s.n_validation, seed=seed), source
 
@@ -560,17 +589,19 @@ def _train(model, axes, errors, s: TrainSettings, selector, quiet: bool) -> Trai
     return hist
 
 
-def _fit_params(model, s: TrainSettings, meta: dict, hist, axes, errors, n_val: int, val_source: str,
+def _fit_params(model, s: TrainSettings, machine, meta: dict, hist, axes, errors, n_val: int, val_source: str,
                 selected: bool) -> dict:
     """The run's parameters (MLflow params; what reproduces and identifies it)."""
-    machine_file = meta.get("machine_file", "")
+    periodic = periodic_axes(machine, s.a_encoding)
     params = {
         "hidden": ",".join(map(str, model.hidden)), "activation": s.activation, "a_encoding": s.a_encoding,
+        "inputs": ",".join(machine.axis_columns),
+        "periodic": ",".join(c for c, p in zip(machine.axis_columns, periodic) if p),
         "n_params": model.n_params, "trainer": s.trainer, "mse_goal": s.mse_goal, "max_iter": s.max_iter,
         "max_time_s": s.max_time_s, "seed": s.seed, "n_train": len(axes), "n_val": n_val,
         "validation_source": val_source, "data_sha256": data_hash(axes, errors),
-        "machine_file": machine_file,
-        "machine_sha256": meta.get("machine_sha256") or (sha256_file(machine_file) if machine_file and Path(machine_file).is_file() else ""),
+        "machine": machine.name, "machine_file": str(machine.path or ""),
+        "machine_sha256": machine.sha256 or meta.get("machine_sha256") or "",
         "elements_sha256": meta.get("elements_sha256", ""), "stop_reason": hist.stop_reason,
         "output_scale_um": model.out_scale_, "init": s.init,
         "select_best": bool(selected), "physics": s.physics,
@@ -587,14 +618,17 @@ def _fit_params(model, s: TrainSettings, meta: dict, hist, axes, errors, n_val: 
     return params
 
 
-def _write_run(model, axes, errors, ref, metrics, params, hist, s: TrainSettings, t: TrackSettings, meta: dict,
+def _write_run(model, axes, errors, ref, metrics, params, hist, s: TrainSettings, t: TrackSettings, machine,
                out_dir) -> str | None:
-    """Write the run folder as a set (model, plots, metrics.json) and log it to MLflow; the run id."""
+    """Write the run folder as a set (``model/``, the fit plots, ``metrics.json``) and, with ``t.track``, log it
+    to MLflow (tags ``machine`` and ``t.tags``; ``model/`` as a pyfunc model with the machine file); the run id
+    (also in ``metrics.json``, with the store)."""
     from errormap.io import atomic_dir, write_json
 
     from .plots import fit_plots
     run_id = None
-    summary = {**metrics, "stop_reason": hist.stop_reason, "trainer": s.trainer, "seconds": hist.seconds}
+    summary = {**metrics, "stop_reason": hist.stop_reason, "trainer": s.trainer, "seconds": hist.seconds,
+               "params": params}
     if hist.stop_reason.startswith("time budget"):  # the machine's speed decided: say how to repeat it
         summary["reproduce_with_max_iter"] = hist.iterations
     with contextlib.ExitStack() as stack:
@@ -602,70 +636,17 @@ def _write_run(model, axes, errors, ref, metrics, params, hist, s: TrainSettings
         d = stack.enter_context(atomic_dir(out_dir)) if out_dir is not None else \
             Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="volcomp-fit-")))
         model.save(d / "model")
-        plots = fit_plots(model, axes, errors, d, reference=ref[1] if ref else None)
+        plots = fit_plots(model, axes, errors, d, machine.axis_columns, reference=ref[1] if ref else None)
         write_json(d / "metrics.json", summary)
-        if t.track:
-            from errormap.machine import builtin_machine_path, load_machine, made_on
-
-            from .tracking import log_fit
-            all_tags = {"machine": meta.get("machine", ""), **(t.tags or {})}
-            # the machine file goes inside the logged model: the recorded one, or the built-in
-            # machine when the data were made on it (its SHA-256 recorded)
-            machine_file = params["machine_file"]
-            mf = machine_file if machine_file and Path(machine_file).is_file() else None
-            if mf is None and made_on(load_machine(), params["machine_sha256"]):
-                mf = builtin_machine_path()
-            run_id = log_fit(params, metrics, hist, d / "model", plots + [d / "metrics.json"],
-                             tracking_uri=t.tracking_uri, run_name=t.run_name, parent_run_id=t.parent_run_id,
-                             tags=all_tags, experiment=t.experiment, machine_file=mf)
-            if out_dir is not None:
-                write_json(d / "metrics.json", {**summary, "run_id": run_id})
-    return run_id
-
-
-def _chain_run(model, metrics: dict, hist, s, t: TrackSettings, machine, meta: dict, axes, errors, n_val: int,
-               val_source: str, source: str, out_dir):
-    """The end of :func:`training.trainers.fit_field` on a chain (a :class:`training.trainers.FitResult`):
-    a network whose validation RMS is not below the OLS baseline's is refused (InputError, nothing
-    written), never returned; else ``model/`` and ``metrics.json`` go to ``out_dir`` as a set and the fit is
-    an MLflow run (tags ``machine``, ``kind = chain-network``; ``model/`` as saved; its id and store go into
-    ``metrics.json``)."""
-    from errormap.io import atomic_dir, write_json
-    params = {"hidden": ",".join(map(str, model.hidden)), "activation": s.activation,
-              "inputs": ",".join(model.axis_columns),
-              "periodic": ",".join(c for c, p in zip(model.axis_columns, model.periodic) if p),
-              "n_params": model.n_params, "trainer": s.trainer, "mse_goal": s.mse_goal,
-              "max_iter": s.max_iter, "seed": s.seed, "n_train": len(axes), "n_val": n_val,
-              "validation_source": val_source, "data_sha256": data_hash(axes, errors),
-              "machine": machine.name, "machine_sha256": machine.sha256 or "",
-              "elements_sha256": meta.get("elements_sha256", ""),
-              "stop_reason": hist.stop_reason, "output_scale_um": model.out_scale_, "init": s.init,
-              "select_best": "selected_iteration" in metrics, "a_encoding": s.a_encoding,
-              "physics": s.physics}
-    if s.physics != "none":
-        params["physics_stations"] = model.physics_stations
-    if not metrics["beats_baseline"]:
-        raise InputError(f"{source or 'feature points'}: the trained network's validation RMS "
-                         f"{metrics['val_rms_um']:.4g} μm is not below the plain OLS baseline's "
-                         f"{metrics['baseline_ols_val_rms_um']:.4g} μm ({val_source}); model not written "
-                         "(more feature points, iterations or another network)")
-    if out_dir is None and not t.track:
-        return FitResult(model, metrics, None, hist.seconds, hist, params)
-    doc = {**metrics, "stop_reason": hist.stop_reason, "trainer": s.trainer, "seconds": hist.seconds,
-           "params": params}
-    run_id = None
-    with contextlib.ExitStack() as stack:
-        d = stack.enter_context(atomic_dir(out_dir)) if out_dir is not None else \
-            Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="volcomp-fit-")))
-        model.save(d / "model")
-        write_json(d / "metrics.json", doc)
         if t.track:
             from .tracking import default_tracking_uri, log_fit
             uri = t.tracking_uri or default_tracking_uri()
+            mf = machine.path if machine.path and Path(machine.path).is_file() else None
             numbers = {k: float(v) for k, v in metrics.items() if isinstance(v, (int, float))}
-            tags = {"machine": machine.name, "kind": "chain-network", **(t.tags or {})}
-            run_id = log_fit(params, numbers, hist, d / "model", [d / "metrics.json"], tracking_uri=uri,
-                             run_name=t.run_name, parent_run_id=t.parent_run_id, experiment=t.experiment,
-                             tags=tags, pyfunc=False)
-            write_json(d / "metrics.json", {**doc, "run_id": run_id, "tracking_uri": uri})
-    return FitResult(model, metrics, run_id, hist.seconds, hist, params)
+            run_id = log_fit(params, numbers, hist, d / "model", plots + [d / "metrics.json"], tracking_uri=uri,
+                             run_name=t.run_name, parent_run_id=t.parent_run_id,
+                             tags={"machine": machine.name, **(t.tags or {})}, experiment=t.experiment,
+                             machine_file=mf)
+            if out_dir is not None:
+                write_json(d / "metrics.json", {**summary, "run_id": run_id, "tracking_uri": uri})
+    return run_id

@@ -16,7 +16,7 @@ import numpy as np
 
 from errormap.stats import residual_stats
 
-from .common import FORMATS, LINUXCNC_MAX_POINTS, DifferencedField
+from .common import FORMATS, LINUXCNC_MAX_POINTS, TableField
 from .grid import MAX_GRID_NODES, VolumetricGrid, REFINE_FACTOR, REFINE_STEPS, curvature_counts, grid_from_model, read_grid, write_grid
 from .iso_tables import MAX_ISO_ROWS, IsoTables, iso_tables_from_model, read_iso_tables, write_iso_tables
 from .linuxcnc import JOINT_SAMPLES, JointTables, joint_tables_from_model, read_joint_tables, write_joint_tables
@@ -89,12 +89,10 @@ def volume_points(elements, n: int, seed) -> np.ndarray:
 
 
 def solved_commands(table, machine, targets, axes) -> np.ndarray:
-    """Axis commands (n, k) of a volumetric controller: the exact solve on the table's field (a chain's solver
-    gets it with a differenced Jacobian)."""
+    """Axis commands (n, k) of a volumetric controller: the exact solve on the table's values as the controller
+    reads them (a plain field over the machine's axes, which the solver differentiates)."""
     from ..solvers import solve
-    from errormap.grinder_file import is_grinder_chain
-    fld = table.field(machine)
-    fld = fld if is_grinder_chain(machine) else DifferencedField(fld.predict)
+    fld = TableField(table.field(machine).predict)
     return solve("exact", fld, targets, machine, target_axes=axes, progress=False).axes
 
 

@@ -53,29 +53,6 @@ class TableField:
     __call__ = predict
 
 
-FD_STEP = 1e-4
-"""Central-difference step of :class:`DifferencedField` (mm on a linear axis, deg on a rotary one): the
-tables' fields are piecewise linear or smooth at this scale; the Newton step needs the slope only roughly."""
-
-
-class DifferencedField(TableField):
-    """A table's field with ``predict_and_jacobian`` by central differences (``(E (n, 3) μm, dE/dq (n, 3, k))``),
-    for an exact solver that needs the field's Jacobian (a chain's)."""
-
-    capabilities = frozenset({"predict_and_jacobian"})
-
-    def predict_and_jacobian(self, axes, dtype=np.float64):
-        axes = np.asarray(axes, dtype=float)
-        n, k = axes.shape
-        J = np.empty((n, 3, k))
-        for j in range(k):
-            qp, qm = axes.copy(), axes.copy()
-            qp[:, j] += FD_STEP
-            qm[:, j] -= FD_STEP
-            J[:, :, j] = (self.fn(qp) - self.fn(qm)) / (2 * FD_STEP)
-        return self.fn(axes), J
-
-
 def node_means(nom, c, ok, empty_message: str, w=None) -> tuple[np.ndarray, np.ndarray]:
     """Per table node the (``w``-weighted) mean correction over its compensable samples: ``c``, ``ok``, ``w``
     (n_nodes, samples) at the nodes ``nom`` (n_nodes,). Nodes where no sample is compensable take the linear

@@ -38,8 +38,7 @@ def load_model(spec, fmt: str, machine, tracking_uri=None) -> tuple:
     src = model.source
     if model.elements_only:
         el = load_elements(model.elements_path, machine)
-        fld = None if is_grinder_chain(machine) else chain_field(machine, el)
-        return (ModelError(machine, el, field=fld),
+        return (ModelError(machine, el, field=chain_field(machine, el)),
                 f"{model.elements_path} (element set, sha256 {sha256_file(model.elements_path)})", model)
     if fmt == "iso-tables":
         raise ValueError(f"--format iso-tables needs an element set: ISO component tables are the elements' "

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 from .inputs import (LINEAR_SMOOTHERS, TAPER_FRAC, CV_BLOCKS, MIN_FIT_CHECKS, MIN_HELD_CHECKS, MAP_N,
                      LEARNED_FAMILIES, CANDIDATE_FAMILIES, axis_stem, axes_feature_names,
-                     axes_input_groups, linear_columns, FEATURE_NAMES, WORK_AXES, INPUT_SETS,
-                     INPUT_GROUPS, LEARNED_INPUTS, OUTPUT_FRAMES, LEARNED_FRAMES, frame_key,
+                     axes_input_groups, linear_columns, INPUT_SETS, work_columns_ok, work_feature_names,
+                     work_radius, LEARNED_INPUTS, OUTPUT_FRAMES, LEARNED_FRAMES, frame_key,
                      split_frame_key, to_frame, input_set_features, input_set_groups,
                      axis_features, work_features, check_input_set, input_features)  # noqa: F401
 from .field import (FORMAT, LearnedResidual, HybridField, total_band_std, learned_map)  # noqa: F401

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from errormap.field import GRINDER_AXES, is_rotary_column
+from errormap.field import is_rotary_column
 
 LINEAR_SMOOTHERS = ("gp", "gp_matern52", "gp_matern32", "gp_sum", "gp_additive", "basis")
 """The learned families whose fitted mean is a linear smoother of the targets with a Gaussian
@@ -70,28 +70,54 @@ def linear_columns(columns) -> tuple:
     return tuple(j for j, c in enumerate(columns) if not is_rotary_column(c))
 
 
-FEATURE_NAMES = axes_feature_names(GRINDER_AXES)
-"""The grinder's ``axes`` features, ``(x_mm, z_mm, cos_a, sin_a)``: a learned residual file that names
-no ``axes`` was written for the grinder (every other machine's file names its axis columns)."""
+INPUT_SETS = ("axes", "work", "axes+work")
+"""What the learned part can take as inputs (:func:`input_features`): ``axes`` (each rotary axis on the circle),
+``work`` (the linear axis along the rotary axis that turns the work, and the tool point's two coordinates in the
+work frame across it, ``ρ·(sin a, cos a)``, ``ρ = ρ0 + r``, ``r`` the radial linear axis), ``axes+work`` (both;
+the work-frame sets only on a machine whose file gives that geometry, :func:`work_radius`).
+docs/reference/learned-stage.md."""
 
-WORK_AXES = GRINDER_AXES
-"""The work-frame input sets need a machine with two linear axes and one rotary axis whose tool point
-turns about that axis at radius ``rho0_mm + z`` (the grinder: its ``rho0_mm``); on any other
-machine only the ``axes`` set exists."""
+WORK_CHECK_TOL_MM = 1e-9
+"""The machine's nominal chain must put the tool point at ``ρ·(sin a, cos a)`` across the rotary axis within
+1e-9 mm (round-off of the chain's products) at every corner of the strokes for the work-frame sets to exist."""
 
-INPUT_SETS = {"axes": FEATURE_NAMES,
-              "work": ("x_mm", "wy_mm", "wz_mm"),
-              "axes+work": FEATURE_NAMES + ("wy_mm", "wz_mm")}
-"""What the learned part can take as inputs (:func:`input_features`), named for the grinder
-(:func:`input_set_features` gives any machine's): ``axes`` (each rotary axis on the circle), ``work`` (``x``
-and the tool point's ``(wy, wz) = ρ·(sin a, cos a)``, ``ρ = ρ0 + z``), ``axes+work`` (both; the work-frame
-sets only on a machine of :data:`WORK_AXES` with a ``rho0_mm``). docs/reference/learned-stage.md."""
 
-INPUT_GROUPS = {"axes": axes_input_groups(GRINDER_AXES),
-                "work": ((0,), (1,), (2,)),
-                "axes+work": axes_input_groups(GRINDER_AXES) + ((4,), (5,))}
-"""The columns of each input set that belong to one input (``ResidualRegressor(input_groups=…)``), for the
-grinder (:func:`input_set_groups` gives any machine's): cos a and sin a are one rotary axis."""
+def work_columns_ok(columns) -> bool:
+    """Whether axis ``columns`` are of the work-frame sets' form: (the linear axis along the rotary axis, the
+    radial linear axis, a rotary axis A, B or C), in that order."""
+    return (len(columns) == 3 and not is_rotary_column(columns[0]) and not is_rotary_column(columns[1])
+            and is_rotary_column(columns[2]) and axis_stem(columns[2]) in ("a", "b", "c"))
+
+
+def work_feature_names(columns) -> tuple:
+    """The ``work`` set's features on axis ``columns`` (:func:`work_columns_ok`): the linear axis along the
+    rotary one and the two work-frame coordinates across it (a rotary A, about x: ``wy_mm``, ``wz_mm``)."""
+    i = "abc".index(axis_stem(columns[2]))
+    return (str(columns[0]), f"w{'xyz'[(i + 1) % 3]}_mm", f"w{'xyz'[(i + 2) % 3]}_mm")
+
+
+def work_radius(machine) -> float | None:
+    """``ρ0`` (mm) of the work-frame sets read from ``machine``'s file: the radius of the nominal tool point about
+    the rotary axis that turns the work with every axis at zero; None unless the machine has that geometry:
+    axis columns of :func:`work_columns_ok`'s form, the rotary axis on the work side about the first linear
+    axis' direction, and the tool point in the work frame at ``(ρ0 + r)·(sin a, cos a)`` across it at every
+    corner of the strokes (:data:`WORK_CHECK_TOL_MM`)."""
+    from errormap.chain_kernel import NominalChain
+    cols, axes = tuple(machine.axis_columns), machine.axes
+    if not work_columns_ok(cols) or axes[2].side != "work" or axes[2].along != axes[0].along:
+        return None
+    i = axes[2].along
+    b, c = (i + 1) % 3, (i + 2) % 3
+    chain = NominalChain(machine)
+    rho0 = float(chain.forward(np.zeros((1, 3)))[0, c])
+    corners = np.array([[x, r, a] for x in axes[0].stroke for r in axes[1].stroke for a in (0.0, 30.0, 90.0, 200.0)])
+    p = chain.forward(corners)
+    rho, ang = rho0 + corners[:, 1], np.deg2rad(corners[:, 2])
+    if np.abs(p[:, b] - rho * np.sin(ang)).max() > WORK_CHECK_TOL_MM or \
+            np.abs(p[:, c] - rho * np.cos(ang)).max() > WORK_CHECK_TOL_MM:
+        return None
+    return rho0
+
 
 LEARNED_INPUTS = ("axes",)
 """The input sets the learned stage cross-validates by default; the work-frame sets can be given (``inputs``)
@@ -130,24 +156,30 @@ def to_frame(r_um, R, frame: str):
     return np.einsum("nij,...nj->...ni", R, r_um)
 
 
-def input_set_features(inputs: str, columns=GRINDER_AXES) -> tuple:
+def input_set_features(inputs: str, columns) -> tuple:
     """The feature names of input set ``inputs`` on a machine whose axis columns are ``columns``."""
     if inputs == "axes":
         return axes_feature_names(columns)
-    return INPUT_SETS[inputs]
+    work = work_feature_names(columns)
+    return work if inputs == "work" else axes_feature_names(columns) + work[1:]
 
 
-def input_set_groups(inputs: str, columns=GRINDER_AXES) -> tuple:
-    """The input groups (:data:`INPUT_GROUPS`) of input set ``inputs`` on a machine of ``columns``."""
+def input_set_groups(inputs: str, columns) -> tuple:
+    """The columns of each input of input set ``inputs`` on a machine of ``columns`` (``ResidualRegressor(input_groups=…)``):
+    a rotary axis's cos and sin are one input."""
+    axes = axes_input_groups(columns)
     if inputs == "axes":
-        return axes_input_groups(columns)
-    return INPUT_GROUPS[inputs]
+        return axes
+    if inputs == "work":
+        return ((0,), (1,), (2,))
+    d = sum(len(g) for g in axes)
+    return axes + ((d,), (d + 1,))
 
 
-def axis_features(axes, columns=GRINDER_AXES):
-    """axes (n, k) in the machine's axis columns ``columns`` (default the grinder's x_mm, z_mm,
-    a_deg) → the ``axes`` features (n, d) (:func:`axes_feature_names`: a linear axis its value, a
-    rotary one cos and sin of its angle) and d(features)/d(axes) (n, d, k)."""
+def axis_features(axes, columns):
+    """axes (n, k) in the machine's axis columns ``columns`` → the ``axes`` features (n, d)
+    (:func:`axes_feature_names`: a linear axis its value, a rotary one cos and sin of its angle) and
+    d(features)/d(axes) (n, d, k)."""
     axes = np.asarray(axes, dtype=float)
     cols, Jcols = [], []
     n, k = axes.shape[0], len(columns)
@@ -167,9 +199,9 @@ def axis_features(axes, columns=GRINDER_AXES):
 
 
 def work_features(axes, rho0_mm: float):
-    """axes (n, 3) → the nominal tool point in the work frame as (x_mm, wy_mm, wz_mm) (n, 3) and its
-    derivative in the axes (n, 3, 3): ``wy = ρ sin a``, ``wz = ρ cos a``, ``ρ = rho0_mm + z``
-    (the machine's radius of the tool point about the A axis at z = 0)."""
+    """axes (n, 3) (along, radial, rotary: :func:`work_columns_ok`) → the nominal tool point in the work frame
+    as (along, ρ sin a, ρ cos a) (n, 3) mm and its derivative in the axes (n, 3, 3), ``ρ = rho0_mm + r``
+    (:func:`work_radius`: the radius about the rotary axis at zero, from the machine's file)."""
     axes = np.asarray(axes, dtype=float)
     a = np.deg2rad(axes[:, 2])
     rho = float(rho0_mm) + axes[:, 1]
@@ -184,26 +216,27 @@ def work_features(axes, rho0_mm: float):
     return f, J
 
 
-def check_input_set(inputs: str, rho0_mm: float | None = None, columns=GRINDER_AXES) -> float | None:
+def check_input_set(inputs: str, rho0_mm: float | None, columns) -> float | None:
     """ValueError unless ``inputs`` is an input set (:data:`INPUT_SETS`) and, for the work-frame sets, the
-    machine's axis columns are :data:`WORK_AXES` and ``rho0_mm`` a finite number; returns the
-    ``rho0_mm`` the set uses (None for ``axes``)."""
+    axis ``columns`` are of their form (:func:`work_columns_ok`) and ``rho0_mm`` a finite number (the
+    machine's :func:`work_radius`); returns the ``rho0_mm`` the set uses (None for ``axes``)."""
     if inputs not in INPUT_SETS:
         raise ValueError(f"Expected inputs one of {sorted(INPUT_SETS)}, got {inputs!r}")
     if inputs == "axes":
         return None
-    if tuple(columns) != WORK_AXES:
-        raise ValueError(f"the input set {inputs!r} needs a machine of axes {', '.join(WORK_AXES)} "
-                         f"(this one has {', '.join(columns)}); only 'axes' exists here")
+    if not work_columns_ok(columns):
+        raise ValueError(f"the input set {inputs!r} needs axes (linear along the rotary axis, radial linear, rotary "
+                         f"A/B/C) (this machine has {', '.join(columns)}); only 'axes' exists here")
     if rho0_mm is None or not np.isfinite(rho0_mm):
-        raise ValueError(f"the input set {inputs!r} needs the machine's rho0_mm")
+        raise ValueError(f"the input set {inputs!r} needs the machine's rho0_mm (the tool point's radius about the "
+                         "rotary axis at zero, from its file)")
     return float(rho0_mm)
 
 
-def input_features(axes, inputs: str = "axes", rho0_mm: float | None = None, columns=GRINDER_AXES):
+def input_features(axes, inputs: str, rho0_mm: float | None, columns):
     """axes (n, k) in the axis columns ``columns`` → the features of input set ``inputs``
     (:data:`INPUT_SETS`) (n, d) and d(features)/d(axes) (n, d, k); ``rho0_mm`` needed for the
-    work-frame sets (grinder only: :data:`WORK_AXES`)."""
+    work-frame sets (:func:`work_radius`)."""
     rho0_mm = check_input_set(inputs, rho0_mm, columns)
     if inputs == "axes":
         return axis_features(axes, columns)

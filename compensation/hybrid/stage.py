@@ -5,8 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from errormap.field import GRINDER_AXES, machine_axes
-from errormap.grinder_file import rho0_mm
+from errormap.field import machine_axes
 from errormap.progress import Progress
 from errormap.stats import residual_stats
 from errormap.transforms import check_points
@@ -15,7 +14,7 @@ from training.residual import FAMILY_NAMES, Z95, ResidualRegressor
 from .field import LearnedResidual, learned_map, total_band_std
 from .inputs import (CV_BLOCKS, LEARNED_FAMILIES, LEARNED_FRAMES, LEARNED_INPUTS, LINEAR_SMOOTHERS, MIN_FIT_CHECKS,
                      MIN_HELD_CHECKS, OUTPUT_FRAMES, axes_feature_names, frame_key, input_features, input_set_features,
-                     input_set_groups, linear_columns, split_frame_key, to_frame)
+                     input_set_groups, linear_columns, split_frame_key, to_frame, work_radius)
 
 KEEP_Z = 1.0
 """The learned stage is kept when it beats the stage before it on the held-out checks by more
@@ -70,7 +69,7 @@ def _cv_key(reg) -> str:
     return reg.chosen_ if reg.chosen_ != "none" else "zero"
 
 
-def _fit_inputs(feats, r_um, fit_idx, groups, families, seed, columns=GRINDER_AXES, R=None, frames=("work",)):
+def _fit_inputs(feats, r_um, fit_idx, groups, families, seed, columns, R=None, frames=("work",)):
     """Cross-validate every family on every input set and output frame (same blocked folds: they
     depend on ``groups`` only) → (key, its fitted :class:`ResidualRegressor`, table): the
     (input set, frame) candidate (:func:`frame_key`) whose chosen family has the lowest CV RMS (the
@@ -201,7 +200,7 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     if rotation is not None and not rotation.turns:   # a constant rotation: the frames learn the same
         frames, rotation = ("work",), None
     R_chk = None if rotation is None else rotation(axes)[0]
-    rho0 = rho0_mm(machine) if any(i != "axes" for i in inputs) else None
+    rho0 = work_radius(machine) if any(i != "axes" for i in inputs) else None
     feats = {name: input_features(axes, name, rho0, columns)[0] for name in inputs}
     groups = np.repeat(np.arange(CV_BLOCKS), int(np.ceil(len(fit_idx) / CV_BLOCKS)))[:len(fit_idx)]
     fit_cands = (lambda r: _fit_inputs(feats, r, fit_idx, groups, families, seed, columns, R_chk, frames))

@@ -1,14 +1,12 @@
 """``volcomp train``: fit the BP network to feature points; every fit is an MLflow run."""
 from __future__ import annotations
 
-import dataclasses
 import math
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from errormap.field import is_rotary_column
 from errormap.io import InputError, read_table
 # Training stops on iterations (or the MSE goal) by default, so that the same command and seed
 # give the same model on any machine; a wall-clock budget is an explicit option. (The package
@@ -90,7 +88,7 @@ def run(args) -> int:
         raise UsageError(f"--hidden: expected comma-separated integers, got {args.hidden!r}") from None
     max_time = args.max_time if args.max_time is not None else math.inf
     max_iter = args.max_iter if args.max_iter is not None else default_max_iter(args.physics, args.quick)
-    from training.trainers import TrackSettings, TrainSettings
+    from training.trainers import TrackSettings, TrainSettings, a_encoding_applies, fit_field, network_for
     try:
         settings = TrainSettings(trainer=args.trainer, max_iter=max_iter, max_time_s=max_time, seed=args.seed,
                                  hidden=hidden, activation=args.activation, a_encoding=args.a_encoding or "raw",
@@ -99,35 +97,41 @@ def run(args) -> int:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     fp = FeaturePoints.load(args.featurepoints)
-    if "axis_columns" in fp.meta:  # a machine-tool chain's feature points (recognised by their header)
-        return _run_chain(args, fp, settings, max_iter, max_time, hidden)
-    if args.a_encoding is None:
-        settings = dataclasses.replace(settings, a_encoding="raw")
+    machine = _machine(fp)
+    fp.check_units(machine)
+    if args.a_encoding is not None and not a_encoding_applies(machine):  # refused, never silently ignored
+        raise UsageError(f"--a-encoding: the machine-tool chain {machine.name!r} has no rotary axis short of a full "
+                         "turn to encode (a full-turn rotary axis is always (cos, sin), a linear axis one scaled input)")
     if args.trainer == "lm":
-        from ..validate import check_lm_size, network_params
-        check_lm_size(len(fp.axes), network_params(hidden, args.a_encoding or "raw"))
-    fp.check_units(_grinder_machine(fp))
-    validation = _read_validation(args.validation) if args.validation else None
-
-    from training.trainers import fit_field
+        from ..validate import check_lm_size
+        check_lm_size(len(fp.axes), network_for(machine, settings).n_params)
+    validation = _read_validation(args.validation, machine.axis_columns) if args.validation else None
     out = Path(args.out)
-    print(f"training {args.trainer} on {len(fp.axes)} feature points from {args.featurepoints} "
-          f"(at most {max_iter} iterations" + (f", {max_time:g} s" if math.isfinite(max_time) else "") + ") ...",
-          file=sys.stderr)
+    print(f"training {args.trainer} on {len(fp.axes)} feature points of the machine tool {machine.name!r} "
+          f"({', '.join(machine.axis_columns)}) from {args.featurepoints} (at most {max_iter} iterations"
+          + (f", {max_time:g} s" if math.isfinite(max_time) else "") + ") ...", file=sys.stderr)
     tracking = TrackSettings(tracking_uri=args.tracking_uri, run_name=args.run_name,
                              tags={"featurepoints_file": str(Path(args.featurepoints).resolve())})
-    res = fit_field(fp, settings, validation=validation, tracking=tracking, out_dir=out)
-    print(f"run id: {res.run_id}")
-    print(f"stopped after {res.history.iterations} iterations, {res.seconds:.1f} s: {res.history.stop_reason}")
+    res = fit_field(fp, settings, machine=machine, validation=validation, tracking=tracking, out_dir=out)
+    m = res.metrics
+    print(f"stopped after {res.history.iterations} iterations, {res.seconds:.1f} s "
+          f"({m['train_cpu_seconds']:.1f} CPU s): {res.history.stop_reason}")
     if res.history.stop_reason.startswith("time budget"):
         print(f"the wall-clock budget decided where training stopped; --max-iter {res.history.iterations} "
               "(without --max-time) reproduces this model")
-    _print_fit(args, res, "element set", "")
-    print(f"wrote model: {out / 'model'}")
-    print(f"wrote model file: {_model_file(out, _grinder_machine(fp), args, res.run_id)}")
+    _print_fit(args, res, "the chain's element set", " (kept alone: the network did not improve it)"
+               if m.get("physics_alone_kept") else "")
+    print(f"{'baseline (OLS)':<16}{m['baseline_ols_val_max_um']:>10.4f}{m['baseline_ols_val_rms_um']:>10.4f}"
+          "   (affine least squares on the axes, same validation points)")
+    print(f"wrote model: {out / 'model'} (inputs {', '.join(machine.axis_columns)}; machine {machine.name})")
+    print(f"wrote model file: {_model_file(out, machine, args, res.run_id)}")
     print(f"wrote plots: {out / 'fit_error_xz.png'}, {out / 'fit_featurepoints.png'}")
     print(f"wrote metrics: {out / 'metrics.json'}")
-    print(f"load it with: --model runs:/{res.run_id}/model")
+    from training.tracking import default_tracking_uri
+    uri = args.tracking_uri or default_tracking_uri()   # the store fit_field recorded the run in
+    print(f"run id: {res.run_id}")
+    print(f"use it with: --machine {machine.path or machine.name} --model runs:/{res.run_id}/model --tracking-uri {uri}")
+    print(f"use it with: --machine {machine.path or machine.name} --model {out / 'model'}")
     return 0
 
 
@@ -146,84 +150,31 @@ def _print_fit(args, res, physics: str, kept: str) -> None:
                                        f"{p}_max_dz_um")))
 
 
-def _grinder_machine(fp):
-    """The grinder the feature points (without ``axis_columns``) were made on: the recorded machine file, else the
-    built-in grinder; a chain's file there is refused (a chain's feature points name their axis columns)."""
-    from errormap.machine import load_machine
-    mf = fp.meta.get("machine_file")
-    machine = load_machine(mf if mf and Path(mf).is_file() else None)
-    family = family_of(machine)
-    family.target("train")   # feature points of a machine tool only
-    if family.facts.chain:
-        raise InputError(f"{fp.source or 'feature points'}: header key 'axis_columns': missing, but the machine "
-                         f"{machine.name!r} is a machine-tool chain (volcomp featurepoints --machine writes them)")
-    return machine
-
-
-def _chain_machine(fp):
-    """The machine-tool chain the feature points were made on: the recorded machine file, else the
-    built-in machine of the recorded name; its SHA-256 must be the recorded one."""
+def _machine(fp):
+    """The machine tool the feature points were made on: the recorded machine file, else the built-in machine of
+    the recorded name (a file without ``axis_columns``: the built-in default, the grinder's columns, said in one
+    line); its family must train, its SHA-256 be the recorded one and its axis columns the file's."""
     from errormap.machine import load_machine, made_on
     src = fp.source or "feature points"
-    mf = fp.meta.get("machine_file")
-    name = fp.meta.get("machine")
-    if not (mf and Path(mf).is_file()) and not name:
-        raise InputError(f"{src}: header key 'machine': the chain's feature points name no machine (nor a readable "
+    mf, name = fp.meta.get("machine_file"), fp.meta.get("machine")
+    named = "axis_columns" in fp.meta
+    if not named:
+        print(f"{src}: no header key 'axis_columns': read as {', '.join(fp.axis_columns)} (the grinder's columns, "
+              "which a feature-point file without it holds)", file=sys.stderr)
+    if named and not (mf and Path(mf).is_file()) and not name:
+        raise InputError(f"{src}: header key 'machine': the feature points name no machine (nor a readable "
                          "machine_file)")
-    machine = load_machine(mf if mf and Path(mf).is_file() else name)
-    if not family_of(machine).facts.chain:
-        raise InputError(f"{src}: header key 'axis_columns': given, but the machine {machine.name!r} is not a "
-                         "machine-tool chain")
+    machine = load_machine(mf if mf and Path(mf).is_file() else (name if named else None))
+    family_of(machine).target("train")   # feature points of a machine tool only
     sha = fp.meta.get("machine_sha256")
     if sha and machine.sha256 and not made_on(machine, sha):
         raise InputError(f"{src}: header key 'machine_sha256': the feature points were made on another version of "
                          f"the machine file {machine.path}")
     if tuple(fp.axis_columns) != tuple(machine.axis_columns):
-        raise InputError(f"{src}: header key 'axis_columns': {', '.join(fp.axis_columns)}; the machine "
+        raise InputError(f"{src}: header key 'axis_columns': {', '.join(fp.axis_columns)}"
+                         f"{'' if named else ' (missing: read as the default)'}; the machine "
                          f"{machine.name!r} has {', '.join(machine.axis_columns)}")
     return machine
-
-
-def _run_chain(args, fp, settings, max_iter, max_time, hidden) -> int:
-    """``train`` on a machine-tool chain's feature points: :func:`training.trainers.fit_field` given the
-    machine (``--physics first-order``: the network on what the chain's own fitted element set leaves)."""
-    machine = _chain_machine(fp)
-    fp.check_units(machine)
-    partial = [a.column for a in machine.axes if is_rotary_column(a.column) and not a.full_turn]
-    if args.a_encoding is not None and not partial:  # refused, never silently ignored
-        raise UsageError(f"--a-encoding: the machine-tool chain {machine.name!r} has no rotary axis short of a full "
-                         "turn to encode (a full-turn rotary axis is always (cos, sin), a linear axis one scaled input)")
-    from training.chain_model import ChainMLPField
-    from training.trainers import TrackSettings, fit_field
-    if args.trainer == "lm":
-        from ..validate import check_lm_size
-        net = ChainMLPField.for_machine(machine, settings.a_encoding, hidden=hidden)
-        check_lm_size(len(fp.axes), net.n_params)
-    validation = _read_validation(args.validation, machine.axis_columns) if args.validation else None
-    out = Path(args.out)
-    print(f"training {args.trainer} on {len(fp.axes)} feature points of the machine-tool chain {machine.name!r} "
-          f"({', '.join(machine.axis_columns)}) from {args.featurepoints} (at most {max_iter} iterations"
-          + (f", {max_time:g} s" if math.isfinite(max_time) else "") + ") ...", file=sys.stderr)
-    # always tracked, as the grinder's network
-    tracking = TrackSettings(tracking_uri=args.tracking_uri, run_name=args.run_name,
-                             tags={"featurepoints_file": str(Path(args.featurepoints).resolve())})
-    res = fit_field(fp, settings, machine=machine, validation=validation, tracking=tracking, out_dir=out)
-    m = res.metrics
-    print(f"stopped after {res.history.iterations} iterations, {res.seconds:.1f} s "
-          f"({m['train_cpu_seconds']:.1f} CPU s): {res.history.stop_reason}")
-    _print_fit(args, res, "the chain's element set", " (kept alone: the network did not improve it)"
-               if m.get("physics_alone_kept") else "")
-    print(f"{'baseline (OLS)':<16}{m['baseline_ols_val_max_um']:>10.4f}{m['baseline_ols_val_rms_um']:>10.4f}"
-          "   (affine least squares on the axes, same validation points)")
-    print(f"wrote model: {out / 'model'} (inputs {', '.join(machine.axis_columns)}; machine {machine.name})")
-    print(f"wrote model file: {_model_file(out, machine, args, None)}")
-    print(f"wrote metrics: {out / 'metrics.json'}")
-    from training.tracking import default_tracking_uri
-    uri = args.tracking_uri or default_tracking_uri()   # the store fit_field recorded the run in
-    print(f"run id: {res.run_id}")
-    print(f"use it with: --machine {machine.name} --model runs:/{res.run_id}/model --tracking-uri {uri}")
-    print(f"use it with: --machine {machine.name} --model {out / 'model'}")
-    return 0
 
 
 def _model_file(out, machine, args, run_id):
