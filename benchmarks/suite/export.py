@@ -21,7 +21,7 @@ from errormap.chain_sweeps import simulated_sweeps
 from errormap.io import write_json
 from errormap.machine import load_machine
 from errormap.chain_truth import make_chain_truth
-from errormap.identification import identify_chain
+from errormap.identification import ChainIdentification
 from errormap.sweeps import sweeps_from_columns
 
 FLUTE_REGION = {"x_mm": (90.0, 116.0), "z_mm": (0.3, 0.3)}
@@ -64,8 +64,8 @@ def run_seed(seed: int, tolerances, n_volume: int) -> tuple[dict, list[str]]:
     from errormap.diagnosis.loop_model import ChainModelField
     m = load_machine()
     truth = make_chain_truth(m, 100 + seed, effects=("reversal", "interaction"))
-    el = identify_chain(sweeps_from_columns(simulated_sweeps(truth, noise_um=2.0, seed=seed)), m,
-                        gauge="first-station").elements_
+    el = ChainIdentification(gauge="first-station").fit(
+        sweeps_from_columns(simulated_sweeps(truth, noise_um=2.0, seed=seed)), m).elements_
     model = ex.ModelError(m, el)
     sets, tool, cache, rows = ex.check_sets(m, n_volume, seed), ex.truth_tool_points(truth, m), {}, {}
 

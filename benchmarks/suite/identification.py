@@ -15,7 +15,7 @@ from errormap.machine import load_machine
 from errormap.chain_truth import make_chain_truth, random_axes
 from errormap.stats import residual_stats
 from errormap.chain_sweeps import simulated_sweeps
-from errormap.identification import identify_chain
+from errormap.identification import ChainIdentification
 from errormap.sweeps import sweeps_from_columns
 
 TITLE = "Identification: tracker sweeps → 23 elements of the grinder"
@@ -25,7 +25,7 @@ NOISE_UM = 2.0
 
 
 def _identify(sweeps, machine, gauge="first-station"):
-    return identify_chain(sweeps_from_columns(sweeps), machine, gauge=gauge)
+    return ChainIdentification(gauge=gauge).fit(sweeps_from_columns(sweeps), machine).result_
 
 
 def run(quick: bool, seed: int) -> dict:

@@ -145,11 +145,11 @@ def condition_sweeps(s: BenchmarkSettings, truth, c: GrinderCondition) -> dict:
 def identify_from_sweeps(machine, s: BenchmarkSettings, truth, c: GrinderCondition):
     """Simulated tracker sweeps of ``truth`` under condition ``c`` → the 23 identified elements.
     Returns ``(elements, identification seconds, number of ball-centre measurements)``."""
-    from errormap.identification import identify_chain
+    from errormap.identification import ChainIdentification
     from errormap.sweeps import sweeps_from_columns
     sw = condition_sweeps(s, truth, c)
     t0 = time.perf_counter()
-    res = identify_chain(sweeps_from_columns(sw), machine, gauge="first-station")
+    res = ChainIdentification(gauge="first-station").fit(sweeps_from_columns(sw), machine).result_
     return res.elements_, time.perf_counter() - t0, len(sw["axis"])
 
 
