@@ -172,7 +172,7 @@ GRINDER = Family(
     name="machine tool", column="Grinder",
     kinds={"grinder": Facts(tracker_sweeps=True, gcode=True)},
     targets={**_same_target("simulate", "sweeps", "featurepoints", "train", "predict", "demo",
-                            "identify", "benchmark", target="grinder"),
+                            "identify", target="grinder"), "benchmark": "chain",
              **_same_target("compensate", "export", "diagnose", "report", "fleet", target="machine tool")},
     gaps={"calibrate": Gap(OTHER_PATH, "identify (sweeps), then diagnose (checks)"),
           "register": Gap(OTHER_PATH, "the tracker pose is estimated inside identify with every set-up"),

@@ -63,7 +63,7 @@ def run(args) -> int:
         if getattr(args, k) is not None:
             setattr(s, k, getattr(args, k))
     if args.checks:   # each >= 1 and <= MAX_CHECKS (validate.py), checked before run
-        s.ooc_checks = s.chain_checks = tuple(dict.fromkeys(args.checks))
+        s.ooc_checks = tuple(dict.fromkeys(args.checks))
     if args.machine:
         machines = [load_machine(p) for p in args.machine]
     else:
