@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from compensation.app.workflows.benchmark_common import PATH_CONDITIONS, BenchmarkSettings, quick_settings
-from compensation.app.workflows.benchmark_flute import grinder_conditions
+from compensation.app.workflows.chain_benchmark import bench_conditions
 from compensation.app.workflows.benchmark_parallel import (learned_pkm_commands, measured_pose_errors, pkm_true_residual,
                                                            pose_inputs)
 from compensation.app.reports.benchmark import render_html, summary_lines, verdicts
@@ -24,9 +24,16 @@ CHROMIUM = Path("/usr/bin/chromium")
 
 
 # -- conditions -----------------------------------------------------------------------------------
+def _conditions(s):
+    from errormap.machine import load_machine
+    conds, skipped = bench_conditions(load_machine("grinder"), s)
+    assert skipped == []   # the grinder's chain draws every effect of the settings
+    return conds
+
+
 def test_grinder_conditions_cover_density_noise_and_effects():
     s = BenchmarkSettings()
-    conds = grinder_conditions(s)
+    conds = _conditions(s)
     names = [c.name for c in conds]
     assert len(names) == len(set(names))
     assert sorted(c.stations for c in conds if c.group == "density") == sorted(s.stations)
@@ -38,7 +45,7 @@ def test_grinder_conditions_cover_density_noise_and_effects():
 
 def test_out_of_catalogue_conditions_run_the_loop_at_each_check_count():
     s = BenchmarkSettings()
-    ooc = [c for c in grinder_conditions(s) if c.group == "out-of-catalogue"]
+    ooc = [c for c in _conditions(s) if c.group == "out-of-catalogue"]
     assert {c.effect for c in ooc} == set(s.ooc_effects) | {None}
     assert all(c.loop and c.stations == s.base_stations for c in ooc)
     # each effect (and none) at every check count: 800, 150 and 1600 (issue 28)
@@ -309,18 +316,13 @@ def test_quick_benchmark_end_to_end(tmp_path):
         for k in REQUIRED_ROW_KEYS:
             assert k in r
         assert r["path"] in ("learned", "parametric", "hybrid")
-        if r["path"] == "learned" and r.get("closed_loop") and not r["available"]:
-            # the one closed loop searches effects on an element set; on a trained network it is refused, and the row
-            # says so (a row of the benchmark that the grinder's own loop could fill)
-            assert "a trained network is not one" in r["not_available"]
-            continue
         assert r["available"], r.get("not_available")
         assert r["true_rms_um"] <= r["true_max_um"]
         assert r["fit_seconds"] > 0 and r["compensate_seconds_per_point"] > 0 and r["n_measurements"] > 0
         # compensation helps: far below the uncompensated error (grinder ~125 um, PKM ~1 mm)
         assert r["true_rms_um"] < 0.5 * r["uncompensated_rms_um"]
     loop = [r for r in rows if r.get("closed_loop")]
-    assert {r["path"] for r in loop} == {"learned", "parametric", "hybrid"}
+    assert {r["path"] for r in loop} == {"parametric", "hybrid"}   # the loop updates elements: a network has none
     hybrid = [r for r in rows if r["path"] == "hybrid"]
     # the hybrid rows: the out-of-catalogue conditions and the same machine without an effect
     assert {r["condition"] for r in hybrid} == {"effect=bump (after closed loop)", "effect=none (after closed loop)"}
@@ -344,10 +346,10 @@ def test_quick_benchmark_end_to_end(tmp_path):
     if CHROMIUM.exists():
         _assert_drawn(_screenshot(out / "report.html", tmp_path))
 
-def test_a_failing_learned_path_is_reported_not_faked(monkeypatch, grinder):
+def test_a_failing_learned_path_is_reported_not_faked(monkeypatch, grinder, tmp_path):
     import training.trainers
     from compensation.app.workflows.benchmark_common import RowLog, Tracker
-    from compensation.app.workflows.benchmark_flute import run_grinder
+    from compensation.app.workflows.chain_benchmark import run_chain
 
     def broken(*a, **k):
         raise RuntimeError("no trainer here")
@@ -356,7 +358,7 @@ def test_a_failing_learned_path_is_reported_not_faked(monkeypatch, grinder):
     s.effects, s.volume_points, s.flute_turns, s.flute_points_per_turn = (), 0, 0.25, 40
     s.ooc_effects = ()
     log = RowLog(Tracker(None, enabled=False))
-    assert run_grinder(grinder, s, log) == []
+    assert run_chain(grinder, s, log, tmp_path) == []
     rows = log.rows
     par = [r for r in rows if r["path"] == "parametric"]
     lrn = [r for r in rows if r["path"] == "learned"]
@@ -418,11 +420,17 @@ CHAIN_HELD_OUT_OVER_FLOOR = 1.5
 
 
 def _chain_settings(**kw):
+    """Quick settings on a chain: the base condition and, with the loop, the machine without an effect (no
+    catalogue effect, the out-of-catalogue group's effect left out by naming none the chain draws)."""
     s = quick_settings()
     s.effects, s.volume_points, s.chain_path_points = (), 0, 10
     for k, v in kw.items():
         setattr(s, k, v)
     return s
+
+
+def _by_key(rows) -> dict:
+    return {(r["path"], r["condition"]): r for r in rows}
 
 
 @pytest.mark.slow
@@ -433,12 +441,14 @@ def test_chain_benchmark_rows_are_the_users_path_judged_by_the_truth(tmp_path):
     from compensation.app.workflows.chain_benchmark import run_chain
     from errormap.machine import load_machine
     m = load_machine("mill-xyz")
-    s = _chain_settings()
+    s = _chain_settings(stations=(), noises_um=())
     log = RowLog(Tracker(None, enabled=False))
     skipped = run_chain(m, s, log, tmp_path)
     assert skipped == []
-    before, after, learned = log.rows
-    assert learned["path"] == "learned" and learned["available"] and not learned["closed_loop"]
+    rows = _by_key(log.rows)
+    before, after = rows["parametric", "effect=none (before closed loop)"], rows["parametric", "effect=none (after closed loop)"]
+    learned = rows["learned", "effect=none (before closed loop)"]
+    assert learned["available"] and not learned["closed_loop"]
     assert learned["true_rms_um"] * LEARNED_MIN_GAIN < learned["uncompensated_rms_um"]
     assert learned["train_val_rms_um"] < learned["train_baseline_ols_val_rms_um"]   # its plain baseline beside it
     for r in (before, after):
@@ -457,29 +467,29 @@ def test_chain_benchmark_rows_are_the_users_path_judged_by_the_truth(tmp_path):
 @pytest.mark.slow
 def test_chain_benchmark_runs_its_loop_once_per_check_count(tmp_path):
     """--checks N (repeatable) on a chain: one row after the closed loop per count, the same truth, each loop on
-    its own n checks (files beside the default run's), the learned row once."""
+    its own n checks (files in each condition's folder)."""
     from compensation.app.workflows.benchmark_common import RowLog, Tracker
     from compensation.app.workflows.chain_benchmark import run_chain
     from errormap.machine import load_machine
-    s = _chain_settings(chain_checks=(300, 150), train_iter=5)
+    s = _chain_settings(ooc_checks=(300, 150), train_iter=5, stations=(), noises_um=(), ooc_effects=("bump",))
     log = RowLog(Tracker(None, enabled=False))
     assert run_chain(load_machine("mill-xyz"), s, log, tmp_path) == []
-    before, a300, a150, learned = log.rows
-    assert [r["condition"] for r in (a300, a150)] == ["effect=none (after closed loop, checks=300)",
-                                                      "effect=none (after closed loop, checks=150)"]
+    rows = _by_key(log.rows)
+    a300 = rows["parametric", "effect=none, checks=300 (after closed loop)"]
+    a150 = rows["parametric", "effect=none, checks=150 (after closed loop)"]
+    before = rows["parametric", "effect=none, checks=300 (before closed loop)"]
     assert (a300["n_checks"], a150["n_checks"]) == (300, 150) and a300["available"] and a150["available"]
     assert a300["uncompensated_rms_um"] == a150["uncompensated_rms_um"] == before["uncompensated_rms_um"]
-    assert not before["closed_loop"] and learned["path"] == "learned"
-    d = tmp_path / "chains" / "mill-xyz" / "effect_none"
     for n in (300, 150):
-        assert (d / f"diagnosis_checks_{n}" / "model.json").is_file()
-        assert sum(1 for ln in (d / f"sim_checks_{n}" / "checks.csv").read_text().splitlines()
+        d = tmp_path / "chains" / "mill-xyz" / f"effect_none_checks_{n}"
+        assert (d / "diagnosis" / "model.json").is_file()
+        assert sum(1 for ln in (d / "sim" / "checks.csv").read_text().splitlines()
                    if ln and not ln.startswith("#")) == n + 1   # the header and n rows
 
 
 def test_chain_benchmark_says_why_a_chain_or_an_effect_is_left_out(tmp_path):
     from compensation.app.workflows.benchmark_common import RowLog, Tracker
-    from compensation.app.workflows.chain_benchmark import chain_effects, run_chain
+    from compensation.app.workflows.chain_benchmark import bench_conditions, chain_effects, run_chain
     from errormap.machine import load_machine
     src = (Path(__file__).resolve().parents[1] / "errormap" / "machines" / "lathe-xzc.toml").read_text()
     (tmp_path / "half-turn.toml").write_text(src.replace("stroke = [0.0, 360.0]", "stroke = [0.0, 180.0]"))
@@ -493,6 +503,23 @@ def test_chain_benchmark_says_why_a_chain_or_an_effect_is_left_out(tmp_path):
     assert any("full-turn rotary" in w for w in why) and any("bump" in w for w in why)
     kept, _ = chain_effects(load_machine("five-axis-ac"), ("worm",))
     assert kept == [("worm", "harmonic:C")]
+    s.ooc_effects = ("bump", "a_tilt")   # a_tilt turns a rotary axis: the mill has none, so it is left out, said
+    conds, why = bench_conditions(load_machine("mill-xyz"), s)
+    assert {c.effect for c in conds if c.group == "out-of-catalogue"} == {"bump", None}
+    assert len(why) == 1 and why[0].startswith("effect a_tilt:")
+
+
+def test_the_grinders_test_part_is_the_flute_read_from_its_chain():
+    """The flute is the part of a machine that turns the workpiece about X by a full-turn A (the grinder's chain,
+    or a kind = "grinder" file read as it); a mill gets the body diagonals, a lathe the turning path."""
+    from compensation.app.workflows.benchmark_paths import judging_path
+    from errormap.machine import load_machine
+    s = quick_settings()
+    p = judging_path(load_machine("grinder"), s)
+    assert p.name == f"flute ({int(s.flute_turns * s.flute_points_per_turn)} points)" and p.targets is not None
+    assert {k: float(v[0]) for k, v in p.cond.items()} == {k: v for k, v in PATH_CONDITIONS.items() if k != "time_s"}
+    assert judging_path(load_machine("mill-xyz"), s).name.startswith("4 body diagonals")
+    assert judging_path(load_machine("lathe-xzc"), s).name.startswith("turning:")
 
 
 @pytest.mark.slow
@@ -504,14 +531,15 @@ def test_benchmark_cli_on_a_chain_writes_rows_beside_the_grinders_format(tmp_pat
     doc = json.loads((out / "benchmark.json").read_text())
     parametric = [r for r in doc["rows"] if r["path"] == "parametric"]
     conds = [r["condition"] for r in parametric]
-    assert conds == ["effect=none (before closed loop)", "effect=none (after closed loop)",
-                     "effect=thermal (thermal:X) (before closed loop)", "effect=thermal (thermal:X) (after closed loop)"]
+    assert conds == ["stations=21, noise=1um", "effect=thermal (before closed loop)", "effect=thermal (after closed loop)",
+                     "effect=bump (before closed loop)", "effect=bump (after closed loop)",
+                     "effect=none (before closed loop)", "effect=none (after closed loop)"]
     learned = [r for r in doc["rows"] if r["path"] == "learned"]   # one learned row per condition, beside them
-    assert [r["condition"] for r in learned] == [conds[0], conds[2]]
+    assert [r["condition"] for r in learned] == [c for c in conds if "after" not in c]
     assert all(r["available"] and r["volume_rms_um"] < r["volume_uncompensated_rms_um"] for r in parametric)
     assert all(r["available"] and r["true_rms_um"] < r["uncompensated_rms_um"] for r in learned)
-    thermal = parametric[3]
-    assert "thermal:X" in thermal["effects_found"] and thermal["true_rms_um"] < parametric[2]["true_rms_um"]
+    thermal = parametric[2]
+    assert "thermal:X" in thermal["effects_found"] and thermal["true_rms_um"] < parametric[1]["true_rms_um"]
     html = (out / "report.html").read_text()
     assert "Machine-tool chain mill-xyz" in html and "held-out measured RMS" in html
     assert "mill-xyz parametric" in capsys.readouterr().out
@@ -556,84 +584,49 @@ def test_conclusion_lines_per_check_count():
 
 
 # -- the out-of-catalogue loop: the user's path (volcomp identify → volcomp diagnose) -------------------
-def _small_bench(grinder):
-    """A GrinderBench on a short flute (0.25 turn, 40 points), no volume points, no MLflow."""
-    from compensation.app.workflows.benchmark_common import RowLog, Tracker
-    from compensation.app.workflows.benchmark_flute import GrinderBench
-    s = quick_settings()
-    s.volume_points, s.flute_turns, s.flute_points_per_turn, s.ga_points = 0, 0.25, 40, 8
-    return GrinderBench(grinder, s, RowLog(Tracker(None, enabled=False)))
-
-
-def test_out_of_catalogue_loop_runs_the_users_path_and_other_loops_the_effect_search(grinder, monkeypatch):
-    """On an out-of-catalogue condition the parametric base runs the user's path (both its rows: parametric
-    loop and hybrid); the learned base there, and every base on a catalogue effect, the effect search."""
-    from compensation.app.workflows.benchmark_flute import GrinderBench, GrinderCondition, grinder_truth
-    g = _small_bench(grinder)
-    calls = []
-    monkeypatch.setattr(GrinderBench, "user_loop_rows", lambda self, c, *a: calls.append(("user", c.name)))
-    monkeypatch.setattr(GrinderBench, "closed_loop_row",
-                        lambda self, truth, label, checks, base_row, *a: calls.append((base_row["path"], len(checks))))
-    bases = (({"path": "parametric"}, None), ({"path": "learned"}, None))
-    ooc = GrinderCondition("effect=squareness", "out-of-catalogue", 21, 1.0, "squareness", 60, True)
-    eff = GrinderCondition("effect=thermal", "effect", 21, 1.0, "thermal", 50)
-    for c in (ooc, eff):
-        g.closed_loop(c, grinder_truth(grinder, g.s, c.effect), bases, {})
-    assert calls == [("user", ooc.name), ("learned", 60), ("parametric", 50), ("learned", 50)]
-
-
 ROW_MATCH_TOL_UM = 1e-6
-"""The benchmark's rows against the CLI run on the same numbers: the sweeps and checks are written with 17
-significant digits (a double round-trips exactly), so both runs compute the same thing; the margin only
-covers summation order (the residual figures are ~1 μm)."""
+"""The benchmark's rows against the CLI run on the same files: both compute the same thing; the margin only covers
+summation order (the residual figures are ~1 μm)."""
 
 
-@pytest.mark.slow  # two closed loops with their learned stage on 300 checks: minutes of CPU
+@pytest.mark.slow  # a closed loop with its learned stage on 300 checks
 def test_out_of_catalogue_rows_are_volcomp_identify_then_diagnose(grinder, tmp_path):
     """The out-of-catalogue rows are the user's path: the hybrid row is what `volcomp compensate --model
-    DIR/model.json` gives after `volcomp identify` and `volcomp diagnose` on the same sweeps and checks, the
-    parametric row the same with model.json's loop alone (no learned part); their held-out figures are the
-    ones diagnosis.json reports, and the parametric loop is the element-updated one."""
+    DIR/model.json` gives after `volcomp identify` and `volcomp diagnose` on the sweeps and checks the benchmark
+    left, the parametric row the same with model.json's loop alone (no learned part); their held-out figures are
+    the ones diagnosis.json reports, and the parametric loop is the element-updated one."""
     from compensation.app.cli import main
-    from compensation.app.workflows.benchmark_common import EFFECTS_LOOP, USER_LOOP, rng_streams
-    from compensation.app.workflows.benchmark_flute import (GrinderCondition, compensate_true, condition_sweeps,
-                                                            grinder_truth)
-    from compensation.model_file import load_diagnosed_model
-    from errormap.io import write_csv
-    from errormap.sweeps import SWEEP_FORMAT
-    g = _small_bench(grinder)
-    s = g.s
-    c = GrinderCondition("effect=squareness, checks=300", "out-of-catalogue", s.base_stations, s.base_noise_um,
-                         "squareness", 300, True)
-    truth = grinder_truth(grinder, s, c.effect)
-    g.closed_loop(c, truth, (({"path": "parametric"}, None),), {"n_measurements": 0})
-    rows = {r["path"]: r for r in g.rows}
+    from compensation.app.workflows.benchmark_common import USER_LOOP, RowLog, Tracker
+    from compensation.app.workflows.benchmark_paths import compensate_true
+    from compensation.app.workflows.chain_benchmark import BenchCondition, ChainBench, judging_path, loop_models
+    s = quick_settings()
+    s.volume_points, s.flute_turns, s.flute_points_per_turn, s.ga_points = 0, 0.25, 40, 8
+    g = ChainBench(grinder, s, RowLog(Tracker(None, enabled=False)), tmp_path, judging_path(grinder, s))
+    c = BenchCondition("effect=squareness, checks=300", "out-of-catalogue", s.base_stations, s.base_noise_um,
+                       "squareness", "squareness:X*Z", 300, True)
+    d = tmp_path / "cond"
+    truth, el_path, id_s, n_sweep = g.measure(c, d)
+    g.loop_rows(c, truth, el_path, id_s, d, {"n_measurements": n_sweep})
+    rows = {r["path"]: r for r in g.log.rows}
     assert set(rows) == {"parametric", "hybrid"} and all(r["available"] for r in rows.values()), rows
-    assert {r["loop_method"] for r in rows.values()} == {USER_LOOP} != EFFECTS_LOOP
+    assert {r["loop_method"] for r in rows.values()} == {USER_LOOP}
 
     # the same sweeps and checks through the CLI, as a user runs it
-    write_csv(tmp_path / "sw.csv", condition_sweeps(s, truth, c), header_comments=[f"format: {SWEEP_FORMAT}"],
-              float_fmt="%.17g")
-    cols = truth.check_measurements(n=c.n_checks, noise_um=s.check_noise_um, seed=rng_streams(s.seed)["checks"])
-    write_csv(tmp_path / "checks.csv", cols, header_comments=["format: volcomp-checks/1"], float_fmt="%.17g")
-    boot = [] if s.identify_bootstrap is None else ["--bootstrap", str(s.identify_bootstrap)]
-    assert main(["identify", str(tmp_path / "sw.csv"), "--out", str(tmp_path / "el.json"), *boot]) == 0
-    d = tmp_path / "d"
-    assert main(["diagnose", str(tmp_path / "checks.csv"), "--model", str(tmp_path / "el.json"), "--out", str(d)]) == 0
-    summary = json.loads((d / "diagnosis.json").read_text())
-    model = json.loads((d / "model.json").read_text())
-    # the loop alone (model.json's loop_alone, or model.json without its learned part) and the kept model, each read
-    # from the files `volcomp diagnose` wrote, at the benchmark's path conditions
-    from compensation.app.workflows.benchmark_flute import loop_models
-    models = loop_models(grinder, d / "model.json", PATH_CONDITIONS)
+    assert main(["identify", str(d / "sweeps.csv"), "--out", str(tmp_path / "el.json")]) == 0
+    cli = tmp_path / "d"
+    assert main(["diagnose", str(d / "sim" / "checks.csv"), "--model", str(tmp_path / "el.json"), "--noise-um",
+                 str(s.check_noise_um), "--out", str(cli)]) == 0
+    summary = json.loads((cli / "diagnosis.json").read_text())
+    model = json.loads((cli / "model.json").read_text())
+    models = loop_models(grinder, cli / "model.json", g.path.cond)
     assert models["parametric"][1] in ("updated", "updated_plus_effects", "updated_alone")   # the elements were updated
     for path in ("hybrid", "parametric"):
         _, stage, f = models[path]
-        cli = compensate_true(grinder, s, g.points, truth, f, "exact")
+        res = compensate_true(grinder, s, g.path, truth, f)
         row = rows[path]
         assert row["stage"] == stage
-        assert abs(row["true_rms_um"] - cli["true_rms_um"]) <= ROW_MATCH_TOL_UM, (path, row["true_rms_um"], cli)
-        assert abs(row["true_max_um"] - cli["true_max_um"]) <= ROW_MATCH_TOL_UM, (path, row["true_max_um"], cli)
+        assert abs(row["true_rms_um"] - res["true_rms_um"]) <= ROW_MATCH_TOL_UM, (path, row["true_rms_um"], res)
+        assert abs(row["true_max_um"] - res["true_max_um"]) <= ROW_MATCH_TOL_UM, (path, row["true_max_um"], res)
         held = summary["stages"][row["stage"]]["held_out"]["rms_um"]
         assert abs(row["checks_rms_after_um"] - held) <= ROW_MATCH_TOL_UM
     assert rows["hybrid"]["learned_kept"] == ("learned_residual" in model)

@@ -5,8 +5,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from compensation.app.workflows.chain_benchmark import (TURNING_C_POSITIONS, TURNING_CLEARANCE_MM, judging_path,
-                                                     turning_path)
+from compensation.app.workflows.benchmark_common import quick_settings
+from compensation.app.workflows.benchmark_paths import (TURNING_C_POSITIONS, TURNING_CLEARANCE_MM, judging_path,
+                                                        turning_path)
 from compensation.solvers.chain_exact import nominal_and_jacobian
 from errormap.machine import load_machine
 from errormap.identifiability import identifiability
@@ -64,9 +65,15 @@ def test_identifiability_refuses_a_noise_free_study():
         identifiability(load_machine(LATHE), seed=0, noise_um=0.0)
 
 
+def _points(n):
+    s = quick_settings()
+    s.chain_path_points = n
+    return s
+
+
 def test_turning_path_lines_and_face_set_away_from_the_spindle_axis():
     m = load_machine(LATHE)
-    p = judging_path(m, 25)
+    p = judging_path(m, _points(25))
     assert p.name.startswith("turning: lines along X and Z")
     _, J = nominal_and_jacobian(m, p.axes)
     lever_mm = np.linalg.norm(J[:, :, 2], axis=1) * 180.0 / np.pi
@@ -74,7 +81,7 @@ def test_turning_path_lines_and_face_set_away_from_the_spindle_axis():
     assert np.all(p.axes >= m.stroke_lo) and np.all(p.axes <= m.stroke_hi)
     assert len(np.unique(p.axes[:, 2])) == TURNING_C_POSITIONS
     assert p.cond["temp_c"].shape == (len(p.axes),)
-    assert judging_path(load_machine("mill-xyz"), 10).name == "4 body diagonals (40 points)"
+    assert judging_path(load_machine("mill-xyz"), _points(10)).name == "4 body diagonals (40 points)"
 
 
 def test_turning_path_refuses_a_machine_without_a_full_turn(tmp_path):
@@ -82,7 +89,7 @@ def test_turning_path_refuses_a_machine_without_a_full_turn(tmp_path):
     with pytest.raises(ValueError, match="one full-turn rotary axis"):
         turning_path(m, 10)
     with pytest.raises(ValueError, match="three linear axes.*full-turn"):
-        judging_path(m, 10)
+        judging_path(m, _points(10))
 
 
 LATHE_MIN_GAIN = 5.0
@@ -98,11 +105,12 @@ def test_benchmark_rows_on_the_lathe_are_the_users_path(tmp_path):
     from compensation.app.workflows.benchmark_common import RowLog, Tracker, quick_settings
     from compensation.app.workflows.chain_benchmark import run_chain
     s = quick_settings()
-    s.effects, s.volume_points, s.chain_path_points = (), 0, 10
+    s.effects, s.volume_points, s.chain_path_points, s.ooc_effects = (), 0, 10, ("bump",)
     log = RowLog(Tracker(None, enabled=False))
     assert run_chain(load_machine(LATHE), s, log, tmp_path) == []
-    before, after, learned = log.rows
-    assert learned["path"] == "learned"   # judged on mill-xyz (tests/test_benchmark.py); here it runs or says why
+    rows = {(r["path"], r["condition"]): r for r in log.rows}
+    before, after = rows["parametric", "effect=none (before closed loop)"], rows["parametric", "effect=none (after closed loop)"]
+    learned = rows["learned", "effect=none (before closed loop)"]
     assert learned["available"] or learned["not_available"].startswith("training failed")
     for r in (before, after):
         assert r["available"] and r["test_path"].startswith("turning:")

@@ -171,8 +171,8 @@ _CALIBRATE_OTHER = ("{given}: {does} not apply to {what} (see calibrate --help: 
 GRINDER = Family(
     name="machine tool", column="Grinder",
     kinds={"grinder": Facts(tracker_sweeps=True, gcode=True)},
-    targets={**_same_target("simulate", "sweeps", "featurepoints", "identify", "train", target="chain"),
-             **_same_target("predict", "demo", "benchmark", target="grinder"),
+    targets={**_same_target("simulate", "sweeps", "featurepoints", "identify", "train", "benchmark", target="chain"),
+             **_same_target("predict", "demo", target="grinder"),
              **_same_target("compensate", "export", "diagnose", "report", "fleet", target="machine tool")},
     gaps={"calibrate": Gap(OTHER_PATH, "identify (sweeps), then diagnose (checks)"),
           "register": Gap(OTHER_PATH, "the tracker pose is estimated inside identify with every set-up"),

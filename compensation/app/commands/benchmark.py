@@ -33,7 +33,7 @@ def register(sub):
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI (default: the project's store under runs/)")
     p.add_argument("--no-track", action="store_true", help="do not record MLflow runs")
     p.add_argument("--train-iter", type=int, default=None,
-                   help="LM iterations per learned grinder condition (default 150; --quick 60): the same networks "
+                   help="LM iterations per learned machine-tool condition (default 150; --quick 60): the same networks "
                         "on any machine")
     p.add_argument("--train-s", type=float, default=None,
                    help="also stop each training after this many seconds (off by default: it makes the results depend "
@@ -41,7 +41,7 @@ def register(sub):
     p.add_argument("--checks", type=int, action="append", default=None, metavar="N",
                    help="check measurements of the out-of-catalogue conditions' closed loop (and its hybrid stage); "
                         "repeat for several counts, each a row per effect (default 800, 150 and 1600; --quick 200); "
-                        "on a machine-tool chain its closed loop once per count (default: one loop on 400 checks)")
+                        "every machine tool alike")
     p.add_argument("--seed", type=int, default=None, help="seed of measurements and training (default 0)")
     p.add_argument("--truth-seed", type=int, default=None, help="seed of the simulated truth grinder (default 0)")
     p.set_defaults(func=run)
@@ -63,7 +63,7 @@ def run(args) -> int:
         if getattr(args, k) is not None:
             setattr(s, k, getattr(args, k))
     if args.checks:   # each >= 1 and <= MAX_CHECKS (validate.py), checked before run
-        s.ooc_checks = s.chain_checks = tuple(dict.fromkeys(args.checks))
+        s.ooc_checks = tuple(dict.fromkeys(args.checks))
     if args.machine:
         machines = [load_machine(p) for p in args.machine]
     else:

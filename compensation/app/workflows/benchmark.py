@@ -7,9 +7,9 @@ records every run in MLflow under one parent run, and writes ``DIR/benchmark.jso
 (:mod:`compensation.app.reports.benchmark`). The paths, conditions, settings and rows per machine family are
 described in docs/reference/benchmark.md.
 
-The rows are in :mod:`.benchmark_flute` (the built-in machine's flute), :mod:`.benchmark_parallel`,
-:mod:`.chain_benchmark` and :mod:`.arm_benchmark` (one signature, :data:`BENCH_BY_TARGET`); what they share in
-:mod:`.benchmark_common`. Every figure is measured in this run; a part that cannot run is reported as not
+The rows are in :mod:`.chain_benchmark` (every machine-tool chain, the built-in grinder included; its test parts in
+:mod:`.benchmark_paths`), :mod:`.benchmark_parallel` and :mod:`.arm_benchmark` (one signature,
+:data:`BENCH_BY_TARGET`); what they share in :mod:`.benchmark_common`. Every figure is measured in this run; a part that cannot run is reported as not
 available with the reason, never filled in.
 """
 from __future__ import annotations
@@ -23,11 +23,10 @@ from errormap.io import write_json
 from ..families import family_kind, family_of
 from .arm_benchmark import run_arm
 from .benchmark_common import PATH_CONDITIONS, BenchmarkSettings, RowLog, Tracker, quick_settings, say
-from .benchmark_flute import run_grinder
 from .benchmark_parallel import run_pkm
 from .chain_benchmark import run_chain
 
-BENCH_BY_TARGET = {"grinder": run_grinder, "parallel": run_pkm, "chain": run_chain, "arm": run_arm}
+BENCH_BY_TARGET = {"parallel": run_pkm, "chain": run_chain, "arm": run_arm}
 """Each family's benchmark (its registry target, :mod:`compensation.app.families`):
 ``(machine, settings, row log, out_dir) -> skipped conditions``, the rows added to the log."""
 

@@ -16,19 +16,12 @@ PATH_CONDITIONS = {"temp_c": 24.0, "time_s": 7200.0, "dir_x": 1.0, "dir_z": -1.0
 the check log records), X and A approached in the path's direction of motion (+), Z from above
 (the wheel plunges in to the flute-bottom radius)."""
 
-TRUTH_CONDITIONS = ("temp_c", "dir_x", "dir_z", "dir_a")
-"""The conditions the simulated truth grinder's effects depend on (``time_s`` is only for fitted drift terms)."""
-
 EXPERIMENT = "volcomp-benchmark"
-USER_LOOP = ("the user's path: volcomp identify (smoothing, covariance) → volcomp diagnose (element update + effects "
-             "+ learned residual backfitted with the update, re-estimated on all checks)")
-"""Which loop a row ran (key ``loop_method``): the out-of-catalogue conditions' parametric loop and hybrid."""
-EFFECTS_LOOP = "effect search on the base's element set (the closed loop without its element update)"
-"""Which loop a row ran (key ``loop_method``): every other condition's; the learned base (no elements) says it did not run."""
+USER_LOOP = ("the user's path: volcomp identify (smoothing, covariance) → volcomp diagnose (element update + effects; "
+             "on an out-of-catalogue condition + learned residual backfitted with the update, re-estimated on all checks)")
+"""Which loop a row ran (key ``loop_method``): every machine tool's closed loop."""
 FEATURE_REUSE_TOL_UM = 1e-6
 
-
-LEARNED_GRID = 11  # feature points per axis of the learned stage: the paper's network on the paper's 11³ grid (docs/reference/benchmark.md)
 
 
 @dataclass
@@ -49,14 +42,12 @@ class BenchmarkSettings:
     # check counts of the out-of-catalogue conditions (each effect and none at every count: the learned
     # stage's estimation error against the number of checks; `volcomp benchmark --checks N`, repeatable)
     ooc_checks: tuple = (800, 150, 1600)
-    # a machine-tool chain's closed loop once per count given with `--checks N` (empty: `n_checks` alone)
-    chain_checks: tuple = ()
-    # the out-of-catalogue conditions' loop runs the user's path: `volcomp identify` (smoothing, covariance
-    # Gauss-Newton's, or from this many residual-bootstrap draws) → `volcomp diagnose` (workflows/measurement.py)
+    # every closed loop runs the user's path: `volcomp identify` (smoothing, covariance Gauss-Newton's, or from
+    # this many residual-bootstrap draws) → `volcomp diagnose` (workflows/measurement.py)
     identify_bootstrap: int | None = None
     n_checks: int = 400
     check_noise_um: float = 1.0
-    train_iter: int = 150                  # LM iterations per learned grinder condition (~30 s on 2 cores)
+    train_iter: int = 150                  # LM iterations per learned machine-tool condition (~30 s on 2 cores)
     train_s: float | None = None           # optional wall-clock limit on top (off: results depend on the load)
     hidden: tuple = (10, 15, 25, 15, 10)   # the paper's network (LM + off-grid model selection)
     activation: str = "sigmoid"
@@ -78,7 +69,7 @@ class BenchmarkSettings:
     pkm_path_step_mm: float = 0.5
     pkm_half_width_mm: tuple = (160.0, 160.0, 220.0)
     pkm_max_tilt_deg: float = 32.0
-    chain_path_points: int = 100           # machine-tool chains: points per body diagonal (4 diagonals)
+    chain_path_points: int = 100           # machine tools: points per body diagonal (4) or turning line (2)
     # serial arms (--machine ur5 …; workflows/arm_benchmark.py): one seeded truth arm per condition (no effect,
     # then each arm effect), measured by a tracker at arm_noise_um, calibrated and compensated as the commands do
     arm_effects: tuple = ((), ("sag",), ("backlash",), ("sag", "backlash"))

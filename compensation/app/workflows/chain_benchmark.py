@@ -1,18 +1,22 @@
-"""The benchmark's rows on a machine-tool chain file (``volcomp benchmark --machine mill-xyz``).
+"""The benchmark's rows on a machine tool: one pipeline for every machine-tool chain (the built-in grinder,
+``--machine mill-xyz``, ``five-axis-ac``, ``lathe-xzc``, a user's file; :mod:`compensation.app.workflows.benchmark`).
 
-Per condition (no effect, then each of the settings' undeclared effects the machine has axes for), the
-user's path through the CLI's workflow functions (:mod:`.measurement`), files left in
-``DIR/chains/MACHINE/CONDITION/``: hidden truth → tracker sweeps → ``identify`` → ``n_checks`` check
-measurements → ``diagnose``; then the test path (the four body diagonals of the linear axes' volume, inset
-:data:`INSET`; a turning centre: :func:`turning_path` at :data:`TURNING_C_POSITIONS`) compensated by the
-``exact`` chain solver with the identified set, with the loop's ``model.json`` and with the chain network
-(:func:`learned_chain_row`), beside ``volume_points`` random points. Residual: TRUE (the truth at
-:data:`PATH_TEMP_C` and each axis' approach direction, driven with the compensated axes, minus the target,
-μm), beside the uncompensated baseline; the diagnosis's held-out MEASURED residual beside the loop row with
-its plain baselines and the noise floor. docs/reference/benchmark.md ("Machine-tool chain files").
+Per condition (:func:`bench_conditions`: sweep density, tracker noise, each undeclared catalogue effect, each
+out-of-catalogue effect and none at each check count), the user's path through the CLI's workflow functions
+(:mod:`.measurement`), files left in ``DIR/chains/MACHINE/CONDITION/``: hidden truth and check measurements
+(``simulate``) → tracker sweeps → ``identify`` (its defaults) → on a condition with the closed loop ``diagnose``
+(element update + effects; on an out-of-catalogue condition also its learned residual, the hybrid). The test
+part (:mod:`.benchmark_paths`: the part the machine can make — the flute where the machine turns a workpiece
+about X, else the four body diagonals, else a turning centre's lines and face/diameter set) and ``volume_points``
+random points are compensated by ``exact`` with the identified set (parametric), with the chain network trained on
+its feature points (learned; ``batched-ga`` on a subset beside it) and with the loop's ``model.json``. Residual:
+TRUE (the truth at the part's conditions driven with the compensated axes, minus the target, μm) beside the
+uncompensated baseline. docs/reference/benchmark.md.
 """
 from __future__ import annotations
 
+import json
+import math
 import re
 import time
 from dataclasses import dataclass
@@ -20,43 +24,31 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.stats import residual_stats
+from ..families import family_kind
+from .benchmark_common import (EXPERIMENT, FEATURE_REUSE_TOL_UM, USER_LOOP, BenchmarkSettings, RowLog, bench_row,
+                               rng_streams, say, scored, with_volume)
+from .benchmark_paths import ChainPath, compensate_true, judging_path, volume_path, with_path_conditions
 
-from .benchmark_common import bench_row, rng_streams, say, scored, with_volume
-
-INSET = 0.02
-"""The diagonals start and end this fraction of each linear stroke inside its ends (the compensated axes
-must stay inside the strokes)."""
-PATH_TEMP_C = 24.0
-"""Temperature of the test path (a warm machine, as the grinder's flute path)."""
 EFFECTS = {"thermal": "thermal:X", "reversal": "reversal:Z", "pitch": "periodic:X", "worm": "harmonic:{rot}",
            "interaction": "interaction:X*Z"}
-"""The grinder's undeclared effects (settings ``effects``) on a chain: the same kinds on the chain's
-axes; ``worm`` on the first full-turn rotary axis."""
-
-
-TURNING_C_POSITIONS = 8
-"""Positions of the rotary axis (equally spaced over the turn) of the turning path's face/diameter set."""
-TURNING_CLEARANCE_MM = 10.0
-"""Points whose nominal tool point is closer than this to the rotary axis' line are left out of the turning
-path: there the rotary axis' lever (|d tool point / d angle| in mm per rad) vanishes and the exact solver
-must turn it far for a sideways error (``tests/test_lathe_compensate.py``); a turning program does not
-ask a C move on the centre line."""
-TURNING_RADIUS_FRACTION = 0.75
-"""The diameter line and set: the radial axis at this fraction of its stroke."""
+"""The settings' undeclared catalogue effects (``effects``) on a chain: the kinds on the chain's axes; ``worm`` on
+the first full-turn rotary axis."""
 
 
 @dataclass
-class ChainPath:
-    """Test points: ``axes`` (n, k) nominal axes, ``cond`` {name: (n,)} the truth's conditions, ``name``."""
-
+class BenchCondition:
     name: str
-    axes: np.ndarray
-    cond: dict
+    group: str
+    stations: int
+    noise_um: float
+    effect: str | None = None     # the settings' name (thermal, bump …)
+    spec: str | None = None       # the truth's effect on this machine (thermal:X …)
+    n_checks: int | None = None   # check measurements of the closed loop (None: the settings' n_checks)
+    loop: bool = False            # run the closed loop (and its hybrid stage) even without an effect
 
 
 def chain_effects(machine, names) -> tuple[list, list]:
-    """``([(grinder name, chain effect)], [skipped why])`` of the settings' effect names on ``machine``."""
+    """``([(settings name, chain effect)], [skipped why])`` of the settings' catalogue effect names on ``machine``."""
     words = [a.word for a in machine.axes]
     rot = next((a.word for a in machine.axes if a.full_turn), None)
     out, skipped = [], []
@@ -76,257 +68,283 @@ def chain_effects(machine, names) -> tuple[list, list]:
     return out, skipped
 
 
-def _rotary_home(machine) -> np.ndarray:
-    """(k,) the value each rotary axis is held at on the diagonals: 0 where inside its stroke, else the middle."""
-    lo, hi = machine.stroke_lo, machine.stroke_hi
-    return np.where((lo <= 0.0) & (hi >= 0.0), 0.0, 0.5 * (lo + hi))
-
-
-def diagonal_path(machine, points_per_diagonal: int) -> ChainPath:
-    """The four body diagonals of the linear axes' box (ISO 230-6), each from a corner to the opposite one;
-    the approach direction of each axis is that of its motion along the diagonal."""
-    from ...solvers.chain_exact import linear_axes
-    lin, _ = linear_axes(machine)
-    lo, hi = machine.stroke_lo, machine.stroke_hi
-    span = hi - lo
-    a0, a1 = lo + INSET * span, hi - INSET * span
-    home = _rotary_home(machine)
-    t = np.linspace(0.0, 1.0, points_per_diagonal)
-    axes, dirs = [], []
-    for flip in ((0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1)):   # start corners; the end is the opposite corner
-        start, end = home.copy(), home.copy()
-        d = np.ones(len(machine.axes))
-        for f, j in zip(flip, lin):
-            start[j], end[j] = (a1[j], a0[j]) if f else (a0[j], a1[j])
-            d[j] = -1.0 if f else 1.0
-        axes.append(start + t[:, None] * (end - start))
-        dirs.append(np.broadcast_to(d, (len(t), len(d))))
-    axes, dirs = np.vstack(axes), np.vstack(dirs)
-    return ChainPath(f"4 body diagonals ({len(axes)} points)", axes, _conditions(machine, len(axes), dirs))
-
-
-def turning_path(machine, points_per_line: int) -> ChainPath:
-    """The judging path of a machine with two linear axes and one full-turn rotary axis (module doc): a
-    line along each linear axis (the other linear axis at :data:`TURNING_RADIUS_FRACTION` of its stroke
-    for the first axis' line, at its stroke middle for the second's, the rotary axis at 0), then at
-    :data:`TURNING_C_POSITIONS` rotary positions a face set (first linear axis' lower end + inset, four
-    positions of the second) and a diameter set (second axis at the radius fraction, four positions of the
-    first). Points nearer than :data:`TURNING_CLEARANCE_MM` to the rotary axis' line are left out. Positive
-    approach on every axis. ValueError for any other machine."""
-    from ...solvers.chain_exact import nominal_and_jacobian
-    lin = [j for j, a in enumerate(machine.axes) if a.kind == "linear"]
-    rot = [j for j, a in enumerate(machine.axes) if a.kind == "rotary"]
-    if len(machine.axes) != 3 or len(lin) != 2 or len(rot) != 1 or not machine.axes[rot[0]].full_turn:
-        raise ValueError(f"{machine.name}: the turning path needs two linear axes and one full-turn rotary axis "
-                         f"(its axes: {' '.join(a.word for a in machine.axes)})")
-    lo, hi = machine.stroke_lo, machine.stroke_hi
-    a0, a1 = lo + INSET * (hi - lo), hi - INSET * (hi - lo)
-    r = rot[0]
-    pts = []
-    for j, other, at in ((lin[0], lin[1], TURNING_RADIUS_FRACTION), (lin[1], lin[0], 0.5)):
-        line = np.zeros((points_per_line, 3))
-        line[:, j] = np.linspace(a0[j], a1[j], points_per_line)
-        line[:, other] = lo[other] + at * (hi[other] - lo[other])
-        pts.append(line)
-    u = np.linspace(0.0, 1.0, 4)
-    for c in lo[r] + (hi[r] - lo[r]) * np.arange(TURNING_C_POSITIONS) / TURNING_C_POSITIONS:
-        for j, other, at in ((lin[1], lin[0], None), (lin[0], lin[1], TURNING_RADIUS_FRACTION)):
-            blk = np.zeros((4, 3))
-            blk[:, j] = a0[j] + u * (a1[j] - a0[j])
-            blk[:, other] = a0[other] if at is None else lo[other] + at * (hi[other] - lo[other])
-            blk[:, r] = c
-            pts.append(blk)
-    axes = np.vstack(pts)
-    _, J = nominal_and_jacobian(machine, axes)
-    lever_mm = np.linalg.norm(J[:, :, r], axis=1) * (180.0 / np.pi)  # mm per rad
-    axes = axes[lever_mm >= TURNING_CLEARANCE_MM]
-    n = len(axes)
-    name = (f"turning: lines along {machine.axes[lin[0]].word} and {machine.axes[lin[1]].word}, face/diameter set "
-            f"at {TURNING_C_POSITIONS} {machine.axes[r].word} positions ({n} points)")
-    return ChainPath(name, axes, _conditions(machine, n, np.ones((n, 3))))
-
-
-def judging_path(machine, points: int) -> ChainPath:
-    """The benchmark's test path of ``machine``: the body diagonals where it has three linear axes, else the
-    turning path; ValueError naming both reasons for any other machine."""
-    try:
-        return diagonal_path(machine, points)
-    except ValueError as exc:
+def _truth_only_effects(machine, names) -> tuple[list, list]:
+    """``([(name, chain effect)], [skipped why])`` of out-of-catalogue effect names, on their default axes."""
+    from errormap.chain_truth import effect_key, parse_effect
+    out, skipped = [], []
+    for n in names:
         try:
-            return turning_path(machine, points)
-        except ValueError as exc2:
-            raise ValueError(f"{exc}; {exc2}") from None
+            out.append((n, effect_key(*parse_effect(machine, n))))
+        except ValueError as exc:
+            skipped.append(f"effect {n}: {exc}")
+    return out, skipped
 
 
-def volume_path(machine, n: int, seed) -> ChainPath:
-    """``n`` uniform random points over every stroke, positive approach."""
-    rng = np.random.default_rng(seed)
-    lo, hi = machine.stroke_lo, machine.stroke_hi
-    axes = lo + (hi - lo) * rng.random((n, len(machine.axes)))
-    return ChainPath(f"volume ({n} points)", axes, _conditions(machine, n, np.ones((n, len(machine.axes)))))
-
-
-def _conditions(machine, n, dirs) -> dict:
-    return {"temp_c": np.full(n, PATH_TEMP_C), **{f"dir_{a.word.lower()}": dirs[:, j] for j, a in enumerate(machine.axes)}}
-
-
-class _TruthAt:
-    """The truth at a path's conditions: ``predict(axes) -> (n, 3)`` μm (axes: the path's points, in order)."""
-
-    def __init__(self, truth, cond):
-        self.truth, self.cond = truth, cond
-
-    def predict(self, axes):
-        return self.truth.spatial_error(axes, **self.cond)
-
-
-def compensate_chain_true(machine, truth, field_, path: ChainPath) -> dict:
-    """Exact compensation of ``path`` with ``field_`` (None: the program run as written); TRUE residual (RMS,
-    max) on ``truth`` at the path's conditions, and with a field the solver's time per point, worst model
-    residual and failures."""
-    from ...solvers import solve
-    from ...solvers.chain_exact import nominal_and_jacobian
-    from .compensate_report import true_residual_um
-    targets, _ = nominal_and_jacobian(machine, path.axes)
-    r = None if field_ is None else solve("exact", field_, targets, machine, target_axes=path.axes,
-                                          progress=False)
-    axes = path.axes if r is None else r.axes
-    st = residual_stats(true_residual_um(_TruthAt(truth, path.cond), machine, axes, targets))
-    out = {"true_rms_um": st["rms_um"], "true_max_um": st["max_um"]}
-    if r is not None:
-        out.update(seconds_per_point=r.seconds / len(targets), points=len(targets),
-                   model_max_um=float(np.max(r.residual_norm_um)), failures=int(np.count_nonzero(~r.success)))
-    return out
+def bench_conditions(machine, s: BenchmarkSettings) -> tuple[list[BenchCondition], list[str]]:
+    """Density sweep (at the base noise), noise sweep (at the base density), each catalogue effect (base, with the
+    loop), each out-of-catalogue effect and none at each check count (with the loop and its hybrid stage); and why
+    an effect was left out on ``machine``."""
+    out = {}
+    for st in s.stations:
+        name = f"stations={st}, noise={s.base_noise_um:g}um"
+        out.setdefault(name, BenchCondition(name, "density", st, s.base_noise_um))
+    for nz in s.noises_um:
+        name = f"stations={s.base_stations}, noise={nz:g}um"
+        out.setdefault(name, BenchCondition(name, "noise", s.base_stations, nz))
+    effects, skipped = chain_effects(machine, s.effects)
+    for eff, spec in effects:
+        name = f"effect={eff}"
+        out[name] = BenchCondition(name, "effect", s.base_stations, s.base_noise_um, eff, spec)
+    ooc, why = _truth_only_effects(machine, s.ooc_effects)
+    if s.ooc_effects:
+        for eff, spec in (*ooc, ("none", None)):
+            for nc in dict.fromkeys(s.ooc_checks):
+                name = f"effect={eff}" + (f", checks={nc}" if nc != s.n_checks else "")
+                out[name] = BenchCondition(name, "out-of-catalogue", s.base_stations, s.base_noise_um,
+                                           None if eff == "none" else eff, spec, nc, True)
+    return list(out.values()), skipped + why
 
 
 def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", text)
 
 
-def run_chain(machine, s, log, out_dir) -> list:
-    """The rows of ``machine`` (a machine-tool chain) under the settings ``s`` into ``log`` (the benchmark's
-    :class:`RowLog`). Returns the skipped conditions (``[{"machine", "why"}]``)."""
+def loop_models(machine, model_path, cond: dict) -> dict:
+    """``{"parametric": (terms, stage, field), "hybrid": ...}`` of a diagnose run's ``model.json``: the loop
+    alone (without the learned part; its ``loop_alone`` elements and terms when the base was backfitted) and
+    the kept model, each told the conditions ``cond`` (a test part's) its terms need."""
     from errormap.chain_elements import ChainElementSet
-    from errormap.chain_field import ChainField
-    from errormap.chain_truth import ChainTruth
-    from .identification import identify_chain_files
-    from .measurement import simulate_chain, sweeps_chain
-    streams, skipped = rng_streams(s.seed), []
-    try:
-        path = judging_path(machine, s.chain_path_points)
-    except ValueError as exc:  # neither three linear axes (body diagonals) nor a turning centre
-        return [{"machine": machine.name, "why": f"compensation not available: {exc}"}]
-    volume = volume_path(machine, s.volume_points, streams["volume_points"]) if s.volume_points else None
-    effects, why = chain_effects(machine, s.effects)
-    skipped += [{"machine": machine.name, "why": w} for w in why]
-    sweep_seed = int(streams["sweep_noise"].generate_state(1)[0])
-    base = Path(out_dir) / "chains" / _slug(machine.name)
-    for gname, eff in [(None, None), *effects]:
-        cname = "effect=none" if eff is None else f"effect={gname} ({eff})"
-        d = base / _slug(cname)
-        say(f"{machine.name}: {cname}")
-        common = {"group": "chain", "effect": eff, "noise_um": s.base_noise_um, "test_path": path.name,
-                  "family": "default"}
-        try:
-            info = simulate_chain(machine, s.truth_seed, d / "sim", effects=() if eff is None else (eff,),
-                                  noise_um=s.check_noise_um, checks=s.n_checks)
-            # scoring only: the hidden truth, read back from the files the simulation wrote
-            truth = ChainTruth(machine, ChainElementSet.load(d / "sim" / info["elements"], machine), info["effects"])
-            unc = compensate_chain_true(machine, truth, None, path)
-            common.update(uncompensated_rms_um=unc["true_rms_um"], uncompensated_max_um=unc["true_max_um"])
-            if volume is not None:
-                uv = compensate_chain_true(machine, truth, None, volume)
-                common.update(volume_uncompensated_rms_um=uv["true_rms_um"])
-            sw_path, n_sweep, _ = sweeps_chain(machine, d / "sweeps.csv", seed=s.truth_seed,
-                                               effects=() if eff is None else (eff,), noise_um=s.base_noise_um,
-                                               seed_noise=sweep_seed)
-            t0 = time.perf_counter()
-            _, el_path, _, _ = identify_chain_files(machine, [sw_path], d / "identified.json")
-            id_s = time.perf_counter() - t0
-            common["n_measurements"] = n_sweep
-            fields = [("before closed loop", ChainField(machine, ChainElementSet.load(el_path, machine)), id_s,
-                       {"closed_loop": False})]
-            for n in s.chain_checks or (s.n_checks,):   # --checks N (repeatable): the loop once per count
-                sim = d / "sim" if n == s.n_checks else d / f"sim_checks_{n}"
-                if n != s.n_checks:   # the same truth (its seed), n check measurements
-                    simulate_chain(machine, s.truth_seed, sim, effects=() if eff is None else (eff,),
-                                   noise_um=s.check_noise_um, checks=n)
-                label = "after closed loop" + (f", checks={n}" if s.chain_checks else "")
-                fields.append((label, *_loop_model(machine, s, sim / "checks.csv", el_path, d, n, n_sweep, id_s)))
-        except Exception as exc:  # the other conditions still run; the failure is a row, never faked numbers
-            log.add(bench_row(machine.name, machine.kind, "parametric", cname, available=False,
-                        not_available=f"condition failed: {type(exc).__name__}: {exc}", **common))
-            continue
-        for label, fld, fit_s, extra in fields:
-            ex = compensate_chain_true(machine, truth, _at(fld, path.cond), path)
-            r = bench_row(machine.name, machine.kind, "parametric", f"{cname} ({label})", solver="exact",
-                          fit_seconds=fit_s, identify_seconds=id_s, **scored(ex), solvers={"exact": ex},
-                          **{**common, **extra})
-            vol = volume and compensate_chain_true(machine, truth, _at(fld, volume.cond), volume)
-            log.add(with_volume(r, vol))
-        log.add(learned_chain_row(machine, s, truth, el_path, (path, volume), f"{cname} (before closed loop)",
-                                  {**common, "closed_loop": False}, id_s))
-    return skipped
-
-
-def learned_chain_row(machine, s, truth, el_path, paths, label: str, common: dict, id_s: float) -> dict:
-    """The learned row of one condition: the identified set's feature points over the chain's axes (the
-    default grid, ``volcomp featurepoints --machine``) → the chain network (``volcomp train``: LM, ``train_iter``
-    iterations, ``train_s`` on top, the settings' network) → ``exact`` compensation of ``paths`` (the judging
-    path, the volume points or None) → TRUE residual. A network that does not beat its plain baseline (OLS on
-    the axes) is refused by the trainer: the row then says so (never faked numbers)."""
-    import math
-    from errormap.featurepoints import make_feature_points
-    from training.trainers import TrainSettings, fit_field
+    from errormap.diagnosis.loop_model import ChainModelField, read_terms
     from ...model_file import read_model
-    path, volume = paths
-    try:
-        fp = make_feature_points(machine, read_model(el_path, machine).field, meta={"elements_file": str(el_path)})
-        settings = TrainSettings(max_iter=s.train_iter, max_time_s=math.inf if s.train_s is None else s.train_s,
-                                 seed=s.seed, hidden=tuple(s.hidden), activation=s.activation,
-                                 a_encoding=s.a_encoding)
-        fit = fit_field(fp, settings, machine=machine, quiet=True, track=False)
-    except Exception as exc:  # training unavailable, or no better than its baseline: said, never faked
-        return bench_row(machine.name, machine.kind, "learned", label, available=False,
-                         not_available=f"training failed: {type(exc).__name__}: {exc}", **common)
-    say(f"{machine.name}: learned, {label}")
-    ex = compensate_chain_true(machine, truth, fit.field, path)
-    m = fit.metrics
-    r = bench_row(machine.name, machine.kind, "learned", label, solver="exact",
-                  fit_seconds=id_s + fit.seconds, identify_seconds=id_s, train_seconds=fit.seconds,
-                  train_iterations=int(fit.history.iterations), train_val_rms_um=m.get("val_rms_um"),
-                  train_val_max_um=m.get("val_max_um"),
-                  train_baseline_ols_val_rms_um=m.get("baseline_ols_val_rms_um"),
-                  n_featurepoints=len(fp.axes), **scored(ex), solvers={"exact": ex}, **common)
-    return with_volume(r, volume and compensate_chain_true(machine, truth, fit.field, volume))
+    kept = read_model(model_path, machine).field   # checks the file (format, machine) before it is read here
+    doc = json.loads(Path(model_path).read_text(encoding="utf-8"))
+    # the loop alone had the terms the learned part replaced
+    alone = doc.get("loop_alone") or {"elements": doc["elements"],
+                                      "terms": doc["terms"] + doc.get("base_terms_replaced", [])}
+    elements = ChainElementSet.load(Path(model_path).parent / alone["elements"], machine)
+    key = "loop_alone" if "loop_alone" in doc else "terms"
+    base = ChainModelField(machine, elements, read_terms(alone["terms"], machine, model_path, key))
+    return {"parametric": (alone["terms"], doc.get("base_stage", doc["kept_stage"]),
+                           with_path_conditions(base, cond)),
+            "hybrid": (doc["terms"], doc["kept_stage"], with_path_conditions(kept, cond))}
 
 
-def _loop_model(machine, s, checks_path, el_path, d, n: int, n_sweep: int, id_s: float) -> tuple:
-    """``(the loop's model, fit seconds, row fields)`` of ``volcomp diagnose`` on ``n`` checks (the parametric
-    column: the loop alone, no learned stage), its held-out MEASURED residual beside its plain baselines."""
-    from errormap.diagnosis.loop_model import load_chain_model_file
-    from .measurement import diagnose_chain
-    t0 = time.perf_counter()
-    out = d / "diagnosis" if n == s.n_checks else d / f"diagnosis_checks_{n}"
-    summary, _ = diagnose_chain(checks_path, machine, el_path, out, noise_um=s.check_noise_um, learn=False)
-    diag_s = time.perf_counter() - t0
+class NetworkTrainer:
+    """Trains the chain network on an identified set's feature points as ``volcomp featurepoints`` → ``volcomp
+    train --machine`` do (the default grid, the settings' network, LM, selection on off-grid points of the same
+    model, the OLS baseline beside it), once per distinct feature-point set and network setting."""
+
+    def __init__(self, machine, tracker, warm_up_axes):
+        self.m, self.tracker, self.warm_up_axes = machine, tracker, warm_up_axes
+        self.kind = family_kind(machine)
+        self.cache = []  # (network settings, feature-point errors, fit result, feature points, condition)
+
+    def train(self, el_path, cond_name: str, s: BenchmarkSettings):
+        """``(fit result, feature points, name of the condition reused or None)``."""
+        from errormap.featurepoints import make_feature_points
+        from training.trainers import TrackSettings, TrainSettings, fit_field
+        from ...model_file import read_model
+        fp = make_feature_points(self.m, read_model(el_path, self.m).field,
+                                 meta={"elements_file": str(el_path), "benchmark_condition": cond_name})
+        key = (tuple(s.hidden), s.activation, s.a_encoding, s.train_iter, s.train_s)
+        for k, errs, res, fp0, name in self.cache:
+            if k == key and errs.shape == fp.errors_um.shape and \
+                    np.max(np.abs(errs - fp.errors_um)) < FEATURE_REUSE_TOL_UM:
+                return res, fp0, name
+        say(f"{self.m.name}: training the network ({cond_name}, LM, {s.train_iter} iterations"
+            + (f", ≤ {s.train_s:g} s)" if s.train_s is not None else ")"))
+        tr = self.tracker
+        settings = TrainSettings(trainer="lm", max_iter=s.train_iter, seed=s.seed,
+                                 max_time_s=math.inf if s.train_s is None else s.train_s,
+                                 hidden=tuple(s.hidden), activation=s.activation, a_encoding=s.a_encoding)
+        tracking = TrackSettings(track=tr.enabled, tracking_uri=tr.uri if tr.enabled else None,
+                                 parent_run_id=tr.parent_id, experiment=EXPERIMENT,
+                                 run_name=f"{self.kind}/learned/train/{cond_name}",
+                                 tags={"benchmark_condition": cond_name})
+        res = fit_field(fp, settings, machine=self.m, tracking=tracking, quiet=True)
+        res.field.predict(self.warm_up_axes)  # warm-up, so that compensation timings exclude it
+        self.cache.append((key, fp.errors_um.copy(), res, fp, cond_name))
+        return res, fp, None
+
+
+class ChainBench:
+    """The rows of one machine-tool chain: per condition the user's path (simulate → sweeps → identify →
+    diagnose, files kept), parametric and learned on the test part and the volume, the closed loop after."""
+
+    def __init__(self, machine, s: BenchmarkSettings, log: RowLog, out_dir, path: ChainPath):
+        self.m, self.s, self.log, self.kind = machine, s, log, family_kind(machine)
+        self.path = path
+        self.ga_idx = _subset(len(path.axes), s.ga_points)
+        streams = rng_streams(s.seed)
+        self.volume = volume_path(machine, s.volume_points, streams["volume_points"]) if s.volume_points else None
+        self.sweep_seed = int(streams["sweep_noise"].generate_state(1)[0])
+        self.base = Path(out_dir) / "chains" / _slug(machine.name)
+        self.trainer = NetworkTrainer(machine, log.tracker, path.axes[:2])
+
+    def row(self, path: str, label: str, **kw) -> dict:
+        """A result row of this machine (:func:`bench_row`; its kind the registry's)."""
+        return bench_row(self.m.name, self.kind, path, label, **kw)
+
+    def _solve(self, truth, field_, method="exact", idx=None) -> dict:
+        return compensate_true(self.m, self.s, self.path, truth, field_, method, idx=idx)
+
+    def _volume(self, truth, field_):
+        return compensate_true(self.m, self.s, self.volume, truth, field_) if self.volume is not None else None
+
+    def measure(self, c: BenchCondition, d: Path):
+        """Hidden truth + checks (``simulate``), sweeps, ``identify``: ``(truth, element-set path, identify
+        seconds, sweep rows)``."""
+        from errormap.chain_elements import ChainElementSet
+        from errormap.chain_sweeps import simulated_sweeps
+        from errormap.chain_truth import ChainTruth
+        from errormap.sweeps import write_sweeps
+        from .identification import identify_chain_files
+        from .measurement import simulate_chain
+        effects = () if c.spec is None else (c.spec,)
+        info = simulate_chain(self.m, self.s.truth_seed, d / "sim", effects=effects, noise_um=self.s.check_noise_um,
+                              checks=c.n_checks or self.s.n_checks)
+        # scoring only: the hidden truth, read back from the files the simulation wrote
+        truth = ChainTruth(self.m, ChainElementSet.load(d / "sim" / info["elements"], self.m), info["effects"])
+        cols = simulated_sweeps(truth, noise_um=c.noise_um, seed=self.sweep_seed, n_stations=c.stations)
+        sw = write_sweeps(d / "sweeps.csv", cols, comments=[
+            f"machine: {self.m.name}", f"machine_sha256: {self.m.sha256}",
+            f"truth: seed {self.s.truth_seed}", f"effects: {','.join(truth.effects) or 'none'}",
+            f"noise_um: {c.noise_um}", f"seed_noise: {self.sweep_seed}", f"stations: {c.stations}",
+            "tracker pose: seeded, unknown to the identification"])
+        t0 = time.perf_counter()
+        # volcomp identify with its defaults (smoothed, station-mean gauge, covariance)
+        _, el_path, _, _ = identify_chain_files(self.m, [sw], d / "identified.json", n_boot=self.s.identify_bootstrap,
+                                                seed=0)
+        return truth, el_path, time.perf_counter() - t0, len(cols["axis"])
+
+    def run_condition(self, c: BenchCondition) -> None:
+        from errormap.chain_elements import ChainElementSet
+        from errormap.chain_field import ChainField
+        d = self.base / _slug(c.name)
+        say(f"{self.m.name}: {c.name}")
+        truth, el_path, id_s, n_sweep = self.measure(c, d)
+        unc = self._solve(truth, None)
+        common = {"group": c.group, "stations": c.stations, "noise_um": c.noise_um, "effect": c.effect,
+                  "truth_effect": c.spec, "test_path": self.path.name, "n_measurements": n_sweep,
+                  "uncompensated_rms_um": unc["true_rms_um"], "uncompensated_max_um": unc["true_max_um"]}
+        if self.volume is not None:
+            common["volume_uncompensated_rms_um"] = self._volume(truth, None)["true_rms_um"]
+        loop = bool(c.effect or c.loop)
+        label = c.name + (" (before closed loop)" if loop else "")
+        field_ = ChainField(self.m, ChainElementSet.load(el_path, self.m))
+        say(f"{self.m.name}: parametric, {label}")
+        ex = self._solve(truth, field_)
+        row = self.row("parametric", label, closed_loop=False, solver="exact", fit_seconds=id_s,
+                       identify_seconds=id_s, **scored(ex), solvers={"exact": ex}, **common)
+        self.log.add(with_volume(row, self._volume(truth, field_)))
+        self.learned_row(truth, el_path, id_s, c.name, label, common)
+        if loop:
+            self.loop_rows(c, truth, el_path, id_s, d, common)
+
+    def learned_row(self, truth, el_path, id_s, cond_name, label, common) -> None:
+        """Feature points → the chain network → ``exact`` (whole part, volume) and ``batched-ga`` (subset); a
+        network that fails or does not beat its OLS baseline is a row that says so."""
+        try:
+            fit, fp, reused = self.trainer.train(el_path, cond_name, self.s)
+        except Exception as exc:  # training unavailable, or no better than its baseline: said, never faked
+            self.log.add(self.row("learned", label, available=False, closed_loop=False,
+                                  not_available=f"training failed: {type(exc).__name__}: {exc}", **common))
+            return
+        say(f"{self.m.name}: learned, {label}")
+        ex = self._solve(truth, fit.field)
+        ga = self._solve(truth, fit.field, "batched-ga", idx=self.ga_idx)
+        m = fit.metrics
+        row = self.row("learned", label, closed_loop=False, solver="exact", fit_seconds=id_s + fit.seconds,
+                       identify_seconds=id_s, train_seconds=fit.seconds, training_run_id=fit.run_id,
+                       reused_training_of=reused, train_iterations=int(fit.history.iterations),
+                       train_val_rms_um=m.get("val_rms_um"), train_val_max_um=m.get("val_max_um"),
+                       train_baseline_ols_val_rms_um=m.get("baseline_ols_val_rms_um"),
+                       n_featurepoints=len(fp.axes), **scored(ex), solvers={"exact": ex, "batched-ga": ga}, **common)
+        self.log.add(with_volume(row, self._volume(truth, fit.field)))
+
+    def loop_rows(self, c, truth, el_path, id_s, d, common) -> None:
+        """``volcomp diagnose`` on the condition's checks with the identified set and its covariance (the
+        element update, the effects; on an out-of-catalogue condition also the learned residual, backfitted
+        with the update, gated on the held-out checks) → compensate, judged by the truth. The parametric row is
+        the loop alone (``model.json`` without a learned part), the hybrid row (out-of-catalogue) the kept model."""
+        from .measurement import diagnose_chain
+        s, n = self.s, c.n_checks or self.s.n_checks
+        learn = c.group == "out-of-catalogue"
+        label = f"{c.name} (after closed loop)"
+        paths = ("parametric", "hybrid") if learn else ("parametric",)
+        done = []
+        try:
+            t0 = time.perf_counter()
+            summary, _ = diagnose_chain(d / "sim" / "checks.csv", self.m, el_path, d / "diagnosis",
+                                        noise_um=s.check_noise_um, learn=learn)
+            loop_s = time.perf_counter() - t0
+            models = loop_models(self.m, summary["model_file"], self.path.cond)
+            vmodels = loop_models(self.m, summary["model_file"], self.volume.cond) if self.volume else None
+            fields = _loop_fields(summary, s, n, common["n_measurements"])
+            for path in paths:
+                terms, stage, field_ = models[path]
+                say(f"{self.m.name}: {path}, {label}")
+                sol = {"exact": self._solve(truth, field_)}
+                if path == "hybrid" and fields["learned_kept"]:
+                    sol["batched-ga"] = self._solve(truth, field_, "batched-ga", idx=self.ga_idx)
+                extra = ({"checks_rms_after_um": fields.pop("held_out_rms_base_um")} if path == "parametric"
+                         else {"checks_rms_after_um": summary["held_out_rms_um"]})
+                row = self.row(path, label, closed_loop=True, loop_method=USER_LOOP, solver="exact",
+                               fit_seconds=id_s + loop_s, identify_seconds=id_s, diagnosis_seconds=loop_s,
+                               **scored(sol["exact"]), solvers=sol, stage=stage,
+                               effects_found=[f"{e['kind']}:{e['axis']}" for e in terms],
+                               **{**common, **{k: v for k, v in fields.items()
+                                               if path == "hybrid" or not k.startswith("learned")}, **extra})
+                vol = vmodels and compensate_true(self.m, s, self.volume, truth, vmodels[path][2])
+                self.log.add(with_volume(row, vol))
+                done.append(path)
+        except Exception as exc:  # never fake numbers: the rows say why they are missing
+            why = f"closed loop failed: {type(exc).__name__}: {exc}"
+            for path in paths:
+                if path not in done:
+                    self.log.add(self.row(path, label, available=False, closed_loop=True, loop_method=USER_LOOP,
+                                          not_available=why, **common))
+
+
+def _loop_fields(summary: dict, s: BenchmarkSettings, n: int, n_sweep: int) -> dict:
+    """The loop rows' figures from ``diagnosis.json``: the held-out MEASURED residual before and after beside the
+    plain baselines and the noise floor, the learned stage's verdict."""
     st = summary["stages"]
     floor = float(np.sqrt(3.0) * s.check_noise_um)
-    loop = {"closed_loop": True, "diagnosis_seconds": diag_s, "n_checks": n, "kept_stage": summary["kept_stage"],
-            "effects_found": [f"{e['kind']}:{e['axis']}" for e in summary["effects"]],
-            "checks_rms_before_um": st["identified"]["held_out"]["rms_um"],
-            "checks_rms_after_um": summary["held_out_rms_um"],
+    lr = summary.get("learned_residual") or {}
+    base = summary.get("held_out_rms_base_um", summary["held_out_rms_um"])
+    return {"n_checks": n, "kept_stage": summary["kept_stage"], "check_noise_um": s.check_noise_um,
+            "checks_rms_before_um": st["identified"]["held_out"]["rms_um"], "held_out_rms_base_um": base,
             "held_out_ols_linear_um": st["baseline_ols_linear"]["held_out"]["rms_um"],
             "held_out_ols_update_um": st["baseline_ols_update"].get("held_out", {}).get("rms_um"),
-            "noise_floor_um": floor, "held_out_over_floor": summary["held_out_rms_um"] / floor,
-            "n_measurements": n_sweep + n, "model_verdict": summary.get("verdict")}
-    return load_chain_model_file(summary["model_file"], machine), id_s + diag_s, loop
+            "noise_floor_um": floor, "held_out_over_floor": base / floor,
+            "n_measurements": n_sweep + n, "model_verdict": summary.get("verdict"),
+            "learned_kept": summary["kept_stage"] == "learned_residual", "learned_family": lr.get("family"),
+            "learned_why": lr.get("why"), "learned_gain_z": lr.get("held_out_gain_z"),
+            "learned_band95_cover": lr.get("held_out_band95_cover"), "learned_backfitted": "backfit" in lr}
 
 
-def _at(field_, cond: dict):
-    """``field_`` told the path's conditions its effect terms need (as ``compensate --temp-c/--dir-x`` tells it)."""
-    needs = tuple(getattr(field_, "needs", ()))
-    # a condition constant along the path is told as one value: the solver may evaluate the field on a subset
-    # of the points (its retries of unconverged points, as near a turning centre's spindle axis)
-    return field_.with_conditions({c: (float(cond[c][0]) if np.all(cond[c] == cond[c][0]) else cond[c])
-                                   for c in needs}) if needs else field_
+def _subset(n: int, m: int) -> np.ndarray:
+    return np.unique(np.round(np.linspace(0, n - 1, min(n, m))).astype(int))
+
+
+def run_chain(machine, s, log, out_dir) -> list:
+    """The rows of ``machine`` (a machine-tool chain) under the settings ``s`` into ``log`` (the benchmark's
+    :class:`RowLog`), in condition order. Returns the skipped conditions (``[{"machine", "why"}]``)."""
+    try:
+        path = judging_path(machine, s)
+    except ValueError as exc:  # no test part the machine can make
+        return [{"machine": machine.name, "why": f"compensation not available: {exc}"}]
+    conds, why = bench_conditions(machine, s)
+    bench = ChainBench(machine, s, log, out_dir, path)
+    for c in conds:
+        try:
+            bench.run_condition(c)
+        except Exception as exc:  # the other conditions still run; the failure is a row, never faked numbers
+            say(f"{machine.name}: {c.name} failed: {type(exc).__name__}: {exc}")
+            done = {r["path"] for r in log.rows if r["machine"] == machine.name and r["condition"].startswith(c.name)}
+            for p in ("parametric", "learned"):
+                if p not in done:
+                    log.add(bench.row(p, c.name, available=False, group=c.group,
+                                      not_available=f"condition failed: {type(exc).__name__}: {exc}"))
+    return [{"machine": machine.name, "why": w} for w in why]
