@@ -53,7 +53,8 @@ def test_identify_reports_the_uncertainty_and_iso_names_of_any_machine_tool(tmp_
     """One identification for every machine tool: a mill's report carries the ``uncertainty`` block (a standard error
     per slot and station: the covariance file's diagonal, the same floats) and the ISO 230-1 names of its own file's
     slots, and the command prints them."""
-    from errormap.identification import load_covariance
+    from errormap.chain_covariance import read_chain_covariance
+    from errormap.chain_elements import ChainElementSet
     sw = tmp_path / "sw.csv"
     assert main(["sweeps", "--machine", "mill-xyz", "--seed", "2", "--out", str(sw)]) == 0
     capsys.readouterr()
@@ -64,7 +65,7 @@ def test_identify_reports_the_uncertainty_and_iso_names_of_any_machine_tool(tmp_
     assert report["iso230_names"] == dict(zip(m.slot_names, m.iso_names))
     se = report["uncertainty"]["standard_errors"]
     assert list(se) == list(m.slot_names)
-    slots, stations, C = load_covariance(tmp_path / "E.cov.npz")
+    slots, stations, C = read_chain_covariance(tmp_path / "E.cov.npz", ChainElementSet.load(tmp_path / "E.json", m))
     sd = np.sqrt(np.diag(C))
     assert [se[s] if i < 0 else se[s][i] for s, i in zip(slots, stations)] == sd.tolist()   # no full-turn axis
     assert all(f"{s} ({iso})" in text for s, iso in zip(m.slot_names, m.iso_names))
