@@ -39,9 +39,9 @@ class Facts:
     orientation, ``rx_deg, ry_deg, rz_deg``: a hexapod), ``sensitivity_study`` (the tripod's
     error-sensitivity study, ``interpolate --sensitivity-plot``), ``paper_paths`` (the hexapod paper's test
     passes, sphere and hyperboloid, are its benchmark paths and noise/pose series). Of the loaded machine tool
-(:func:`machine_tool_facts`): ``flute_axes`` (its axes are the flute's, X and Z linear and A rotary, with the
-closed-form inverse that places the flute's points), ``fixed_tool_axis`` (three axes, one rotary: all of them
-place the tool point and none is left to turn the tool axis)."""
+    (:func:`machine_tool_facts`): ``flute_axes`` (its axes are the flute's, X and Z linear and A rotary, with the
+    closed-form inverse that places the flute's points), ``fixed_tool_axis`` (three axes, one rotary: all of them
+    place the tool point and none is left to turn the tool axis)."""
 
     tracker_sweeps: bool = False
     gcode: bool = False
@@ -105,7 +105,7 @@ class Gap:
 
 @dataclass(frozen=True)
 class Family:
-    """One family member (a column of docs/reference/features.md): ``name`` of the family, ``column`` of the table,
+    """One family (a column of docs/reference/features.md): ``name`` of the family, ``column`` of the table,
     ``kinds`` ``{kind: Facts}``, ``targets`` ``{command: target}`` (the workflow that runs the command for it;
     a command looks its runner up by this name), ``kind_targets`` ``{kind: {command: target}}`` (a kind's own
     workflow for a command), ``gaps`` ``{command: Gap}`` (commands it does not run, or runs only on machines with
@@ -133,7 +133,7 @@ class Family:
 
     def _gap(self, command: str) -> Gap | None:
         g = self.gaps.get(command)
-        if command in self.targets and (g is None or getattr(self.facts, g.unless)):
+        if command in self.targets and (g is None or (g.unless and getattr(self.facts, g.unless))):
             return None
         return g
 
@@ -300,7 +300,7 @@ PARALLEL = Family(
                 "{path}: --sensitivity-plot needs a tripod machine file, got {kind!r}", kinds=("hexapod",))))
 
 FAMILIES = (MACHINE_TOOL, ARM, PARALLEL)
-"""Every family member, in the order of the columns of docs/reference/features.md."""
+"""Every family, in the order of the columns of docs/reference/features.md."""
 
 
 def family_of_kind(kind: str) -> Family:
