@@ -10,9 +10,8 @@ checks the declared gaps against that table's cells.
 Three families, the columns of that table: **machine tool** (every chain file, the built-in grinder among them,
 and a ``kind = "grinder"`` file read as its chain), **serial arm** and **parallel** (hexapod, tripod). Where a
 command differs between machines of one family, the difference is a fact of the loaded machine
-(:attr:`Family.machine_facts`: e.g. whether its axes are the flute's X, Z, A), never its kind string; the one
-exception is a per-kind target (:attr:`Family.kind_targets`). A new kind is one entry of :data:`FAMILIES` (and its
-parser in :func:`errormap.machine.machine_kinds`).
+(:attr:`Family.machine_facts`: e.g. whether its axes are the flute's X, Z, A), never its kind string. A new kind
+is one entry of :data:`FAMILIES` (and its parser in :func:`errormap.machine.machine_kinds`).
 """
 from __future__ import annotations
 
@@ -107,8 +106,7 @@ class Gap:
 class Family:
     """One family (a column of docs/reference/features.md): ``name`` of the family, ``column`` of the table,
     ``kinds`` ``{kind: Facts}``, ``targets`` ``{command: target}`` (the workflow that runs the command for it;
-    a command looks its runner up by this name), ``kind_targets`` ``{kind: {command: target}}`` (a kind's own
-    workflow for a command), ``gaps`` ``{command: Gap}`` (commands it does not run, or runs only on machines with
+    a command looks its runner up by this name), ``gaps`` ``{command: Gap}`` (commands it does not run, or runs only on machines with
     the gap's ``unless`` fact), ``refusals`` (options it refuses), ``machine_facts`` (``machine -> {fact: value}``,
     the facts of :class:`Facts` read from a loaded machine). :func:`family_of` binds it to one machine (``kind``,
     ``path``, ``machine_name`` and its ``bound_facts``)."""
@@ -117,7 +115,6 @@ class Family:
     column: str
     kinds: dict
     targets: dict
-    kind_targets: dict = field(default_factory=dict)
     gaps: dict = field(default_factory=dict)
     refusals: tuple = ()
     machine_facts: object = None
@@ -147,7 +144,7 @@ class Family:
         if g is not None:
             raise UsageError(f"{self.path}: volcomp {command} does not run on a {self.name} "
                              f"({self.kind} {self.machine_name!r}): {g.word}: {g.reason}")
-        return self.kind_targets.get(self.kind, {}).get(command, self.targets[command])
+        return self.targets[command]
 
     def refuse_unsupported(self, command: str, args) -> None:
         """Raise :class:`UsageError` for the first refusal of ``command`` whose options ``args`` gives (never an
@@ -216,7 +213,6 @@ MACHINE_TOOL = Family(
     targets={**_same_target("simulate", "sweeps", "featurepoints", "identify", "train", "predict", "benchmark", "demo",
                             "report run", target="chain"),
              **_same_target("compensate", "export", "diagnose", "report", "fleet", target="machine tool")},
-    kind_targets={"grinder": {"benchmark": "grinder"}},   # the grinder's benchmark: learned vs parametric on the flute
     gaps={"demo": Gap(NOT_YET, "the demo's part is the grinder's flute (a part in X, Z, A)", unless="flute_axes"),
           "calibrate": Gap(OTHER_PATH, "identify (sweeps), then diagnose (checks)"),
           "register": Gap(OTHER_PATH, "the tracker pose is estimated inside identify with every set-up"),
@@ -314,8 +310,8 @@ def family_of_kind(kind: str) -> Family:
 
 def family_kind(machine) -> str:
     """The registry's kind of a loaded machine: ``grinder`` for the grinder's chain (the built-in grinder or a
-    ``kind = "grinder"`` file read as it, :func:`errormap.grinder_file.is_grinder_chain`: its benchmark, its
-    recorded rows and its predict output keep the grinder's), else its own kind."""
+    ``kind = "grinder"`` file read as it, :func:`errormap.grinder_file.is_grinder_chain`: its benchmark rows are
+    recorded under this kind and its predict output keeps the grinder's form), else its own kind."""
     from errormap.grinder_file import is_grinder_chain
     return "grinder" if is_grinder_chain(machine) else machine.kind
 

@@ -9,17 +9,16 @@ from __future__ import annotations
 import numpy as np
 from markupsafe import Markup
 
-from ..families import ARM, MACHINE_TOOL, PARALLEL, family_of_kind
+from ..families import ARM, MACHINE_TOOL, PARALLEL
 from .figures import pyplot
 from .toolkit import Figure, Table, figure, num, render_page, um
 
 PATH_COLORS = {"parametric": "tab:blue", "learned": "tab:orange", "hybrid": "tab:green"}
 PLOT_FLOOR_UM = 0.01
 """Line plots draw values below this (noise-free exact compensation, ~1e-9 μm) at this floor."""
-GRINDER_KINDS, CHAIN_KINDS = ([k for k in MACHINE_TOOL.kinds if (family_of_kind(k).target("benchmark") == "grinder") == g]
-                              for g in (True, False))
-"""The recorded ``machine_kind`` of a machine tool's rows: the grinder's flute benchmark (its registry target) or a
-chain's."""
+GRINDER_KINDS, CHAIN_KINDS = ([k for k, f in MACHINE_TOOL.kinds.items() if f.chain == chain] for chain in (False, True))
+"""The recorded ``machine_kind`` of a machine tool's rows: the grinder's (named by its kind, ``chain`` false:
+:func:`compensation.app.families.family_kind`) or another chain's (named by the machine)."""
 
 
 def _stop(s: dict, prefix: str) -> str:
