@@ -112,7 +112,8 @@ def test_every_family_runs_a_command_or_names_its_gap():
     commands = {c for f in FAMILIES for c in (*f.targets, *f.gaps)}
     for f in FAMILIES:
         for c in commands:
-            assert (c in f.targets) != (c in f.gaps), f"{f.column} / {c}: a target or a gap, exactly one"
+            conditional = c in f.gaps and f.gaps[c].unless   # a gap of the machines without that fact
+            assert (c in f.targets) != (c in f.gaps) or conditional, f"{f.column} / {c}: a target or a gap, exactly one"
         for c, g in f.gaps.items():
             assert g.word in GAP_WORDS and len(g.reason) >= 8, (f.column, c, g)
 
@@ -149,7 +150,8 @@ def test_every_refusal_of_the_registry_is_a_gap_the_table_states():
         for command, gap in f.gaps.items():
             cmd = command.split()[0]
             cell = _cell(cmd, MAIN_OPTION.get(command, "--machine"), f.column)
-            assert cell.startswith(f"{gap.word}:"), f"{f.column} / {command}: {gap.word!r} here; table: {cell!r}"
+            said = f"{gap.word}:" in cell if gap.unless else cell.startswith(f"{gap.word}:")
+            assert said, f"{f.column} / {command}: {gap.word!r} here; table: {cell!r}"
 
 
 CONVERTED = ("simulate", "sweeps", "featurepoints", "train", "predict", "calibrate", "register", "report",
@@ -185,7 +187,12 @@ def test_a_machine_gets_its_family_and_facts():
     assert hexapod.facts.platform_orientation and not tripod.facts.platform_orientation
     assert tripod.facts.sensitivity_study and not hexapod.facts.sensitivity_study
     grinder, chain = family_of(load_machine(None)), family_of(load_machine("mill-xyz"))
-    assert grinder.name == chain.name == "machine tool" and chain.facts.chain and not grinder.facts.chain
+    assert grinder.column == chain.column == "Machine tool" and chain.facts.chain and not grinder.facts.chain
+    five, lathe = family_of(load_machine("five-axis-ac")), family_of(load_machine("lathe-xzc"))
+    assert grinder.facts.flute_axes and not any(f.facts.flute_axes for f in (chain, five, lathe))
+    assert grinder.runs("demo") and not chain.runs("demo") and grinder.runs("report run") and chain.runs("report run")
+    assert grinder.facts.fixed_tool_axis and lathe.facts.fixed_tool_axis
+    assert not chain.facts.fixed_tool_axis and not five.facts.fixed_tool_axis   # no rotary axis / two of five
     assert family_of(load_machine("ur5")).facts.poses
 
 
@@ -217,6 +224,9 @@ REFUSED = [   # (argv, words the one line names): the registry's refusals on the
      ["--compensate-orientation:", "not yet"]),
     (["compensate", "p.nc", "--model", "E.json", "--method", "exact", "--compensate-orientation"],
      ["--compensate-orientation:", "grinder", "tool axis"]),
+    (["compensate", "p.nc", "--machine", "lathe-xzc", "--model", "E.json", "--compensate-orientation"],
+     ["--compensate-orientation:", "lathe-xzc", "tool axis"]),   # three axes, one rotary: the grinder's physics
+    (["demo", "--machine", "five-axis-ac"], ["volcomp demo", "machine tool", "not yet:", "flute"]),
 ]
 
 

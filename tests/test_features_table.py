@@ -12,7 +12,7 @@ import pytest
 from compensation.app.cli import build_parser
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "reference" / "features.md"
-FAMILIES = ("Grinder", "Machine-tool chains", "Serial arm", "Parallel (hexapod, tripod)")
+FAMILIES = ("Machine tool", "Serial arm", "Parallel (hexapod, tripod)")
 WORDS = ("yes", "physics:", "other path:", "not yet:")
 MIN_REASON_CHARS = 8
 """A gap's reason after its word: at least a few words ("as above" points at the row before)."""

@@ -7,10 +7,11 @@ element chain, a platform orientation ...) and which options it refuses, with th
 words of ``docs/reference/features.md`` (:meth:`Family.refuse_unsupported`). ``tests/test_family_registry.py``
 checks the declared gaps against that table's cells.
 
-Three families: **machine tool** (the built-in grinder and the machine-tool chains; the grinder is a
-chain, :func:`family_kind`, whose element sets and truths still run its own workflows, so the family has
-two members, the table's two machine-tool columns), **serial arm** and **parallel** (hexapod, tripod). A new kind is
-one entry of :data:`FAMILIES` (and its parser in :func:`errormap.machine.machine_kinds`).
+Three families, the columns of that table: **machine tool** (every chain file, the built-in grinder among them,
+and a ``kind = "grinder"`` file read as its chain), **serial arm** and **parallel** (hexapod, tripod). Where a
+command differs between machines of one family, the difference is a fact of the loaded machine
+(:attr:`Family.machine_facts`: e.g. whether its axes are the flute's X, Z, A), never its kind string. A new kind
+is one entry of :data:`FAMILIES` (and its parser in :func:`errormap.machine.machine_kinds`).
 """
 from __future__ import annotations
 
@@ -36,7 +37,10 @@ class Facts:
     ``poses`` (calibrated from measured poses), ``platform_orientation`` (a pose has a platform
     orientation, ``rx_deg, ry_deg, rz_deg``: a hexapod), ``sensitivity_study`` (the tripod's
     error-sensitivity study, ``interpolate --sensitivity-plot``), ``paper_paths`` (the hexapod paper's test
-    passes, sphere and hyperboloid, are its benchmark paths and noise/pose series)."""
+    passes, sphere and hyperboloid, are its benchmark paths and noise/pose series). Of the loaded machine tool
+    (:func:`machine_tool_facts`): ``flute_axes`` (its axes are the flute's, X and Z linear and A rotary, with the
+    closed-form inverse that places the flute's points), ``fixed_tool_axis`` (three axes, one rotary: all of them
+    place the tool point and none is left to turn the tool axis)."""
 
     tracker_sweeps: bool = False
     gcode: bool = False
@@ -45,6 +49,8 @@ class Facts:
     platform_orientation: bool = False
     sensitivity_study: bool = False
     paper_paths: bool = False
+    flute_axes: bool = False
+    fixed_tool_axis: bool = False
 
 
 @dataclass(frozen=True)
@@ -71,29 +77,39 @@ class Opt:
 class Refusal:
     """Options of ``command`` a family refuses (exit status 2, one line, nothing written). ``message`` is
     formatted with ``given`` (the given options, comma-separated), ``does``/``it`` (singular or plural),
-    ``kind``, ``name`` and ``path`` of the machine; ``kinds``: only these kinds of the family refuse them."""
+    ``kind``, ``name`` and ``path`` of the machine; ``kinds``: only these kinds of the family refuse them;
+    ``when`` / ``unless``: only a machine with / without that fact (:class:`Facts`) refuses them."""
 
     command: str
     options: tuple
     message: str
     kinds: tuple = ()
+    when: str = ""
+    unless: str = ""
+
+    def applies(self, kind: str, facts: Facts) -> bool:
+        return ((not self.kinds or kind in self.kinds) and (not self.when or getattr(facts, self.when))
+                and not (self.unless and getattr(facts, self.unless)))
 
 
 @dataclass(frozen=True)
 class Gap:
-    """A command a family does not run: the gap's ``word`` and ``reason`` (its docs/reference/features.md cell)."""
+    """A command a family does not run: the gap's ``word`` and ``reason`` (its docs/reference/features.md cell);
+    ``unless``: a fact (:class:`Facts`) of the machines of the family that do run it (the command is a target too)."""
 
     word: str
     reason: str
+    unless: str = ""
 
 
 @dataclass(frozen=True)
 class Family:
-    """One family member (a column of docs/reference/features.md): ``name`` of the family, ``column`` of the table,
+    """One family (a column of docs/reference/features.md): ``name`` of the family, ``column`` of the table,
     ``kinds`` ``{kind: Facts}``, ``targets`` ``{command: target}`` (the workflow that runs the command for it;
-    a command looks its runner up by this name), ``gaps`` ``{command: Gap}`` (commands it does not run),
-    ``refusals`` (options it refuses). :func:`family_of` binds it to one machine (``kind``, ``path``,
-    ``machine_name``)."""
+    a command looks its runner up by this name), ``gaps`` ``{command: Gap}`` (commands it does not run, or runs only on machines with
+    the gap's ``unless`` fact), ``refusals`` (options it refuses), ``machine_facts`` (``machine -> {fact: value}``,
+    the facts of :class:`Facts` read from a loaded machine). :func:`family_of` binds it to one machine (``kind``,
+    ``path``, ``machine_name`` and its ``bound_facts``)."""
 
     name: str
     column: str
@@ -101,23 +117,31 @@ class Family:
     targets: dict
     gaps: dict = field(default_factory=dict)
     refusals: tuple = ()
+    machine_facts: object = None
     kind: str = ""
     path: str = ""
     machine_name: str = ""
+    bound_facts: Facts | None = None
 
     @property
     def facts(self) -> Facts:
-        """The facts of the bound machine's kind."""
-        return self.kinds[self.kind]
+        """The facts of the bound machine (those of its kind where no machine is bound)."""
+        return self.kinds[self.kind] if self.bound_facts is None else self.bound_facts
+
+    def _gap(self, command: str) -> Gap | None:
+        g = self.gaps.get(command)
+        if command in self.targets and (g is None or (g.unless and getattr(self.facts, g.unless))):
+            return None
+        return g
 
     def runs(self, command: str) -> bool:
-        return command in self.targets
+        return self._gap(command) is None and command in self.targets
 
     def target(self, command: str) -> str:
         """The workflow that runs ``command`` for this family; :class:`UsageError` naming the gap (and the
         way this family does the job, where there is one) when it does not run it."""
-        if command not in self.targets:
-            g = self.gaps[command]
+        g = self._gap(command)
+        if g is not None:
             raise UsageError(f"{self.path}: volcomp {command} does not run on a {self.name} "
                              f"({self.kind} {self.machine_name!r}): {g.word}: {g.reason}")
         return self.targets[command]
@@ -125,7 +149,7 @@ class Family:
     def refuse_unsupported(self, command: str, args) -> None:
         """Raise :class:`UsageError` for the first refusal of ``command`` whose options ``args`` gives (never an
         option silently ignored); the message is the registry's, with the given options named."""
-        for r in (r for r in self.refusals if r.command == command and (not r.kinds or self.kind in r.kinds)):
+        for r in (r for r in self.refusals if r.command == command and r.applies(self.kind, self.facts)):
             given = [g for g in (o.given(args) for o in r.options) if g]
             if given:
                 one = len(given) == 1
@@ -134,8 +158,8 @@ class Family:
                                                   name=self.machine_name, path=self.path))
 
     def support(self, command: str, option: str) -> tuple:
-        """``(word, reason)`` of ``option`` of ``command`` on this family (any of its kinds): a refused option's
-        gap, the command's gap where the family does not run it, else ``("yes", "")``."""
+        """``(word, reason)`` of ``option`` of ``command`` on this family (any of its machines): a refused option's
+        gap, the command's gap where the family does not run it on any machine, else ``("yes", "")``."""
         command = COMMAND_MODES.get((command, option), command)
         for r in self.refusals:
             for o in r.options:
@@ -168,39 +192,40 @@ _DIAGNOSE = (Refusal("diagnose", (Opt("--alpha", NOT_YET, default=0.01, show_val
 _CALIBRATE_OTHER = ("{given}: {does} not apply to {what} (see calibrate --help: the options are grouped by machine "
                     "kind); leave {it} out")
 
-GRINDER = Family(
-    name="machine tool", column="Grinder",
-    kinds={"grinder": Facts(tracker_sweeps=True, gcode=True)},
-    targets={**_same_target("simulate", "sweeps", "featurepoints", "identify", "train", "benchmark", target="chain"),
-             **_same_target("predict", "demo", target="grinder"),
-             **_same_target("compensate", "export", "diagnose", "report", "fleet", target="machine tool")},
-    gaps={"calibrate": Gap(OTHER_PATH, "identify (sweeps), then diagnose (checks)"),
-          "register": Gap(OTHER_PATH, "the tracker pose is estimated inside identify with every set-up"),
-          "interpolate": Gap(OTHER_PATH, "compensate (axis programs)"),
-          "report run": Gap(OTHER_PATH, "diagnose writes the run's report.html itself")},
-    refusals=(Refusal("simulate", (Opt("--poses", OTHER_PATH),), _BY_POSES), *_DIAGNOSE,
-              Refusal("compensate", (Opt("--compensate-orientation", PHYSICS),),
-                      "{given}: the grinder's one rotary axis (A) turns the workpiece and none turns the tool axis: "
-                      "there is no tool orientation to compensate; leave it out")))
+def machine_tool_facts(machine) -> dict:
+    """The facts of :class:`Facts` a loaded machine tool's axes decide: ``flute_axes`` (X and Z linear and A rotary,
+    placed by the chain's closed-form inverse, :meth:`errormap.machine_tool.MachineTool.closed_form_constants`:
+    the flute's axes) and ``fixed_tool_axis`` (three axes, one of them rotary)."""
+    axes = tuple((a.word, a.kind) for a in machine.axes)
+    rotary = any(a.kind == "rotary" for a in machine.axes)
+    flute = axes == (("X", "linear"), ("Z", "linear"), ("A", "rotary")) and machine.closed_form_constants() is not None
+    return {"flute_axes": flute, "fixed_tool_axis": len(axes) == 3 and rotary}
 
-CHAIN = Family(
-    name="machine tool", column="Machine-tool chains",
-    kinds={"machine-tool": Facts(tracker_sweeps=True, gcode=True, chain=True)},
-    targets={**_same_target("simulate", "sweeps", "featurepoints", "train", "predict", "identify", "benchmark",
-                            target="chain"),
-             **_same_target("compensate", "export", "diagnose", "report", "fleet", target="machine tool"),
-             "report run": "chain"},
-    gaps={"demo": _DEMO,
+
+_FLUTE_OPTIONS = (Opt("--flute", PHYSICS), *(Opt(f"--{k.replace('_', '-')}", PHYSICS, default=getattr(FLUTE_DEFAULTS, k))
+                                             for k in ("turns", "points_per_turn", "radius_mm", "helix_start_deg",
+                                                       "helix_end_deg", "lead_law", "px_start_mm")))
+
+MACHINE_TOOL = Family(
+    name="machine tool", column="Machine tool",
+    kinds={"grinder": Facts(tracker_sweeps=True, gcode=True),
+           "machine-tool": Facts(tracker_sweeps=True, gcode=True, chain=True)},
+    targets={**_same_target("simulate", "sweeps", "featurepoints", "identify", "train", "predict", "benchmark", "demo",
+                            "report run", target="chain"),
+             **_same_target("compensate", "export", "diagnose", "report", "fleet", target="machine tool")},
+    gaps={"demo": Gap(NOT_YET, "the demo's part is the grinder's flute (a part in X, Z, A)", unless="flute_axes"),
           "calibrate": Gap(OTHER_PATH, "identify (sweeps), then diagnose (checks)"),
-          "register": Gap(OTHER_PATH, "the tracker pose is estimated inside identify"),
-          "interpolate": Gap(OTHER_PATH, "compensate")},
+          "register": Gap(OTHER_PATH, "the tracker pose is estimated inside identify with every set-up"),
+          "interpolate": Gap(OTHER_PATH, "compensate (axis programs)")},
     refusals=(Refusal("simulate", (Opt("--poses", OTHER_PATH),), _BY_POSES), *_DIAGNOSE,
-              Refusal("report", (Opt("--flute", PHYSICS),
-                                 *(Opt(f"--{k.replace('_', '-')}", PHYSICS, default=getattr(FLUTE_DEFAULTS, k))
-                                   for k in ("turns", "points_per_turn", "radius_mm", "helix_start_deg",
-                                             "helix_end_deg", "lead_law", "px_start_mm"))),
+              Refusal("report", _FLUTE_OPTIONS,
                       "{given}: the flute is the grinder's part (a micro-drill flute in its X, Z, A); on {name} "
-                      "compare the methods on its own --path")))
+                      "compare the methods on its own --path", unless="flute_axes"),
+              Refusal("compensate", (Opt("--compensate-orientation", PHYSICS),),
+                      "{given}: the one rotary axis of {name!r} turns the workpiece and none turns the tool axis "
+                      "(its three axes place the tool point): there is no tool orientation to compensate; leave it out",
+                      when="fixed_tool_axis")),
+    machine_facts=machine_tool_facts)
 
 ARM = Family(
     name="serial arm", column="Serial arm",
@@ -270,8 +295,8 @@ PARALLEL = Family(
         Refusal("interpolate", (Opt("--sensitivity-plot", NOT_YET),),
                 "{path}: --sensitivity-plot needs a tripod machine file, got {kind!r}", kinds=("hexapod",))))
 
-FAMILIES = (GRINDER, CHAIN, ARM, PARALLEL)
-"""Every family member, in the order of the columns of docs/reference/features.md."""
+FAMILIES = (MACHINE_TOOL, ARM, PARALLEL)
+"""Every family, in the order of the columns of docs/reference/features.md."""
 
 
 def family_of_kind(kind: str) -> Family:
@@ -285,7 +310,8 @@ def family_of_kind(kind: str) -> Family:
 
 def family_kind(machine) -> str:
     """The registry's kind of a loaded machine: ``grinder`` for the grinder's chain (the built-in grinder or a
-    ``kind = "grinder"`` file read as it, :func:`errormap.grinder_file.is_grinder_chain`), else its own kind."""
+    ``kind = "grinder"`` file read as it, :func:`errormap.grinder_file.is_grinder_chain`: its benchmark rows are
+    recorded under this kind and its predict output keeps the grinder's form), else its own kind."""
     from errormap.grinder_file import is_grinder_chain
     return "grinder" if is_grinder_chain(machine) else machine.kind
 
@@ -313,6 +339,8 @@ def say_read_as(machine) -> None:
 
 
 def family_of(machine) -> Family:
-    """The family of a loaded machine, bound to it (its kind, file and name)."""
-    return dataclasses.replace(family_of_kind(family_kind(machine)), path=str(getattr(machine, "path", "")),
-                               machine_name=getattr(machine, "name", ""))
+    """The family of a loaded machine, bound to it (its kind, file, name and facts)."""
+    f = family_of_kind(family_kind(machine))
+    facts = dataclasses.replace(f.facts, **f.machine_facts(machine)) if f.machine_facts else None
+    return dataclasses.replace(f, path=str(getattr(machine, "path", "")), machine_name=getattr(machine, "name", ""),
+                               bound_facts=facts)

@@ -238,7 +238,7 @@ def _run_machine_tool(machine, args) -> int:
     return 0
 
 
-RUNNERS = {"grinder": _run_machine_tool, "chain": _run_machine_tool, "arm": _run_arm, "parallel": _run_parallel}
+RUNNERS = {"chain": _run_machine_tool, "arm": _run_arm, "parallel": _run_parallel}
 """The runner of each target of ``predict`` (:meth:`compensation.app.families.Family.target`)."""
 
 

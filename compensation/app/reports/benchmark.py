@@ -9,13 +9,16 @@ from __future__ import annotations
 import numpy as np
 from markupsafe import Markup
 
-from ..families import ARM, CHAIN, GRINDER, PARALLEL
+from ..families import ARM, MACHINE_TOOL, PARALLEL
 from .figures import pyplot
 from .toolkit import Figure, Table, figure, num, render_page, um
 
 PATH_COLORS = {"parametric": "tab:blue", "learned": "tab:orange", "hybrid": "tab:green"}
 PLOT_FLOOR_UM = 0.01
 """Line plots draw values below this (noise-free exact compensation, ~1e-9 μm) at this floor."""
+GRINDER_KINDS, CHAIN_KINDS = ([k for k, f in MACHINE_TOOL.kinds.items() if f.chain == chain] for chain in (False, True))
+"""The recorded ``machine_kind`` of a machine tool's rows: the grinder's (named by its kind, ``chain`` false:
+:func:`compensation.app.families.family_kind`) or another chain's (named by the machine)."""
 
 
 def _stop(s: dict, prefix: str) -> str:
@@ -64,7 +67,7 @@ def _line_plot(doc, kinds, select, xkey, xlabel, title, alt) -> Figure | None:
 
 def _effects_plot(doc) -> Figure | None:
     plt = pyplot()
-    rows = _rows(doc, GRINDER.kinds, "effect")
+    rows = _rows(doc, GRINDER_KINDS, "effect")
     effects = list(dict.fromkeys(r["effect"] for r in rows))
     if not effects:
         return None
@@ -134,7 +137,7 @@ def verdicts(doc) -> list[str]:
 def _ooc_pairs(doc) -> dict:
     """``{condition name: {"parametric": row, "hybrid": row}}`` of the out-of-catalogue group after the loop."""
     by = {}
-    for r in _rows(doc, GRINDER.kinds, group="out-of-catalogue"):
+    for r in _rows(doc, GRINDER_KINDS, group="out-of-catalogue"):
         if r.get("closed_loop") and r["path"] in ("parametric", "hybrid"):
             by.setdefault(r["condition"].replace(" (after closed loop)", ""), {})[r["path"]] = r
     return {k: v for k, v in by.items() if len(v) == 2}
@@ -303,21 +306,21 @@ def render_html(doc: dict) -> str:
     not_available += [f"{r['machine_kind']} / {r['path']} / {r['condition']}: not counted: its model's verdict "
                       f"{_verdict_text(r)}" for r in doc["rows"] if r.get("available") and verdict_failed(r)]
     grinder = None
-    g = _rows(doc, GRINDER.kinds, available=None)
+    g = _rows(doc, GRINDER_KINDS, available=None)
     if g:
         plain = ("density", "noise")
         sweeps = (("density", lambda r: r.get("group") in plain and r.get("noise_um") == s["base_noise_um"],
                    "stations", "stations per axis", f"against sweep density (noise {s['base_noise_um']:g} μm)"),
                   ("noise", lambda r: r.get("group") in plain and r.get("stations") == s["base_stations"],
                    "noise_um", "tracker noise σ (μm)", f"against tracker noise ({s['base_stations']} stations)"))
-        figures = [_line_plot(doc, GRINDER.kinds, sel, xkey, xl, "Grinder: true residual on the flute " + t, f"grinder {grp}")
+        figures = [_line_plot(doc, GRINDER_KINDS, sel, xkey, xl, "Grinder: true residual on the flute " + t, f"grinder {grp}")
                    for grp, sel, xkey, xl, t in sweeps] + [_effects_plot(doc)]
         grinder = {"path_conditions": ", ".join(f"{k} = {v:g}" for k, v in doc["path_conditions"].items()),
                    "table": _table(g, GRINDER_COLS), "figures": [f for f in figures if f is not None],
                    "solvers": _solver_table([r for r in g if r.get("available")])}
     chains = []
-    for name in dict.fromkeys(r["machine"] for r in _rows(doc, CHAIN.kinds, available=None)):
-        c = [r for r in _rows(doc, CHAIN.kinds, available=None) if r["machine"] == name]
+    for name in dict.fromkeys(r["machine"] for r in _rows(doc, CHAIN_KINDS, available=None)):
+        c = [r for r in _rows(doc, CHAIN_KINDS, available=None) if r["machine"] == name]
         chains.append((name, {"table": _table(c, CHAIN_COLS), "test_path": c[0].get("test_path"),
                               "solvers": _solver_table([r for r in c if r.get("available")])}))
     arms = []
