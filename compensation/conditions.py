@@ -57,8 +57,8 @@ class ConditionedField:
 
 
 def path_conditions(tp, needs, constants: dict, units: str = UNITS_CHECK, units_option: str | None = None) -> dict:
-    """Per-point conditions of tool path ``tp`` (a :class:`compensation.pathio.ToolPath`) for the
-    condition names ``needs``: {name: (n,) array}, from the CSV's columns when present, else the
+    """Per-point conditions of tool path ``tp`` (a :class:`compensation.app.workflows.compensate_paths.ToolPath`)
+    for the condition names ``needs``: {name: (n,) array}, from the CSV's columns when present, else the
     constant in ``constants`` (None: not given). Refuses (InputError) a needed condition in
     neither, and a bad cell (file, row, column); temperatures go through the shared unit check
     (:func:`errormap.units.check_units`, ``units`` / ``units_option`` as there)."""

@@ -29,7 +29,7 @@ RESIDUAL_DEFINITIONS = {
 CHAIN_TRUTH_FORMAT = "volcomp-chain-truth/1"
 """``truth.json`` of ``simulate`` on a machine-tool chain (elements file beside it + effect parameters)."""
 PARAMETER_NAMES = {"x_frac": "p_frac", "z_frac": "q_frac"}
-"""A truth.json without a ``format`` key (a ``kind = "grinder"`` file's simulate folder) names the stroke fractions
+"""A truth.json without a ``format`` key (an older grinder simulate folder) names the stroke fractions
 of its two-axis effects by its axes; the chain's effects name them by their order (first, second axis)."""
 
 

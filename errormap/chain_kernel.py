@@ -381,7 +381,7 @@ class CompiledChain:
 assert UM_MM == 1e-3, "the kernels write mm → μm as * 1e3"
 
 
-# -- nominal tool points and per-pose slot values (the grinder's paths too) ---------
+# -- nominal tool points and per-pose slot values (every machine tool's, the grinder's too) ---------
 def nominal_program(chain):
     """The chain as ops with no error slot (every joint ET one op, every run of fixed ETs one
     constant block): the nominal chain for :func:`nominal_jacobian_kernel` (layout of

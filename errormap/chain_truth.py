@@ -24,8 +24,8 @@ built-in grinder's keeps its seeded truths as they always were). Spatial errors 
 (:func:`errormap.chain_kernel.spatial_error`).
 
 Effects (canonical kind names of the project's effect table; ``KIND:AXES``, e.g.
-``periodic:X``, ``harmonic:C``, ``interaction:X*Z``; the grinder's simulator names ``pitch``
-and ``worm`` are aliases; without axes the grinder's choice: periodic and thermal on the first
+``periodic:X``, ``harmonic:C``, ``interaction:X*Z``; the older simulator names ``pitch``
+and ``worm`` are aliases; without axes: periodic and thermal on the first
 linear axis, reversal on the last linear axis, harmonic on the first rotary axis, interaction
 between the first and last linear axes):
 

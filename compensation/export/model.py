@@ -4,7 +4,7 @@ Every machine tool is its chain (a ``kind = "grinder"`` file is read as the grin
 23 element names and axis columns): the axes, their strokes and
 full turns, the error slots and their ISO names, the bodies' frames. What differs between machine files
 is only how their model files are read (:func:`load_model`, :func:`load_truth`, :func:`reversal_from_diagnosis`):
-a grinder file's element sets, simulated truths and ``diagnosis.json`` have their own formats.
+the grinder's older simulated truths (no ``format`` key), checks diagnoses and closed-loop models are still read.
 """
 from __future__ import annotations
 

@@ -15,8 +15,9 @@ from .model import ModelError, nominal_mm, TABLE_TEMP_C
 BACKLASH_EXPORT = "linuxcnc-backlash"
 """The registry's ``export`` of a kind a per-joint table carries (:mod:`errormap.effect_kinds`)."""
 CHECKS_DIAGNOSIS_FORMAT = "volcomp-checks-diagnosis/1"
-"""The ``format`` key of ``diagnosis.json`` written by ``volcomp diagnose CHECKS`` on a grinder file (the drift
-diagnosis has its own content and no ``effects``)."""
+"""The ``format`` key of the grinder's older checks ``diagnosis.json`` (written by ``volcomp diagnose CHECKS``
+before every machine tool took the one closed loop; still read; the drift diagnosis has its own content and no
+``effects``)."""
 
 
 def joint_elements(machine) -> dict:

@@ -242,7 +242,7 @@ class _ChainFieldEval:
     every solver evaluates a field: full-turn axes folded into the calibrated turn of their stroke, its
     float32 path for the start where it declares one (only the first step's direction depends on it), its
     ``predict_columns`` for values where declared, its own Jacobian where declared, else forward differences
-    (:mod:`compensation.solvers._common`). Shapes: axes (m, k), values (m, 3) μm, Jacobians (m, 3, k)."""
+    (:data:`FD_STEP`). Shapes: axes (m, k), values (m, 3) μm, Jacobians (m, 3, k)."""
 
     def __init__(self, field, machine):
         self.field = field
