@@ -94,8 +94,9 @@ class Model:
 def read_model(spec, machine, tracking_uri: str | None = None, source: ModelSource | None = None,
                family: str | None = None) -> Model:
     """The :class:`Model` of ``spec`` (a model file, trained-network folder or MLflow reference, recognised by
-    content) for ``machine``: a machine tool (a chain, or a ``kind = "grinder"`` file: its chain, except the
-    grinder's own old closed-loop model and trained network of x, z, a), a serial arm or a parallel machine.
+    content) for ``machine``: a machine tool (a chain, or a ``kind = "grinder"`` file: its chain; on the grinder
+    also its older closed-loop model and the network of x, z, a that ``train`` fits there), a serial arm or a
+    parallel machine.
     ``family``: the family the caller evaluates (None: any). InputError naming the file and key for anything else
     (a foreign or garbled file, another machine's or family's model, a drift model)."""
     src = source or resolve_model(spec)

@@ -130,7 +130,7 @@ def loop_models(machine, model_path, cond: dict) -> dict:
 
 
 class NetworkTrainer:
-    """Trains the chain network on an identified set's feature points as ``volcomp featurepoints`` → ``volcomp
+    """Trains the machine's network on an identified set's feature points as ``volcomp featurepoints`` → ``volcomp
     train --machine`` do (the default grid, the settings' network, LM, selection on off-grid points of the same
     model, the OLS baseline beside it), once per distinct feature-point set and network setting."""
 
