@@ -13,7 +13,7 @@ parameter ``5230 + 20·(P−1)``): the program's X Y are turned by it about the 
 offsets are added (:meth:`ProgramFrames.place`).
 
 and the tool tip is then the machine file's tool point with its gauge length (the ``[geometry]``
-constant ``tool_length``) set to the tool table's length (:func:`errormap.machine_tool.with_tool_length`):
+constant ``tool_length``) set to the tool table's length (:func:`machine_with_tool`):
 the nominal tip does not depend on the tool, but the angular errors act on its Abbe arm.
 
 On a lathe (a machine file with a ``[spindle]`` and no Y axis) a tool has an offset along X and along Z

@@ -1,5 +1,5 @@
 """The names of the grinder's 23 geometric error elements (the slots of its chain file,
-:func:`errormap.grinder_file.grinder_chain`) and the profile checks every element set shares.
+:func:`errormap.grinder_file.parse_grinder_file`) and the profile checks every element set shares.
 
 Translations in μm, angles in μrad. The 18 axis-motion elements are functions of their own
 axis position (X, Z, A); the 5 A-line and squareness elements are constants. Their values, the

@@ -1,6 +1,6 @@
 """Identification of every machine tool's error slots from laser-tracker sweeps: the one method.
 
-A chain file, and a ``kind = "grinder"`` file through its chain (:func:`errormap.grinder_file.grinder_chain`):
+A chain file, and a ``kind = "grinder"`` file through its chain (:func:`errormap.grinder_file.parse_grinder_file`):
 one Gauss–Newton least squares on all ball positions of all sweeps of one tracker set-up, with the exact
 chain (:mod:`errormap.chain_sweeps`); its unknowns, gauges (:data:`GAUGES`, :func:`gauge_rows`), checks and
 covariance as ``docs/explanation/identification.md`` describes them. Solved by the block structure of the
