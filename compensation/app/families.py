@@ -311,7 +311,7 @@ def family_of_kind(kind: str) -> Family:
 def family_kind(machine) -> str:
     """The registry's kind of a loaded machine: ``grinder`` for the grinder's chain (the built-in grinder or a
     ``kind = "grinder"`` file read as it, :func:`errormap.grinder_file.is_grinder_chain`: its benchmark rows are
-    recorded under this kind and its predict output keeps the grinder's form), else its own kind."""
+    recorded under this kind, which the benchmark report's flute section reads), else its own kind."""
     from errormap.grinder_file import is_grinder_chain
     return "grinder" if is_grinder_chain(machine) else machine.kind
 
