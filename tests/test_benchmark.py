@@ -61,7 +61,7 @@ def _ooc_doc():
     rows = []
     for cond, par, hyb, kept in (("effect=bump", 1.4, 0.8, True), ("effect=none", 0.7, 0.7, False)):
         for path, vol in (("parametric", par), ("hybrid", hyb)):
-            rows.append({"machine": "g", "machine_kind": "grinder", "path": path, "group": "out-of-catalogue",
+            rows.append({"machine": "grinder", "machine_kind": "machine-tool", "path": path, "group": "out-of-catalogue",
                          "condition": f"{cond} (after closed loop)", "closed_loop": True, "available": True,
                          "true_rms_um": vol, "true_max_um": 3 * vol, "volume_rms_um": vol, "fit_seconds": 1.0,
                          "compensate_seconds_per_point": 1e-4, "n_measurements": 589,
@@ -198,7 +198,7 @@ def _doc():
     rows = []
     for path, rms in (("parametric", 2.0), ("learned", 5.0)):
         for st in (6, 21):
-            rows.append({"machine": "g", "machine_kind": "grinder", "path": path, "condition": f"stations={st}",
+            rows.append({"machine": "grinder", "machine_kind": "machine-tool", "path": path, "condition": f"stations={st}",
                          "group": "density", "stations": st, "noise_um": 1.0, "available": True,
                          "true_rms_um": rms * 21 / st, "true_max_um": 2 * rms, "fit_seconds": 1.0,
                          "compensate_seconds_per_point": 1e-4, "n_measurements": 9 * st,
@@ -230,7 +230,7 @@ def test_summary_counts_the_hybrid_against_the_loop_on_the_same_checks():
     for cond, par, hyb in (("effect=bump, checks=800 (after closed loop)", (2.0, 1.2), (1.0, 0.6)),
                            ("effect=none, checks=800 (after closed loop)", (0.8, 0.6), (0.8, 0.6))):
         for path, (flute, vol) in (("parametric", par), ("hybrid", hyb)):
-            doc["rows"].append({"machine": "g", "machine_kind": "grinder", "path": path, "condition": cond,
+            doc["rows"].append({"machine": "grinder", "machine_kind": "machine-tool", "path": path, "condition": cond,
                                 "group": "out-of-catalogue", "available": True, "true_rms_um": flute,
                                 "true_max_um": 2 * flute, "volume_rms_um": vol, "fit_seconds": 1.0,
                                 "compensate_seconds_per_point": 1e-4, "n_measurements": 989})
@@ -311,7 +311,7 @@ def test_quick_benchmark_end_to_end(tmp_path):
     rows = doc["rows"]
     keys = {(r["machine"], r["path"], r["condition"]) for r in rows}
     assert len(keys) == len(rows)    # one row per (machine, path, condition)
-    assert {r["machine_kind"] for r in rows} == {"grinder", "hexapod", "tripod"}
+    assert {r["machine_kind"] for r in rows} == {"machine-tool", "hexapod", "tripod"}
     for r in rows:
         for k in REQUIRED_ROW_KEYS:
             assert k in r
@@ -573,7 +573,7 @@ def test_conclusion_lines_per_check_count():
                                  ("effect=a_tilt, checks=150", 2.4, 2.4, False), ("effect=none, checks=800", 0.7, 0.7, False),
                                  ("effect=none, checks=150", 0.8, 0.8, False)):
         for path, vol in (("parametric", par), ("hybrid", hyb)):
-            rows.append({"machine": "g", "machine_kind": "grinder", "path": path, "group": "out-of-catalogue",
+            rows.append({"machine": "grinder", "machine_kind": "machine-tool", "path": path, "group": "out-of-catalogue",
                          "condition": f"{cond} (after closed loop)", "closed_loop": True, "available": True,
                          "true_rms_um": vol, "volume_rms_um": vol, "n_checks": int(cond.rsplit("=", 1)[1]),
                          **({"learned_kept": kept, "learned_family": "gp" if kept else "none"} if path == "hybrid" else {})})

@@ -33,7 +33,7 @@ GAP_WORDS = (PHYSICS, OTHER_PATH, NOT_YET)
 class Facts:
     """What a machine kind is, as far as a command asks: ``tracker_sweeps`` (identified from per-axis
     laser-tracker sweeps and feature points over its axis columns), ``gcode`` (its programs are G-code in
-    its axis words), ``chain`` (its model is the element chain of its own axes, :mod:`errormap.machine_tool`),
+    its axis words; every machine tool is its element chain, :mod:`errormap.machine_tool`),
     ``poses`` (calibrated from measured poses), ``platform_orientation`` (a pose has a platform
     orientation, ``rx_deg, ry_deg, rz_deg``: a hexapod), ``sensitivity_study`` (the tripod's
     error-sensitivity study, ``interpolate --sensitivity-plot``), ``paper_paths`` (the hexapod paper's test
@@ -44,7 +44,6 @@ class Facts:
 
     tracker_sweeps: bool = False
     gcode: bool = False
-    chain: bool = False
     poses: bool = False
     platform_orientation: bool = False
     sensitivity_study: bool = False
@@ -208,8 +207,7 @@ _FLUTE_OPTIONS = (Opt("--flute", PHYSICS), *(Opt(f"--{k.replace('_', '-')}", PHY
 
 MACHINE_TOOL = Family(
     name="machine tool", column="Machine tool",
-    kinds={"grinder": Facts(tracker_sweeps=True, gcode=True),
-           "machine-tool": Facts(tracker_sweeps=True, gcode=True, chain=True)},
+    kinds={"machine-tool": Facts(tracker_sweeps=True, gcode=True)},
     targets={**_same_target("simulate", "sweeps", "featurepoints", "identify", "train", "predict", "benchmark", "demo",
                             "report run", target="chain"),
              **_same_target("compensate", "export", "diagnose", "report", "fleet", target="machine tool")},
@@ -308,14 +306,6 @@ def family_of_kind(kind: str) -> Family:
     raise ValueError(f"machine kind {kind!r} belongs to no family (compensation/app/families.py)")
 
 
-def family_kind(machine) -> str:
-    """The registry's kind of a loaded machine: ``grinder`` for the grinder's chain (the built-in grinder or a
-    ``kind = "grinder"`` file read as it, :func:`errormap.grinder_file.is_grinder_chain`: its benchmark rows are
-    recorded under this kind and its predict output keeps the grinder's form), else its own kind."""
-    from errormap.grinder_file import is_grinder_chain
-    return "grinder" if is_grinder_chain(machine) else machine.kind
-
-
 def refuse_model_family(command: str, src) -> None:
     """Refuse (one line, the registry's gap) a model of a family that does not run ``command``: an arm's or a
     parallel machine's calibration (``src``: :class:`compensation.fields.ModelSource`) given to ``export`` or
@@ -340,7 +330,7 @@ def say_read_as(machine) -> None:
 
 def family_of(machine) -> Family:
     """The family of a loaded machine, bound to it (its kind, file, name and facts)."""
-    f = family_of_kind(family_kind(machine))
+    f = family_of_kind(machine.kind)   # a kind = "grinder" file is read as its chain: kind machine-tool
     facts = dataclasses.replace(f.facts, **f.machine_facts(machine)) if f.machine_facts else None
     return dataclasses.replace(f, path=str(getattr(machine, "path", "")), machine_name=getattr(machine, "name", ""),
                                bound_facts=facts)

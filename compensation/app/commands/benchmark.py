@@ -10,7 +10,6 @@ import sys
 
 from errormap.machine import builtin_machine_path, load_machine
 
-from ..families import family_of_kind
 
 
 def register(sub):
@@ -47,11 +46,6 @@ def register(sub):
     p.set_defaults(func=run)
 
 
-def _name(row) -> str:
-    """The kind for the built-in kinds, the machine's name for a chain file (several chains share a kind)."""
-    return row["machine"] if family_of_kind(row["machine_kind"]).facts.chain else row["machine_kind"]
-
-
 DEFAULT_MACHINES = ("grinder", "hexapod", "tripod")
 """The built-in machines benchmarked without ``--machine``."""
 
@@ -69,7 +63,7 @@ def run(args) -> int:
     else:
         machines = [load_machine(builtin_machine_path(name)) for name in DEFAULT_MACHINES]
     doc = run_benchmark(machines, args.out, s, tracking_uri=args.tracking_uri, track=not args.no_track)
-    from ..reports.benchmark import verdict_failed
+    from ..reports.benchmark import machine_label, verdict_failed
     avail = [r for r in doc["rows"] if r["available"]]
     failed = [r for r in avail if verdict_failed(r)]
     print(f"{len(avail)} of {len(doc['rows'])} rows measured in {doc['seconds']:.0f} s"
@@ -77,10 +71,10 @@ def run(args) -> int:
     print(f"{'machine':8s} {'path':10s} {'true RMS um':>11s} {'max um':>9s}  condition")
     for r in doc["rows"]:
         if r["available"]:
-            print(f"{_name(r):8s} {r['path']:10s} {r['true_rms_um']:11.3f} {r['true_max_um']:9.3f}  {r['condition']}"
+            print(f"{machine_label(r):8s} {r['path']:10s} {r['true_rms_um']:11.3f} {r['true_max_um']:9.3f}  {r['condition']}"
                   + ("  [verdict FAILED: not counted]" if verdict_failed(r) else ""))
         else:
-            print(f"{_name(r):8s} {r['path']:10s} {'n/a':>11s} {'':9s}  {r['condition']}: {r['not_available']}")
+            print(f"{machine_label(r):8s} {r['path']:10s} {'n/a':>11s} {'':9s}  {r['condition']}: {r['not_available']}")
     for k in doc.get("skipped", []):
         print(f"{k['machine']}: skipped: {k['why']}", file=sys.stderr)
     print(f"wrote {doc['paths']['json']}")

@@ -121,7 +121,7 @@ def _predict_diagnosed(args, t, axes, machine, model):
     if cov is not None:   # the TOTAL band: learned (when kept) ⊕ the elements' J Σ Jᵀ
         sd = total_band_std(learned, machine, axes, lambda p: band_sd(machine, model.elements, cov, p))
         cols.update(_band_columns(sd, args.band))
-    meta = [f"stage: {model.stage}"]
+    meta = [f"machine: {machine.name}", f"stage: {model.stage}"]
     if learned is not None:
         meta += _learned_part(cols, learned, axes)
     if cov is not None:
@@ -190,9 +190,8 @@ def _run_parallel(machine, args) -> int:
 
 
 def _run_machine_tool(machine, args) -> int:
-    """The grinder or a machine-tool chain: any error field at its axis columns."""
-    chain = family_of(machine).facts.chain
-    names = machine_axes(machine)   # the grinder's x_mm, z_mm, a_deg or the chain's own columns
+    """Every machine tool (the built-in grinder among them): any error field at its axis columns, one output form."""
+    names = machine_axes(machine)   # the machine's own axis columns (the grinder's x_mm, z_mm, a_deg)
     t = read_table(args.points, "points")
     t.require(*names)
     if len(t) == 0:   # a header alone: nothing to predict (an empty output would look like a result)
@@ -225,7 +224,7 @@ def _run_machine_tool(machine, args) -> int:
                             .predict(axes[i:i + PREDICT_BATCH]) for i in range(0, len(axes), PREDICT_BATCH)])
     cols = {n: np.array(t.raw(n)) for n in t.names if n not in ("dx_um", "dy_um", "dz_um")}
     cols.update({"dx_um": e[:, 0], "dy_um": e[:, 1], "dz_um": e[:, 2]})
-    meta = [f"machine: {machine.name}"] if chain else []
+    meta = [f"machine: {machine.name}"]
     if model.learned is not None:   # a loop's model.json with its kept learned residual
         meta += [f"stage: {model.stage} on {model.doc.get('base_stage')}"] + _learned_part(cols, model.learned, axes)
     if n_out:   # the override recorded in the output itself, on every machine

@@ -16,9 +16,11 @@ from .toolkit import Figure, Table, figure, num, render_page, um
 PATH_COLORS = {"parametric": "tab:blue", "learned": "tab:orange", "hybrid": "tab:green"}
 PLOT_FLOOR_UM = 0.01
 """Line plots draw values below this (noise-free exact compensation, ~1e-9 μm) at this floor."""
-GRINDER_KINDS, CHAIN_KINDS = ([k for k, f in MACHINE_TOOL.kinds.items() if f.chain == chain] for chain in (False, True))
-"""The recorded ``machine_kind`` of a machine tool's rows: the grinder's (named by its kind, ``chain`` false:
-:func:`compensation.app.families.family_kind`) or another chain's (named by the machine)."""
+
+
+def machine_label(row) -> str:
+    """What a row's lines name: a machine tool's machine (several share the kind ``machine-tool``), else the kind."""
+    return row["machine"] if row["machine_kind"] in MACHINE_TOOL.kinds else row["machine_kind"]
 
 
 def _stop(s: dict, prefix: str) -> str:
@@ -42,10 +44,10 @@ def _rows(doc, kinds=None, group=None, path=None, available=True):
             and not (available and verdict_failed(r))]
 
 
-def _line_plot(doc, kinds, select, xkey, xlabel, title, alt) -> Figure | None:
-    """True RMS and max against ``xkey`` for the rows of ``kinds`` that ``select(row)`` keeps."""
+def _line_plot(rows, select, xkey, xlabel, title, alt) -> Figure | None:
+    """True RMS and max against ``xkey`` for the counted ``rows`` (:func:`_rows`) that ``select(row)`` keeps."""
     plt = pyplot()
-    rows = [r for r in _rows(doc, kinds) if select(r)]
+    rows = [r for r in rows if select(r)]
     if not rows:
         return None
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
@@ -65,9 +67,10 @@ def _line_plot(doc, kinds, select, xkey, xlabel, title, alt) -> Figure | None:
     return figure(fig, alt)
 
 
-def _effects_plot(doc) -> Figure | None:
+def _effects_plot(rows, name) -> Figure | None:
+    """Before / after the closed loop per undeclared effect, of one machine tool's counted ``rows``."""
     plt = pyplot()
-    rows = _rows(doc, GRINDER_KINDS, "effect")
+    rows = [r for r in rows if r.get("group") == "effect"]
     effects = list(dict.fromkeys(r["effect"] for r in rows))
     if not effects:
         return None
@@ -81,11 +84,11 @@ def _effects_plot(doc) -> Figure | None:
                label=f"{p}, {'after' if loop else 'before'} closed loop")
     ax.set_xticks(np.arange(len(effects)))
     ax.set_xticklabels(effects)
-    ax.set_ylabel("true residual RMS on the flute (μm)")
+    ax.set_ylabel("true residual RMS on the test path (μm)")
     ax.set_title("Undeclared effects in the truth: before / after the closed loop (diagnosis)")
     ax.grid(True, axis="y", alpha=0.3)
     ax.legend(fontsize=8)
-    return figure(fig, "grinder effects")
+    return figure(fig, f"{name} effects")
 
 
 def _cost_plot(doc) -> Figure | None:
@@ -93,14 +96,14 @@ def _cost_plot(doc) -> Figure | None:
     rows = [r for r in _rows(doc) if r.get("fit_seconds") is not None]
     if not rows:
         return None
-    kinds = list(dict.fromkeys(r["machine_kind"] for r in rows))
+    kinds = list(dict.fromkeys(machine_label(r) for r in rows))
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.4))
     for ax, key, lab, scale in ((axes[0], "fit_seconds", "identification / training time (s)", 1.0),
                                 (axes[1], "compensate_seconds_per_point", "compensation time per point (ms)", 1e3)):
         for j, p in enumerate(("parametric", "learned")):
             vals = []
             for k in kinds:
-                v = [r[key] for r in rows if r["machine_kind"] == k and r["path"] == p and r.get(key) is not None]
+                v = [r[key] for r in rows if machine_label(r) == k and r["path"] == p and r.get(key) is not None]
                 vals.append(np.median(v) * scale if v else np.nan)
             ax.bar(np.arange(len(kinds)) + (j - 0.5) * 0.35, vals, 0.35, color=PATH_COLORS[p], label=p)
         ax.set_xticks(np.arange(len(kinds)))
@@ -118,7 +121,7 @@ def verdicts(doc) -> list[str]:
     out = []
     by = {}
     for r in _rows(doc):
-        by.setdefault((r["machine_kind"], r["condition"]), {})[r["path"]] = r
+        by.setdefault((machine_label(r), r["condition"]), {})[r["path"]] = r
     for (kind, cond), d in by.items():
         if "parametric" in d and "learned" in d:
             p, l = d["parametric"]["true_rms_um"], d["learned"]["true_rms_um"]
@@ -134,10 +137,11 @@ def verdicts(doc) -> list[str]:
     return out
 
 
-def _ooc_pairs(doc) -> dict:
-    """``{condition name: {"parametric": row, "hybrid": row}}`` of the out-of-catalogue group after the loop."""
+def _ooc_pairs(rows) -> dict:
+    """``{condition name: {"parametric": row, "hybrid": row}}`` of the out-of-catalogue group after the loop, of one
+    machine tool's ``rows``."""
     by = {}
-    for r in _rows(doc, GRINDER_KINDS, group="out-of-catalogue"):
+    for r in rows:
         if r.get("closed_loop") and r["path"] in ("parametric", "hybrid"):
             by.setdefault(r["condition"].replace(" (after closed loop)", ""), {})[r["path"]] = r
     return {k: v for k, v in by.items() if len(v) == 2}
@@ -155,10 +159,19 @@ def _checks_of(cond: str, row: dict):
 
 
 def conclusion_lines(doc) -> list[str]:
+    """The out-of-catalogue conclusion of each machine tool (:func:`_conclusion`), its lines named by the machine
+    when the rows hold several."""
+    rows = _rows(doc, MACHINE_TOOL.kinds, group="out-of-catalogue")
+    names = list(dict.fromkeys(r["machine"] for r in rows))
+    return [f"{n}: {line}" if len(names) > 1 else line for n in names
+            for line in _conclusion([r for r in rows if r["machine"] == n])]
+
+
+def _conclusion(rows) -> list[str]:
     """The out-of-catalogue conclusion, computed from the rows (never written by hand): per condition
     the compensated volume's TRUE RMS of the parametric loop and of the hybrid, the machine without
     an effect beside, whether the learned stage was kept, and the two ratios its conclusion judges."""
-    pairs = _ooc_pairs(doc)
+    pairs = _ooc_pairs(rows)
     if not pairs:
         return []
     key = "volume_rms_um"
@@ -202,14 +215,14 @@ def conclusion_lines(doc) -> list[str]:
 
 
 def summary_lines(doc) -> list[str]:
-    """Per machine kind: how many conditions each path wins, and the median ratio of true RMS; where the
+    """Per machine (a machine tool by its name, others by kind): how many conditions each path wins, and the median ratio of true RMS; where the
     closed loop has a hybrid row (the loop's learned residual on the checks), one more line: the hybrid
     against the parametric loop of the same checks, on the test path and on the compensated volume
     (equal where the learned stage was declined: the hybrid is then the loop)."""
     out = []
     by = {}
     for r in _rows(doc):
-        by.setdefault(r["machine_kind"], {}).setdefault(r["condition"], {})[r["path"]] = r
+        by.setdefault(machine_label(r), {}).setdefault(r["condition"], {})[r["path"]] = r
     for kind, conds in by.items():
         pairs = [(d["parametric"]["true_rms_um"], d["learned"]["true_rms_um"]) for d in conds.values()
                  if "parametric" in d and "learned" in d]
@@ -254,11 +267,6 @@ def _table(rows, cols) -> Table:
                                         for r in rows], row_classes=[r["path"] for r in rows], left=2)
 
 
-GRINDER_COLS = [("condition", "condition"), ("path", "path"), ("true_rms_um", "true RMS (μm)"),
-                ("true_max_um", "true max (μm)"), ("uncompensated_rms_um", "uncompensated RMS (μm)"),
-                ("volume_rms_um", "volume RMS (μm)"), ("n_measurements", "measurements"),
-                ("fit_seconds", "fit (s)"), ("compensate_seconds_per_point", "compensate (s/point)"),
-                ("effects_found", "effects found")]
 PKM_COLS = [("condition", "condition"), ("path", "path"), ("true_rms_um", "true RMS (μm)"),
             ("true_max_um", "true max (μm)"), ("uncompensated_rms_um", "uncompensated RMS (μm)"),
             ("n_measurements", "poses"), ("fit_seconds", "fit (s)"),
@@ -297,6 +305,24 @@ def _per_path_table(rows) -> Table:
                       [("true_rms_um", "true RMS (μm)"), ("true_max_um", "true max (μm)")])
 
 
+def _machine_tool_part(doc, name) -> dict:
+    """One machine tool's part of the page: its rows' table, true residual against sweep density and tracker noise,
+    the undeclared effects before / after the closed loop, and the per-solver table."""
+    s = doc["settings"]
+    c = [r for r in _rows(doc, MACHINE_TOOL.kinds, available=None) if r["machine"] == name]
+    counted = [r for r in _rows(doc, MACHINE_TOOL.kinds) if r["machine"] == name]
+    plain = ("density", "noise")
+    sweeps = (("density", lambda r: r.get("group") in plain and r.get("noise_um") == s["base_noise_um"],
+               "stations", "stations per axis", f"against sweep density (noise {s['base_noise_um']:g} μm)"),
+              ("noise", lambda r: r.get("group") in plain and r.get("stations") == s["base_stations"],
+               "noise_um", "tracker noise σ (μm)", f"against tracker noise ({s['base_stations']} stations)"))
+    figures = [_line_plot(counted, sel, xkey, xl, f"{name}: true residual on the test path " + t, f"{name} {grp}")
+               for grp, sel, xkey, xl, t in sweeps] + [_effects_plot(counted, name)]
+    return {"table": _table(c, CHAIN_COLS), "test_path": c[0].get("test_path"),
+            "figures": [f for f in figures if f is not None],
+            "solvers": _solver_table([r for r in c if r.get("available")])}
+
+
 def render_html(doc: dict) -> str:
     """The benchmark page (``templates/benchmark.html``) of a ``benchmark.json`` document."""
     s = doc["settings"]
@@ -305,24 +331,8 @@ def render_html(doc: dict) -> str:
     not_available += [f"{k['machine']}: not available: {k['why']}" for k in doc.get("skipped", [])]
     not_available += [f"{r['machine_kind']} / {r['path']} / {r['condition']}: not counted: its model's verdict "
                       f"{_verdict_text(r)}" for r in doc["rows"] if r.get("available") and verdict_failed(r)]
-    grinder = None
-    g = _rows(doc, GRINDER_KINDS, available=None)
-    if g:
-        plain = ("density", "noise")
-        sweeps = (("density", lambda r: r.get("group") in plain and r.get("noise_um") == s["base_noise_um"],
-                   "stations", "stations per axis", f"against sweep density (noise {s['base_noise_um']:g} μm)"),
-                  ("noise", lambda r: r.get("group") in plain and r.get("stations") == s["base_stations"],
-                   "noise_um", "tracker noise σ (μm)", f"against tracker noise ({s['base_stations']} stations)"))
-        figures = [_line_plot(doc, GRINDER_KINDS, sel, xkey, xl, "Grinder: true residual on the flute " + t, f"grinder {grp}")
-                   for grp, sel, xkey, xl, t in sweeps] + [_effects_plot(doc)]
-        grinder = {"path_conditions": ", ".join(f"{k} = {v:g}" for k, v in doc["path_conditions"].items()),
-                   "table": _table(g, GRINDER_COLS), "figures": [f for f in figures if f is not None],
-                   "solvers": _solver_table([r for r in g if r.get("available")])}
-    chains = []
-    for name in dict.fromkeys(r["machine"] for r in _rows(doc, CHAIN_KINDS, available=None)):
-        c = [r for r in _rows(doc, CHAIN_KINDS, available=None) if r["machine"] == name]
-        chains.append((name, {"table": _table(c, CHAIN_COLS), "test_path": c[0].get("test_path"),
-                              "solvers": _solver_table([r for r in c if r.get("available")])}))
+    chains = [(name, _machine_tool_part(doc, name)) for name in
+              dict.fromkeys(r["machine"] for r in _rows(doc, MACHINE_TOOL.kinds, available=None))]
     arms = []
     for name in dict.fromkeys(r["machine"] for r in _rows(doc, ARM.kinds, available=None)):
         a = [r for r in _rows(doc, ARM.kinds, available=None) if r["machine"] == name]
@@ -336,12 +346,12 @@ def render_html(doc: dict) -> str:
                    f"against the number of poses (noise {s['pkm_base_noise_um']:g} μm)"),
                   ("noise", lambda r: r.get("n_poses") == s["pkm_base_poses"], "noise_um", "noise σ (μm)",
                    f"against measurement noise ({s['pkm_base_poses']} poses)"))
-        figures = [_line_plot(doc, (kind,), sel, xkey, xl, f"{kind.capitalize()}: true residual on the test paths {t}",
+        figures = [_line_plot(_rows(doc, (kind,)), sel, xkey, xl, f"{kind.capitalize()}: true residual on the test paths {t}",
                               f"{kind} {grp}") for grp, sel, xkey, xl, t in sweeps]
         pkm.append((kind, {"table": _table(h, PKM_COLS), "per_path": _per_path_table([r for r in h if r.get("available")]),
                            "figures": [f for f in figures if f is not None]}))
     return render_page("benchmark.html", title="volcomp benchmark: learned vs parametric compensation", doc=doc, s=s,
                        summary=summary_lines(doc) + conclusion_lines(doc), verdicts=verdicts(doc), not_available=not_available,
-                       grinder=grinder, chains=chains, arms=arms, pkm=pkm, cost_figure=_cost_plot(doc),
+                       chains=chains, arms=arms, pkm=pkm, cost_figure=_cost_plot(doc),
                        train_stop=_stop(s, "train"), pkm_train_stop=_stop(s, "pkm_train"))
 

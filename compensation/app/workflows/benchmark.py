@@ -20,7 +20,7 @@ from pathlib import Path
 
 from errormap.io import write_json
 
-from ..families import family_kind, family_of
+from ..families import family_of
 from .arm_benchmark import run_arm
 from .benchmark_common import PATH_CONDITIONS, BenchmarkSettings, RowLog, Tracker, quick_settings, say
 from .benchmark_parallel import run_pkm
@@ -64,7 +64,7 @@ def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, 
                                "cpus": _cpus()},
                "residual": "true residual (simulated truth machine driven with the compensated commands, minus the "
                            "target), vector norm per point, um",
-               "machines": [{"name": m.name, "kind": family_kind(m), "file": getattr(m, "path", ""),
+               "machines": [{"name": m.name, "kind": m.kind, "file": getattr(m, "path", ""),
                              "sha256": getattr(m, "sha256", "")} for m in machines]}
         out.mkdir(parents=True, exist_ok=True)
         json_path = write_json(out / "benchmark.json", doc)
@@ -88,7 +88,7 @@ def _run_machines(machines, s: BenchmarkSettings, tracker: Tracker, out_dir):
     for m in machines:
         t0 = time.perf_counter()
         skipped += BENCH_BY_TARGET[family_of(m).target("benchmark")](m, s, log, out_dir)
-        say(f"{family_kind(m)} done in {time.perf_counter() - t0:.0f} s")
+        say(f"{m.name} done in {time.perf_counter() - t0:.0f} s")
     return log.rows, skipped
 
 

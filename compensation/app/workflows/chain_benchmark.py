@@ -24,7 +24,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..families import family_kind
 from .benchmark_common import (EXPERIMENT, FEATURE_REUSE_TOL_UM, USER_LOOP, BenchmarkSettings, RowLog, bench_row,
                                rng_streams, say, scored, with_volume)
 from .benchmark_paths import ChainPath, compensate_true, judging_path, volume_path, with_path_conditions
@@ -136,7 +135,7 @@ class NetworkTrainer:
 
     def __init__(self, machine, tracker, warm_up_axes):
         self.m, self.tracker, self.warm_up_axes = machine, tracker, warm_up_axes
-        self.kind = family_kind(machine)
+        self.kind = machine.kind
         self.cache = []  # (network settings, feature-point errors, fit result, feature points, condition)
 
     def train(self, el_path, cond_name: str, s: BenchmarkSettings):
@@ -172,7 +171,7 @@ class ChainBench:
     diagnose, files kept), parametric and learned on the test part and the volume, the closed loop after."""
 
     def __init__(self, machine, s: BenchmarkSettings, log: RowLog, out_dir, path: ChainPath):
-        self.m, self.s, self.log, self.kind = machine, s, log, family_kind(machine)
+        self.m, self.s, self.log, self.kind = machine, s, log, machine.kind
         self.path = path
         self.ga_idx = _subset(len(path.axes), s.ga_points)
         streams = rng_streams(s.seed)
