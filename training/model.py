@@ -1,20 +1,21 @@
 """The paper's BP network as an error field over a machine tool's axes -> (dx_um, dy_um, dz_um).
 
-One class for every machine tool: the inputs are the machine's axis columns (the grinder's
-``x_mm, z_mm, a_deg`` by default), each linear or short-turn axis scaled to ``[-1, 1]``, a periodic axis
-as ``(cos q, sin q)``. A float64 multilayer perceptron (default hidden layers 10, 15, 25, 15, 10, sigmoid: the grinder paper's), in
-functional form ``forward(theta, features)`` with all weights in one flat vector ``theta`` so the trainers
-(Levenberg–Marquardt) take per-sample Jacobians. Scaling lives inside the model and its saved files: inputs
-mapped from their training range to ``[-1, 1]`` (``a_encoding="periodic"``: A as ``(cos a, sin a)``);
-outputs minus their per-axis mean, divided by ONE common scale (the largest per-axis half-range).
+One class for every machine tool (:meth:`MLPField.for_machine`): one input per axis column, each scaled
+from its training range to ``[-1, 1]``, a periodic axis as ``(cos q, sin q)``. A float64 multilayer
+perceptron (default hidden layers 10, 15, 25, 15, 10, sigmoid: the grinder paper's), in functional form
+``forward(theta, features)`` with all weights in one flat vector ``theta`` so the trainers
+(Levenberg–Marquardt) take per-sample Jacobians. Outputs minus their per-axis mean, divided by ONE
+common scale (the largest per-axis half-range).
 
-``predict``/``jacobian`` fold A into the training turn ``[a0, a0 + 360]`` and, with the raw A input, close
-the seam: over the last ``SEAM_WINDOW_DEG`` (30°) they add ``(N(x, z, a0) − N(x, z, a0 + 360))·t²(3 − 2t)``,
-``t`` the ramp's fraction; :meth:`MLPField.for_machine` gives a machine with the grinder's columns and a
-full-turn A that layout (saved as ``volcomp-mlpfield/1``), any other machine tool its columns with every
-full-turn rotary axis periodic (saved as ``volcomp-chain-mlpfield/1``, with the machine's name) (docs/explanation/solvers.md, "Known limits"; ``forward``, ``param_jacobian`` and
-the training metrics use the raw network). Fast inference (cached weights, points as columns, a float32
-path, ``predict_columns`` for the solvers' inner loop): docs/explanation/solvers.md ("Speed")."""
+On the grinder's columns ``x_mm, z_mm, a_deg`` with A a full turn, A is folded into the training turn
+``[a0, a0 + 360]`` (``a_encoding="raw"``: one scaled input; ``"periodic"``: ``(cos a, sin a)``); with the
+raw input ``predict``/``jacobian`` close the seam: over the last ``SEAM_WINDOW_DEG`` (30°) they add
+``(N(x, z, a0) − N(x, z, a0 + 360))·t²(3 − 2t)``, ``t`` the ramp's fraction (docs/explanation/solvers.md,
+"Known limits"; ``forward``, ``param_jacobian`` and the training metrics use the raw network); saved as
+``volcomp-mlpfield/1``. On any other machine tool every full-turn rotary axis is periodic, and the files
+(``volcomp-chain-mlpfield/1``) record the axis columns and the machine. Fast inference (cached weights,
+points as columns, a float32 path, ``predict_columns`` for the solvers' inner loop):
+docs/explanation/solvers.md ("Speed")."""
 from __future__ import annotations
 
 import json
@@ -104,7 +105,7 @@ class MLPField:
         self.turn_axis = 2 if axis_columns is None else None
         self.axis_columns = INPUTS if axis_columns is None else tuple(str(c) for c in axis_columns)
         if periodic is None:
-            periodic = [axis_columns is None and a_encoding == "periodic" and j == 2 for j in range(len(self.axis_columns))]
+            periodic = [self.turn_axis == j and a_encoding == "periodic" for j in range(len(self.axis_columns))]
         self.periodic = tuple(bool(p) for p in periodic)
         self.machine = str(machine)
         self.machine_sha256 = str(machine_sha256)
@@ -452,7 +453,10 @@ class MLPField:
         for i, (W, b) in enumerate(layers):
             z = torch.addmm(b, W, h)
             if jac:
-                T = self._first_tangent(W, u, net) if i == 0 else torch.mm(W, T.view(T.shape[0], k * m)).view(W.shape[0], k, m)
+                if i == 0:
+                    T = self._first_tangent(W, u, net)
+                else:
+                    T = torch.mm(W, T.view(T.shape[0], k * m)).view(W.shape[0], k, m)
             if i == last:
                 return z, T
             if act == "sigmoid":
@@ -578,10 +582,11 @@ class MLPField:
         if k:
             tk = tt[sel]
             c = (y[n:n + k] - y[n + k:]) * self.out_scale_  # N(a0) - N(a0 + 360), μm
-            e[sel] += c * (tk * tk * (3.0 - 2.0 * tk))[:, None]
+            ramp = tk * tk * (3.0 - 2.0 * tk)
+            e[sel] += c * ramp[:, None]
             if jac:
                 for j in (j for j in range(self.n_axes) if j != t):
-                    Jn[sel, :, j] += (tk * tk * (3.0 - 2.0 * tk))[:, None] * ((J[n:n + k, :, j] - J[n + k:, :, j]) * self.out_scale_)
+                    Jn[sel, :, j] += ramp[:, None] * ((J[n:n + k, :, j] - J[n + k:, :, j]) * self.out_scale_)
                 Jn[sel, :, t] += c * (6.0 * tk * (1.0 - tk) / w)[:, None]
         e = np.ascontiguousarray(e)
         return (e, np.ascontiguousarray(Jn)) if jac else (e, None)
