@@ -24,7 +24,7 @@ ELEMENTS_FORMAT = "volcomp-elements/1"
 DIAGNOSED_FORMAT = "volcomp-diagnosed-model/1"
 CHAIN_MODEL_FORMAT = "volcomp-chain-model/1"  # model.json of diagnose on a machine-tool chain (errormap/diagnosis/loop_model.py)
 NETWORK_FORMAT = "volcomp-mlpfield/1"      # config.json of a trained model folder (training/model.py)
-CHAIN_NETWORK_FORMAT = "volcomp-chain-mlpfield/1"  # the same over a machine-tool chain (training/chain_model.py)
+CHAIN_NETWORK_FORMAT = "volcomp-chain-mlpfield/1"  # the same over a machine-tool chain (training/model.py)
 ARM_FORMAT = "volcomp-arm-calibration/4"  # an arm model.json's calibration section (compensation/calibration_models.py)
 ARM_READ_FORMATS = (ARM_FORMAT, "volcomp-arm-calibration/3", "volcomp-arm-calibration/2")
 """Arm calibrations read, bare (an older ``calibration.json``) or as a model.json's section (/2: before the stacked

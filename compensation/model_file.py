@@ -209,11 +209,10 @@ def _read_network(src: ModelSource, machine, tracking_uri) -> Model:
 
 
 def _network(folder, machine):
-    """The trained network in ``folder``, as its ``config.json`` names it (:func:`training.chain_model.load_network`);
-    a network over a machine's named axis columns is refused unless trained on ``machine``."""
-    from training.chain_model import ChainMLPField, check_machine, load_network
-    net = load_network(Path(folder))
-    return check_machine(net, machine, Path(folder) / "config.json") if isinstance(net, ChainMLPField) else net
+    """The trained network in ``folder`` (:meth:`training.model.MLPField.load`), refused unless it takes
+    ``machine``'s axis columns and (where its file names one) was trained on ``machine``."""
+    from training.model import MLPField, check_machine
+    return check_machine(MLPField.load(Path(folder)), machine, Path(folder) / "config.json")
 
 
 def save_model_file(path, machine, elements=None, covariance=None, network_folder=None, kept_stage: str = "elements",

@@ -17,7 +17,7 @@ from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import ChainField
 from errormap.chain_truth import make_chain_truth, random_axes
-from training.chain_model import ChainMLPField, ChainPhysicsMLPField
+from training.model import MLPField, PhysicsMLPField
 from training.physics import fit_physics_elements
 from training.trainers import TrainSettings, fit_field
 
@@ -64,7 +64,7 @@ def _fit(mill, physics, out_dir=None):
 
 def test_physics_first_beats_the_plain_network_off_the_grid(mill):
     none, first = _fit(mill, "none"), _fit(mill, "first-order")
-    assert isinstance(first.field, ChainPhysicsMLPField) and type(none.field) is ChainMLPField
+    assert isinstance(first.field, PhysicsMLPField) and type(none.field) is MLPField
     assert first.metrics["val_max_um"] <= PHYSICS_BEATS_NONE * none.metrics["val_max_um"]
     assert first.metrics["train_max_um"] < PHYSICS_ON_GRID_UM
     # the physical part alone is reported beside, and the network is what the sum adds to it
@@ -81,8 +81,8 @@ def test_saved_set_round_trips_and_refuses_a_mixed_one(mill, tmp_path, capsys):
     cfg = json.loads((tmp_path / "run" / "model" / "config.json").read_text())
     assert cfg["physics"] == "first-order" and cfg["physics_stations"] == GRID
     assert resolve_model(str(tmp_path / "run")).kind == "chain-network"   # recognised by content
-    g = ChainMLPField.load(tmp_path / "run" / "model")                     # the one loader dispatches
-    assert isinstance(g, ChainPhysicsMLPField)
+    g = MLPField.load(tmp_path / "run" / "model")                     # the one loader dispatches
+    assert isinstance(g, PhysicsMLPField)
     assert np.abs(g.predict(val) - r.field.predict(val)).max() <= TOL_EXACT * np.abs(r.field.predict(val)).max()
     pts = tmp_path / "pts.csv"
     pts.write_text("x_mm,y_mm,z_mm\n" + "".join(f"{x:.17g},{y:.17g},{z:.17g}\n" for x, y, z in val[:20]))
@@ -96,14 +96,14 @@ def test_saved_set_round_trips_and_refuses_a_mixed_one(mill, tmp_path, capsys):
     shutil.copytree(tmp_path / "run" / "model", mixed)
     ChainElementSet.random(m, 5, n_stations=GRID).save(mixed / "physics_elements.json")
     with pytest.raises(InputError, match="physics_elements.json: does not belong to this model"):
-        ChainMLPField.load(mixed)
+        MLPField.load(mixed)
 
 
 def test_jacobian_is_the_sum_of_closed_forms_on_five_axes():
     """five-axis-ac with --a-encoding periodic: both rotary axes as (cos, sin); the exact solver's
     Jacobian is the network's plus the chain's, equal to central differences of the sum."""
     mt = load_machine("five-axis-ac")
-    f = ChainPhysicsMLPField.for_machine(mt, a_encoding="periodic", hidden=(6, 5), activation="tanh")
+    f = PhysicsMLPField.for_machine(mt, a_encoding="periodic", hidden=(6, 5), activation="tanh")
     assert f.periodic == (False, False, False, True, True) and f.n_inputs == 7
     rng = np.random.default_rng(3)
     ax = random_axes(mt, 200, np.random.default_rng(4))
@@ -157,7 +157,7 @@ def test_cli_trains_physics_first_on_five_axes_and_predicts_from_the_store(tmp_p
                      "--out", str(tmp_path / f"p{i}.csv")]) == 0
     p0, p1 = (np.loadtxt(tmp_path / f"p{i}.csv", delimiter=",", skiprows=1) for i in (0, 1))
     assert np.array_equal(p0, p1)
-    want = ChainMLPField.load(tmp_path / "run" / "model").predict(a)
+    want = MLPField.load(tmp_path / "run" / "model").predict(a)
     assert np.abs(p0[:, 5:] - want).max() <= TOL_CSV_REL * np.abs(want).max()
 
 

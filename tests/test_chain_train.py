@@ -15,8 +15,7 @@ from compensation.solvers.ga import DEFAULT_TOL_UM
 from errormap.io import InputError
 from errormap.machine import load_machine
 from errormap.chain_field import ChainField
-from training.chain_model import ChainMLPField, check_machine
-from training.model import MLPField
+from training.model import MLPField, check_machine
 
 from chain_fixtures import central_jacobian
 from test_chain_compensate import MILL_PROGRAM, chain_elements
@@ -47,7 +46,7 @@ network's off-grid error along the path (observed 4.56 μm max against 47.8 μm 
 
 
 def _random_net(mt, seed=3):
-    f = ChainMLPField.for_machine(mt, hidden=(6, 5), activation="tanh")
+    f = MLPField.for_machine(mt, hidden=(6, 5), activation="tanh")
     rng = np.random.default_rng(seed)
     ax = rng.uniform(mt.stroke_lo, mt.stroke_hi, (200, len(mt.axes)))
     f.fit_scalers(ax, rng.normal(0.0, 20.0, (200, 3)))
@@ -79,11 +78,12 @@ def test_chain_network_inputs_jacobian_and_files(tmp_path, name):
     (tmp_path / "m").rename(tmp_path / "weights_v2")
     src = resolve_model(str(tmp_path / "weights_v2"))
     assert src.kind == "chain-network"
-    g = ChainMLPField.load(src.path)
+    g = MLPField.load(src.path)
     assert np.array_equal(g.predict(ax), E)
     check_machine(g, mt, "m")
+    (tmp_path / "weights_v2" / "config.json").write_text(json.dumps({**cfg, "format": "volcomp-mlpfield/9"}))
     with pytest.raises(InputError, match="key 'format'"):
-        MLPField.load(src.path)  # the grinder's loader refuses it by its format key
+        MLPField.load(src.path)  # another format is refused by its format key
 
 
 def test_chain_network_refused_on_another_machine(tmp_path):
@@ -158,11 +158,11 @@ def test_train_on_mill_then_predict_and_compensate(smooth_mill, tmp_path, capsys
     pts.write_text("x_mm,y_mm,z_mm\n" + "".join(f"{x:.17g},{y:.17g},{z:.17g}\n" for x, y, z in a))
     assert main(["predict", "--machine", "mill-xyz", "--model", str(run), str(pts), "--out", str(tmp_path / "p.csv")]) == 0
     got = np.loadtxt(tmp_path / "p.csv", delimiter=",", skiprows=1)[:, 3:]   # a plain CSV: the header, then rows
-    assert np.abs(got - ChainMLPField.load(run / "model").predict(a)).max() < 1e-6 * np.abs(got).max()
+    assert np.abs(got - MLPField.load(run / "model").predict(a)).max() < 1e-6 * np.abs(got).max()
     from compensation.model_file import read_model   # train's model.json names the network folder: the same field
     named = read_model(run / "model.json", load_machine("mill-xyz"))
     assert named.holds() == ["network"] and named.provenance["written_by"] == "volcomp train"
-    np.testing.assert_array_equal(named.field.predict(a), ChainMLPField.load(run / "model").predict(a))
+    np.testing.assert_array_equal(named.field.predict(a), MLPField.load(run / "model").predict(a))
     # compensate with the network: exact (model residual to round-off) and batched-ga (GA tolerance)
     for method, bound in (("exact", TOL_MODEL_RESIDUAL_EXACT_UM), ("batched-ga", GA_TOL_UM)):
         out = tmp_path / method

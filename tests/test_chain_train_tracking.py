@@ -9,7 +9,7 @@ import pytest
 
 from compensation.app.cli import main
 from errormap.io import read_table
-from training.chain_model import ChainMLPField
+from training.model import MLPField
 
 from test_chain_compensate import MILL_PROGRAM
 from test_chain_train import smooth_mill  # noqa: F401  (fixture: a smooth mill's truth and 7x7x7 feature points)
@@ -65,7 +65,7 @@ def test_chain_network_is_tracked_and_used_from_mlflow(smooth_mill, tmp_path, ca
                  str(pts), "--out", str(tmp_path / "p.csv")]) == 0
     t = read_table(tmp_path / "p.csv")
     got = np.stack([t.float(c) for c in ("dx_um", "dy_um", "dz_um")], axis=1)
-    want = ChainMLPField.load(run / "model").predict(a)
+    want = MLPField.load(run / "model").predict(a)
     assert np.all(np.abs(got - want) <= CSV_REL * np.abs(want))
     # compensate from the run (exact: model residual to round-off)
     assert main(["compensate", str(MILL_PROGRAM), "--machine", "mill-xyz", "--model", rid, "--tracking-uri", uri,

@@ -222,9 +222,9 @@ def test_a_trained_chain_network_is_exported_like_an_element_set(tmp_path):
     tables are written for X, Z and C."""
     import torch
     from errormap.machine import load_machine
-    from training.chain_model import ChainMLPField
+    from training.model import MLPField
     m = load_machine("lathe-xzc")
-    f = ChainMLPField.for_machine(m, hidden=(6, 5), activation="tanh")
+    f = MLPField.for_machine(m, hidden=(6, 5), activation="tanh")
     rng = np.random.default_rng(3)
     ax = rng.uniform(m.stroke_lo, m.stroke_hi, (200, len(m.axes)))
     f.fit_scalers(ax, rng.normal(0.0, 20.0, (200, 3)))

@@ -148,8 +148,8 @@ def test_the_grinders_old_closed_loop_model_loads(tmp_path):
 
 def _chain_network(mt, folder):
     import torch
-    from training.chain_model import ChainMLPField
-    f = ChainMLPField.for_machine(mt, hidden=(6, 5), activation="tanh")
+    from training.model import MLPField
+    f = MLPField.for_machine(mt, hidden=(6, 5), activation="tanh")
     rng = np.random.default_rng(3)
     f.fit_scalers(_points(mt, 100, 3), rng.normal(0.0, 20.0, (100, 3)))
     f.theta_ = torch.randn(f.n_params, generator=torch.Generator().manual_seed(3), dtype=torch.float64)

@@ -111,7 +111,7 @@ PHYSICS_FILES = ("physics_elements.json", "physics_machine.toml")
 
 class PhysicsPart:
     """The physical part of a physics-first field, mixed in before a network class (the grinder's
-    :class:`training.model.MLPField`, a chain's :class:`training.chain_model.ChainMLPField`):
+    :class:`training.model.MLPField`):
     ``E = physical field(elements)(axes) + network(axes)``.
 
     ``physics_`` is the element set fitted to the feature points the network is trained on

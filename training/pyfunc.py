@@ -36,8 +36,8 @@ class PyfuncField:
 
 def _load_pyfunc(data_path):
     """MLflow's entry point (``loader_module``): ``data_path`` is the ``model/`` folder itself."""
-    from .chain_model import load_network
-    return PyfuncField(load_network(data_path))
+    from .model import MLPField
+    return PyfuncField(MLPField.load(data_path))
 
 
 def save_pyfunc(model_dir, out_dir, machine_file=None) -> Path:
@@ -47,9 +47,9 @@ def save_pyfunc(model_dir, out_dir, machine_file=None) -> Path:
     import pandas as pd
     from mlflow.models import Model, infer_signature
 
-    from .chain_model import load_network
+    from .model import MLPField
     model_dir, out_dir = Path(model_dir), Path(out_dir)
-    field = PyfuncField(load_network(model_dir))
+    field = PyfuncField(MLPField.load(model_dir))
     lo, hi = np.asarray(field.field.in_lo_, dtype=float), np.asarray(field.field.in_hi_, dtype=float)
     example = pd.DataFrame(lo + (hi - lo) * np.array([[0.25], [0.5], [0.75]]), columns=list(field.inputs))
     mlflow.pyfunc.save_model(str(out_dir), loader_module="training.pyfunc",

@@ -233,10 +233,10 @@ def _model_version_source(uri: str, store: str) -> str:
 
 def load_field(spec: str, tracking_uri: str | None = None, loader=None):
     """A trained network from a run id, ``runs:/<id>[/path]``, ``models:/<name>/<version>`` or a local model
-    directory, as its ``config.json`` names it (:func:`training.chain_model.load_network`); ``loader(folder)``
+    directory, as its ``config.json`` names it (:meth:`training.model.MLPField.load`); ``loader(folder)``
     another loader."""
-    from .chain_model import load_network
-    load = loader or load_network
+    from .model import MLPField
+    load = loader or MLPField.load
     spec = str(spec).strip()
     p = Path(spec)
     if p.is_dir():

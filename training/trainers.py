@@ -28,7 +28,7 @@ from errormap.threads import limit_threads
 
 from . import DEFAULT_MAX_ITER
 from .lm import LMSettings, TrainHistory, stop_reason, train_lm
-from .model import A_ENCODINGS, ACTIVATIONS, INPUTS, PAPER_HIDDEN, MLPField, PhysicsMLPField
+from .model import A_ENCODINGS, ACTIVATIONS, PAPER_HIDDEN, MLPField, PhysicsMLPField, uses_fused_network
 from .physics import MAX_STATIONS, MIN_STATIONS, PHYSICS
 
 TRAINERS = ("lm", "adam", "lbfgs")
@@ -490,13 +490,6 @@ def fit_field(featurepoints, settings: TrainSettings | None = None, *, machine=N
     return FitResult(model, metrics, run_id, hist.seconds, hist, params)
 
 
-def uses_fused_network(machine) -> bool:
-    """True where the machine's axis columns are the ones :class:`MLPField` takes (two linear axes and a
-    full-turn rotary axis, :data:`training.model.INPUTS`): that network (its float32 and column paths, the
-    batched GA's fused fitness, the raw rotary input's seam closed) is the one trained there."""
-    return tuple(machine.axis_columns) == INPUTS and bool(machine.axes[2].full_turn)
-
-
 def periodic_axes(machine, a_encoding: str = "raw") -> list:
     """One flag per axis of ``machine``: fed to a network as (cos, sin) — a full-turn rotary axis (the
     fused network's: only with ``a_encoding="periodic"``), a rotary axis short of a turn with ``"periodic"``."""
@@ -510,14 +503,9 @@ def a_encoding_applies(machine) -> bool:
 
 
 def network_for(machine, s: TrainSettings):
-    """The untrained network over ``machine``'s axes (settings ``s``): :class:`MLPField` where
-    :func:`uses_fused_network`, else :class:`~training.chain_model.ChainMLPField`; the physics-first form of
-    either (:class:`PhysicsMLPField`, :class:`~training.chain_model.ChainPhysicsMLPField`) with ``s.physics``."""
-    from .chain_model import ChainMLPField, ChainPhysicsMLPField
-    physics = s.physics != "none"
-    if uses_fused_network(machine):
-        return (PhysicsMLPField if physics else MLPField)(s.hidden, s.activation, s.a_encoding)
-    return (ChainPhysicsMLPField if physics else ChainMLPField).for_machine(
+    """The untrained network over ``machine``'s axes (settings ``s``, :meth:`MLPField.for_machine`); its
+    physics-first form (:class:`PhysicsMLPField`) with ``s.physics``."""
+    return (PhysicsMLPField if s.physics != "none" else MLPField).for_machine(
         machine, s.a_encoding, hidden=s.hidden, activation=s.activation)
 
 
