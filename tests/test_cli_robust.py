@@ -335,7 +335,7 @@ def test_ctrl_c_mid_work_leaves_no_partial_output(tmp_path):
 def test_ctrl_c_after_progress_line(tmp_path):
     """simulate, interrupted after it said it is simulating (mid-work): 130, no partial file."""
     proc = _start(["simulate", "--out", "sim", "--checks", "200000"], tmp_path)
-    rc, err = _interrupt(proc, 0.3, wait_for="simulating truth grinder")
+    rc, err = _interrupt(proc, 0.3, wait_for="simulating truth ")
     _assert_interrupted(rc, err, tmp_path)
 
 
@@ -353,7 +353,7 @@ def test_ctrl_c_while_numba_compiles_exits_130(tmp_path):
         cwd.mkdir()
         proc = _start(["simulate", "--out", "sim", "--checks", "200000"], cwd,
                       NUMBA_CACHE_DIR=str(cwd / "numba-cache"))
-        rc, err = _interrupt(proc, after_s, wait_for="simulating truth grinder")
+        rc, err = _interrupt(proc, after_s, wait_for="simulating truth ")
         _assert_interrupted(rc, err, cwd)
         assert "Exception ignored" not in err, (after_s, err)
 

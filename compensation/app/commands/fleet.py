@@ -5,13 +5,14 @@ import sys
 from pathlib import Path
 
 from errormap.io import write_json
+from training import DEFAULT_PHYSICS, default_max_iter
 
 from ..outputs import is_lock
 from ..validate import UsageError, one_line
 from ..options import add_cluster_options, cluster_settings
 from ..workflows.cluster import EXIT_CLUSTER, ClusterError
 
-DEFAULT_TRAIN_ITER = 1000  # as `volcomp train`
+DEFAULT_TRAIN_ITER = default_max_iter(DEFAULT_PHYSICS)  # as `volcomp train`'s default (training.DEFAULT_PHYSICS)
 
 
 def register(sub):

@@ -191,6 +191,7 @@ def _train(machine, el_path: Path, folder: Path, s: dict, name: str) -> tuple:
 
     from errormap.featurepoints import make_feature_points
     from errormap.io import sha256_file
+    from training import DEFAULT_PHYSICS
     from training.trainers import TrackSettings, TrainSettings, fit_field
 
     from ...model_file import read_model
@@ -198,7 +199,8 @@ def _train(machine, el_path: Path, folder: Path, s: dict, name: str) -> tuple:
                              meta={"elements_file": str(el_path), "elements_sha256": sha256_file(el_path)})
     fp_path = fp.save(folder / "featurepoints.csv")
     tags = {"fleet": s["fleet"], "fleet_machine": name, "featurepoints_file": str(fp_path)}
-    settings = TrainSettings(max_iter=s["train_iter"], max_time_s=np.inf, seed=s["seed"], hidden=tuple(s["hidden"]))
+    settings = TrainSettings(max_iter=s["train_iter"], max_time_s=np.inf, seed=s["seed"], hidden=tuple(s["hidden"]),
+                             physics=DEFAULT_PHYSICS)   # as `volcomp train` trains by default
     chain = machine if "axis_columns" in fp.meta else None
     res = fit_field(fp, settings, machine=chain, tracking=TrackSettings(tracking_uri=s["tracking_uri"],
                     run_name=f"fleet {name}", tags=tags), out_dir=folder / "train", quiet=True)
