@@ -523,8 +523,8 @@ def test_the_grinders_test_part_is_the_flute_read_from_its_chain():
 
 
 @pytest.mark.slow
-def test_benchmark_cli_on_a_chain_writes_rows_beside_the_grinders_format(tmp_path, capsys):
-    """``volcomp benchmark --machine mill-xyz --quick``: rows in benchmark.json, a chain section in report.html."""
+def test_benchmark_cli_on_a_chain_writes_rows_and_its_report_section(tmp_path, capsys):
+    """``volcomp benchmark --machine mill-xyz --quick``: rows in benchmark.json, a machine-tool section in report.html."""
     from compensation.app.cli import main
     out = tmp_path / "b"
     assert main(["benchmark", "--machine", "mill-xyz", "--quick", "--no-track", "--out", str(out)]) == 0
@@ -541,7 +541,7 @@ def test_benchmark_cli_on_a_chain_writes_rows_beside_the_grinders_format(tmp_pat
     thermal = parametric[2]
     assert "thermal:X" in thermal["effects_found"] and thermal["true_rms_um"] < parametric[1]["true_rms_um"]
     html = (out / "report.html").read_text()
-    assert "Machine-tool chain mill-xyz" in html and "held-out measured RMS" in html
+    assert "Machine tool mill-xyz" in html and "held-out measured RMS" in html
     assert "mill-xyz parametric" in capsys.readouterr().out
 
 

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from benchmarks.suite.gcode_corpus import STYLE_TABLES, independent_check, style_tables
+from benchmarks.suite.toolpath import TruthField
 from compensation.app.cli import main
 from compensation.nc_state import MACHINE, read_work_offsets
 from compensation.solvers import solve
@@ -131,18 +132,7 @@ def test_fanuc_arcs_read_within_rounding_and_refused_beyond_with_the_rule_named(
     assert len(err.split("error: ", 1)[1]) < 300 and " ... " not in err, err
 
 
-class _TruthField:
-    """The truth machine's own error (elements and effects) as the model's field: predict (n, 3) μm."""
-
-    def __init__(self, truth):
-        from errormap.field import CalibratedVolume
-        self.truth = truth
-        self.calibrated_volume = CalibratedVolume(truth.machine.stroke_lo, truth.machine.stroke_hi)
-        self.capabilities = frozenset()
-
-    def predict(self, axes):
-        axes = np.asarray(axes, dtype=float)
-        return self.truth.spatial_error(axes, **self.truth.default_conditions(len(axes)))
+_TruthField = TruthField   # the truth machine's own error as the model's field (benchmarks 'toolpath')
 
 
 def test_auto_pieces_keep_a_pitch_error_within_the_tolerance_along_straight_moves(tmp_path, grinder):
