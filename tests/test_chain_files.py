@@ -96,24 +96,10 @@ def test_five_axis_location_errors_equal_iso_230_7_first_order():
     assert remainders[0] / remainders[1] > QUADRATIC_RATIO_MIN
 
 
-def _random_elements(mt, seed, scale=25.0, n_stations=9):
-    rng = np.random.default_rng(seed)
-    z = ChainElementSet.zeros(mt, n_stations)
-    full = {a.word for a in mt.axes if a.full_turn}
-    fun = {}
-    for s in mt.slots:
-        if s.is_function:
-            f = rng.normal(0.0, scale, n_stations)
-            if s.axis in full:
-                f[-1] = f[0]
-            fun[s.name] = f
-    return ChainElementSet(mt, z.stations, fun, {k: rng.normal(0.0, scale) for k in mt.constant_slots})
-
-
 @pytest.mark.parametrize("name", ["five-axis-ac", "lathe-xzc"])
 def test_builtin_field_jacobian_matches_finite_differences(name):
     mt = load_machine(name)
-    f = ChainField(mt, _random_elements(mt, 5))
+    f = ChainField(mt, ChainElementSet.random(mt, 5, 25.0, 9))
     rng = np.random.default_rng(6)
     ax = rng.uniform(mt.stroke_lo, mt.stroke_hi, (100, len(mt.axes)))
     _, J = f.predict_and_jacobian(ax)
@@ -126,7 +112,7 @@ def test_builtin_field_jacobian_matches_finite_differences(name):
 
 def test_full_turn_axis_is_periodic():
     mt = load_machine("lathe-xzc")
-    f = ChainField(mt, _random_elements(mt, 8))
+    f = ChainField(mt, ChainElementSet.random(mt, 8, 25.0, 9))
     rng = np.random.default_rng(9)
     ax = rng.uniform(mt.stroke_lo, mt.stroke_hi, (200, 3))
     turned = ax.copy()

@@ -19,24 +19,10 @@ TOL_KERNEL_JAC = 1e-9
 """Forward-mode derivatives vs the numpy joint/error Jacobians: round-off only (observed ≤ 1.2e-11)."""
 
 
-def _elements(mt, seed, scale=40.0, n_stations=11):
-    rng = np.random.default_rng(seed)
-    z = ChainElementSet.zeros(mt, n_stations)
-    full = {a.word for a in mt.axes if a.full_turn}
-    fun = {}
-    for s in mt.slots:
-        if s.is_function:
-            f = rng.normal(0.0, scale, n_stations)
-            if s.axis in full:
-                f[-1] = f[0]
-            fun[s.name] = f
-    return ChainElementSet(mt, z.stations, fun, {k: rng.normal(0.0, scale) for k in mt.constant_slots})
-
-
 @pytest.mark.parametrize("name", ["grinder-chain", "mill-xyz", "five-axis-ac", "lathe-xzc"])
 def test_kernel_equals_numpy_reference(name):
     mt = load_machine(name)
-    el = _elements(mt, 13)
+    el = ChainElementSet.random(mt, 13, 40.0)
     rng = np.random.default_rng(14)
     ax = axes_beyond_strokes(mt, rng, 3000, 0.1, 3)
     cc = CompiledChain(mt, el)
@@ -56,6 +42,6 @@ def test_kernel_equals_numpy_reference(name):
 
 def test_field_refuses_wrong_axes_shape():
     mt = load_machine("mill-xyz")
-    f = ChainField(mt, _elements(mt, 1))
+    f = ChainField(mt, ChainElementSet.random(mt, 1, 40.0))
     with pytest.raises(ValueError, match=r"x_mm, y_mm, z_mm"):
         f.predict(np.zeros((4, 2)))
