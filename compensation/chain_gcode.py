@@ -160,8 +160,9 @@ def refined_pieces(n, E, f, tol_um: float, field_at, curved=None) -> np.ndarray:
         owner = np.repeat(np.arange(rows.size), per)
         local = np.arange(owner.size) - np.repeat(np.cumsum(per) - per, per)
         e, q = field_at(rows, owner, local / (2.0 * n[rows][owner]))
+        e = np.asarray(e)
         mid = np.flatnonzero(local % 2 == 1)
-        dev = np.linalg.norm(np.asarray(e)[mid] - 0.5 * (np.asarray(e)[mid - 1] + np.asarray(e)[mid + 1]), axis=1)
+        dev = np.linalg.norm(e[mid] - 0.5 * (e[mid - 1] + e[mid + 1]), axis=1)
         dev += 1e3 * np.linalg.norm(q[mid] - 0.5 * (q[mid - 1] + q[mid + 1]), axis=1) * curved[rows][owner[mid]]
         d = np.zeros(rows.size)
         np.maximum.at(d, owner[mid], dev)
