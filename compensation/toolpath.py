@@ -149,17 +149,47 @@ def flute_path(settings: FluteSettings | None = None, **overrides) -> FlutePath:
     return FlutePath(targets, theta_deg, r, np.rad2deg(beta), lead, u, s)
 
 
-def check_in_strokes(machine, axes, label: str = "path") -> None:
-    """Raise ValueError naming the first points whose X or Z command is outside the strokes.
+FLUTE_ROTARY = "A"
+"""The flute's drill axis is the WCS x axis: the workpiece is turned about X, by an A axis (ISO 841)."""
+FLUTE_DRILL_AXIS = "X"
+"""The axis that feeds along the drill axis (the flute's axial position ``px``)."""
 
-    ``axes`` shape (n, 3). A may run past one turn (multi-turn paths), so it is not checked.
+
+def runs_flute(machine) -> bool:
+    """Whether the flute path runs on this machine tool: the one rule of ``demo``, ``report --flute``, the
+    benchmark's test part and the export check's flute set.
+
+    The path's physics decides it, not the names of the grinder's axes: its targets are points at the
+    flute-bottom radius ``r`` about the WCS x axis (the drill axis) at angle ``θ``, over several turns. So the
+    workpiece is turned about X by a full-turn ``A`` (its word is ``θ``, unwrapped past 360°), on the work
+    side (the drill blank turns, the wheel stays); ``X`` feeds along the drill axis (``px``); one more linear
+    axis, whichever its word (Z on the grinder, Y on another build), sets the radius. Exactly these three
+    axes, and the chain's closed-form inverse (:meth:`errormap.machine_tool.MachineTool.closed_form_constants`)
+    places the points (:meth:`FlutePath.axes`). The path's strokes are checked per path
+    (:func:`check_in_strokes`)."""
+    rot = [a for a in machine.axes if a.kind == "rotary"]
+    lin = [a.word for a in machine.axes if a.kind == "linear"]
+    return (len(machine.axes) == 3 and len(rot) == 1 and rot[0].word == FLUTE_ROTARY and rot[0].full_turn
+            and rot[0].side == "work" and len(lin) == 2 and FLUTE_DRILL_AXIS in lin
+            and machine.closed_form_constants() is not None)
+
+
+def check_in_strokes(machine, axes, label: str = "path") -> None:
+    """Raise ValueError naming the first points whose command of an axis that does not turn fully is outside
+    its stroke.
+
+    ``axes`` shape (n, k), the machine's axis columns. A full-turn axis may run past one turn (multi-turn
+    paths), so it is not checked.
     """
     axes = np.asarray(axes, dtype=float)
     bad = []
-    for j, key in ((0, "x_mm"), (1, "z_mm")):
-        lo, hi = machine.strokes[key]
+    for j, a in enumerate(machine.axes):
+        if a.kind == "rotary" and a.full_turn:
+            continue
+        lo, hi = a.stroke
         idx = np.flatnonzero((axes[:, j] < lo) | (axes[:, j] > hi))
-        bad += [(int(i), key, float(axes[i, j]), (lo, hi)) for i in idx[:5]]
+        bad += [(int(i), a.column, float(axes[i, j]), (lo, hi)) for i in idx[:5]]
     if bad:
+        words = "/".join(a.word for a in machine.axes if not (a.kind == "rotary" and a.full_turn))
         lines = "; ".join(f"point {i}: {k} = {v:.6f} outside [{lo}, {hi}]" for i, k, v, (lo, hi) in bad)
-        raise ValueError(f"Expected {label} inside the X/Z strokes, got {lines}")
+        raise ValueError(f"Expected {label} inside the {words} strokes, got {lines}")

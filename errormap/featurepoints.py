@@ -1,7 +1,9 @@
-"""Feature points: the spatial error on a grid over the X, Z and A strokes (:data:`DEFAULT_GRID` per axis).
+"""Feature points: the spatial error on a grid over a machine tool's axis strokes (:data:`DEFAULT_GRID` per axis).
 
-Written as a plain CSV (``x_mm, z_mm, a_deg, dx_um, dy_um, dz_um``) whose provenance (its sidecar,
-:func:`errormap.io.sidecar_path`; leading ``#`` lines of an older file) records where the data came from (machine name, file and SHA-256; element-set file and
+Written as a plain CSV (the machine's axis columns, e.g. ``x_mm, z_mm, a_deg`` on the grinder, then ``dx_um,
+dy_um, dz_um``) whose provenance (its sidecar, :func:`errormap.io.sidecar_path`; leading ``#`` lines of an older
+file) names the axis columns (``axis_columns``; an older grinder's file without it is read as the grinder's) and
+records where the data came from (machine name, file and SHA-256; element-set file and
 SHA-256), so a trained model can always be traced back. File paths in the provenance
 (``elements_file``, ``machine_file``) are written relative to the CSV's own folder and read
 back relative to it, so the pair can be moved or used from any working folder (the built-in
@@ -99,7 +101,7 @@ class FeaturePoints:
     def load(cls, path) -> "FeaturePoints":
         t = read_table(path, "featurepoints")
         meta = t.meta()
-        # a machine-tool chain's feature points name their axis columns in the header (axis_columns: ...)
+        # feature points name their axis columns in the header (axis_columns: ...); an older grinder's file does not
         names = tuple(c.strip() for c in meta["axis_columns"].split(",")) if "axis_columns" in meta else COLUMNS[:3]
         cols = names + COLUMNS[3:]
         t.require(*cols)
@@ -140,7 +142,5 @@ def make_feature_points(machine, field, n: int | None = None, meta: dict | None 
          "grid": "x".join([str(n)] * k)}
     m.update(meta or {})
     names = machine.axis_columns
-    from .grinder_file import is_grinder_chain
-    if not is_grinder_chain(machine):   # a chain's feature points name their columns (the grinder's are the default)
-        m["axis_columns"] = ",".join(names)
+    m["axis_columns"] = ",".join(names)   # every machine's (a file without them is an older grinder's)
     return FeaturePoints(axes, field.predict(axes), m, axis_columns=tuple(names))

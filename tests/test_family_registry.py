@@ -212,7 +212,7 @@ REFUSED = [   # (argv, words the one line names): the registry's refusals on the
     (["calibrate", "p.csv", "--machine", "mill-xyz"], ["volcomp calibrate", "other path:", "identify"]),
     (["register", "p.csv", "--machine", "hexapod", "--model", "c.json"], ["other path:", "instrument frame"]),
     (["interpolate", "sphere", "--machine", "hexapod", "--sensitivity-plot", "k.png"], ["needs a tripod", "hexapod"]),
-    (["report", "--machine", "mill-xyz", "--model", "E.json", "--flute"], ["--flute:", "grinder's part", "--path"]),
+    (["report", "--machine", "mill-xyz", "--model", "E.json", "--flute"], ["--flute:", "flute needs", "--path"]),
     (["report", "--machine", "ur5", "--model", "E.json", "--path", "p.csv"], ["volcomp report", "not yet:"]),
     (["export", "E.json", "--format", "grid", "--machine", "hexapod"],
      ["volcomp export", "parallel machine", "not yet:", "interpolate"]),

@@ -10,7 +10,7 @@ checks the declared gaps against that table's cells.
 Three families, the columns of that table: **machine tool** (every chain file, the built-in grinder among them,
 and a ``kind = "grinder"`` file read as its chain), **serial arm** and **parallel** (hexapod, tripod). Where a
 command differs between machines of one family, the difference is a fact of the loaded machine
-(:attr:`Family.machine_facts`: e.g. whether its axes are the flute's X, Z, A), never its kind string. A new kind
+(:attr:`Family.machine_facts`: e.g. whether the flute path runs on it), never its kind string. A new kind
 is one entry of :data:`FAMILIES` (and its parser in :func:`errormap.machine.machine_kinds`).
 """
 from __future__ import annotations
@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from ..batch import CHUNK_POINTS
 from ..gcode import DEFAULT_RAPIDS
 from ..pathio import DEFAULT_ARC_TOLERANCE_UM
-from ..toolpath import FLUTE_DEFAULTS
+from ..toolpath import FLUTE_DEFAULTS, runs_flute
 from .validate import UsageError
 
 YES, PHYSICS, OTHER_PATH, NOT_YET = "yes", "physics", "other path", "not yet"
@@ -38,9 +38,9 @@ class Facts:
     orientation, ``rx_deg, ry_deg, rz_deg``: a hexapod), ``sensitivity_study`` (the tripod's
     error-sensitivity study, ``interpolate --sensitivity-plot``), ``paper_paths`` (the hexapod paper's test
     passes, sphere and hyperboloid, are its benchmark paths and noise/pose series). Of the loaded machine tool
-    (:func:`machine_tool_facts`): ``flute_axes`` (its axes are the flute's, X and Z linear and A rotary, with the
-    closed-form inverse that places the flute's points), ``fixed_tool_axis`` (three axes, one rotary: all of them
-    place the tool point and none is left to turn the tool axis)."""
+    (:func:`machine_tool_facts`): ``flute_axes`` (the flute path runs on it, :func:`compensation.toolpath.runs_flute`:
+    the workpiece turned about X by a full-turn A, X and one radial linear axis), ``fixed_tool_axis`` (three axes,
+    one rotary: all of them place the tool point and none is left to turn the tool axis)."""
 
     tracker_sweeps: bool = False
     gcode: bool = False
@@ -192,13 +192,10 @@ _CALIBRATE_OTHER = ("{given}: {does} not apply to {what} (see calibrate --help: 
                     "kind); leave {it} out")
 
 def machine_tool_facts(machine) -> dict:
-    """The facts of :class:`Facts` a loaded machine tool's axes decide: ``flute_axes`` (X and Z linear and A rotary,
-    placed by the chain's closed-form inverse, :meth:`errormap.machine_tool.MachineTool.closed_form_constants`:
-    the flute's axes) and ``fixed_tool_axis`` (three axes, one of them rotary)."""
-    axes = tuple((a.word, a.kind) for a in machine.axes)
+    """The facts of :class:`Facts` a loaded machine tool's axes decide: ``flute_axes`` (the flute path runs on it,
+    :func:`compensation.toolpath.runs_flute`) and ``fixed_tool_axis`` (three axes, one of them rotary)."""
     rotary = any(a.kind == "rotary" for a in machine.axes)
-    flute = axes == (("X", "linear"), ("Z", "linear"), ("A", "rotary")) and machine.closed_form_constants() is not None
-    return {"flute_axes": flute, "fixed_tool_axis": len(axes) == 3 and rotary}
+    return {"flute_axes": runs_flute(machine), "fixed_tool_axis": len(machine.axes) == 3 and rotary}
 
 
 _FLUTE_OPTIONS = (Opt("--flute", PHYSICS), *(Opt(f"--{k.replace('_', '-')}", PHYSICS, default=getattr(FLUTE_DEFAULTS, k))
@@ -211,13 +208,15 @@ MACHINE_TOOL = Family(
     targets={**_same_target("simulate", "sweeps", "featurepoints", "identify", "train", "predict", "benchmark", "demo",
                             "report run", target="chain"),
              **_same_target("compensate", "export", "diagnose", "report", "fleet", target="machine tool")},
-    gaps={"demo": Gap(NOT_YET, "the demo's part is the grinder's flute (a part in X, Z, A)", unless="flute_axes"),
+    gaps={"demo": Gap(NOT_YET, "the demo's part is the flute (the workpiece turned about X by a full-turn A, fed by X "
+                           "and one radial linear axis)", unless="flute_axes"),
           "calibrate": Gap(OTHER_PATH, "identify (sweeps), then diagnose (checks)"),
           "register": Gap(OTHER_PATH, "the tracker pose is estimated inside identify with every set-up"),
           "interpolate": Gap(OTHER_PATH, "compensate (axis programs)")},
     refusals=(Refusal("simulate", (Opt("--poses", OTHER_PATH),), _BY_POSES), *_DIAGNOSE,
               Refusal("report", _FLUTE_OPTIONS,
-                      "{given}: the flute is the grinder's part (a micro-drill flute in its X, Z, A); on {name} "
+                      "{given}: the flute needs the workpiece turned about X by a full-turn A and one radial linear axis "
+                      "beside X; on {name} "
                       "compare the methods on its own --path", unless="flute_axes"),
               Refusal("compensate", (Opt("--compensate-orientation", PHYSICS),),
                       "{given}: the one rotary axis of {name!r} turns the workpiece and none turns the tool axis "

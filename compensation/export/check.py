@@ -43,10 +43,10 @@ def motion_dirs(axes) -> np.ndarray:
 
 def flute_axes(machine, flute=None):
     """``(targets (n, 3) mm, axes (n, k))`` of the flute path (:func:`compensation.toolpath.flute_path`) on a
-    machine whose chain has a closed-form nominal inverse and reaches every point of it inside the strokes of
-    its axes that do not turn fully (the grinder's chain), else None."""
-    from ..toolpath import flute_path
-    if machine.closed_form_constants() is None:
+    machine it runs on (:func:`compensation.toolpath.runs_flute`) that reaches every point of it inside the
+    strokes of its axes that do not turn fully, else None."""
+    from ..toolpath import flute_path, runs_flute
+    if not runs_flute(machine):
         return None
     fp = flute if flute is not None else flute_path()
     ax = fp.axes(machine)

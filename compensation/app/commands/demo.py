@@ -56,7 +56,7 @@ def run(args) -> int:
     t_start = time.perf_counter()
     methods = parse_methods(args.methods)
     machine = load_machine(args.machine)   # None: the built-in default machine
-    family_of(machine).target("demo")   # the demo's part is the grinder's flute: machines without its X, Z, A refused
+    family_of(machine).target("demo")   # the demo's part is the flute: machines it does not run on refused
     try:
         fl = flute_from_args(args)
     except ValueError as exc:

@@ -152,8 +152,9 @@ def _print_fit(args, res, physics: str, kept: str) -> None:
 
 def _machine(fp):
     """The machine tool the feature points were made on: the recorded machine file, else the built-in machine of
-    the recorded name (a file without ``axis_columns``: the built-in default, the grinder's columns, said in one
-    line); its family must train, its SHA-256 be the recorded one and its axis columns the file's."""
+    the recorded name (the built-in default where the recorded SHA-256 is its file's, or the file has no
+    ``axis_columns``: an older grinder's, said in one line); its family must train, its SHA-256 be the recorded one
+    and its axis columns the file's."""
     from errormap.machine import load_machine, made_on
     src = fp.source or "feature points"
     mf, name = fp.meta.get("machine_file"), fp.meta.get("machine")
@@ -164,9 +165,10 @@ def _machine(fp):
     if named and not (mf and Path(mf).is_file()) and not name:
         raise InputError(f"{src}: header key 'machine': the feature points name no machine (nor a readable "
                          "machine_file)")
-    machine = load_machine(mf if mf and Path(mf).is_file() else (name if named else None))
-    family_of(machine).target("train")   # feature points of a machine tool only
     sha = fp.meta.get("machine_sha256")
+    by_name = named and not (sha and made_on(load_machine(), sha))   # the default grinder is found by its SHA-256
+    machine = load_machine(mf if mf and Path(mf).is_file() else (name if by_name else None))
+    family_of(machine).target("train")   # feature points of a machine tool only
     if sha and machine.sha256 and not made_on(machine, sha):
         raise InputError(f"{src}: header key 'machine_sha256': the feature points were made on another version of "
                          f"the machine file {machine.path}")

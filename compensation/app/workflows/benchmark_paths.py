@@ -1,8 +1,8 @@
 """The machine-tool benchmark's test parts and its judge (:mod:`.chain_benchmark`).
 
 A test part is what a machine of that structure is accepted on, read from its chain, never from its name: the
-flute of a micro drill (:func:`flute_part`: a workpiece turned about X by a full-turn A axis, the wheel fed by
-the other linear axis), the four body diagonals of three linear axes (ISO 230-6, :func:`diagonal_path`), a
+flute of a micro drill (:func:`flute_part`, where :func:`compensation.toolpath.runs_flute`: a workpiece turned
+about X by a full-turn A axis, the wheel fed by the other linear axis), the four body diagonals of three linear axes (ISO 230-6, :func:`diagonal_path`), a
 turning centre's lines and face/diameter set (:func:`turning_path`); :func:`judging_path` takes the first the
 machine can make. :func:`volume_path`: random points over every stroke. :func:`compensate_true`: the ``exact``
 (or ``batched-ga``) solve of a part with a field and the TRUE residual on the hidden truth at the part's
@@ -37,9 +37,6 @@ TURNING_RADIUS_FRACTION = 0.75
 VOLUME_CLEARANCE_MM = 5.0
 """Volume points whose tool point is closer than this to a full-turn rotary axis' line (its lever below 5 mm per
 rad) are left out: there the workpiece coordinates are singular (a sideways error needs a large turn)."""
-FLUTE_ROTARY = "A"
-"""The flute's drill axis is the WCS x axis: the workpiece is turned about X, by an A axis (ISO 841)."""
-FLUTE_DRILL_AXIS = "X"
 
 
 @dataclass
@@ -65,15 +62,11 @@ def _conditions(machine, n, dirs) -> dict:
 
 def flute_part(machine, s) -> ChainPath:
     """The variable-helix flute of a micro drill (``compensation/toolpath.py``, ``flute_turns`` ×
-    ``flute_points_per_turn``) on a machine that turns the workpiece about X by a full-turn A axis and has one
-    other linear axis to feed the wheel radially; at 24 °C, X and A approached in the path's direction of motion
-    (+), the radial axis from above (−: the wheel plunges in to the flute-bottom radius). ValueError for any
-    other machine, or a flute outside the linear strokes."""
-    from ...toolpath import flute_path
-    rot = [a for a in machine.axes if a.kind == "rotary"]
-    lin = [a.word for a in machine.axes if a.kind == "linear"]
-    if not (len(rot) == 1 and rot[0].word == FLUTE_ROTARY and rot[0].full_turn and rot[0].side == "work"
-            and len(lin) == 2 and FLUTE_DRILL_AXIS in lin):
+    ``flute_points_per_turn``) on a machine it runs on (:func:`compensation.toolpath.runs_flute`); at 24 °C, X
+    and A approached in the path's direction of motion (+), the radial axis from above (−: the wheel plunges in
+    to the flute-bottom radius). ValueError for any other machine, or a flute outside the linear strokes."""
+    from ...toolpath import FLUTE_DRILL_AXIS, flute_path, runs_flute
+    if not runs_flute(machine):
         raise ValueError(f"{machine.name}: the flute needs the workpiece turned about X by a full-turn A axis and one "
                          f"radial linear axis beside X (its axes: {' '.join(a.word for a in machine.axes)})")
     fl = flute_path(turns=s.flute_turns, points_per_turn=s.flute_points_per_turn)

@@ -150,13 +150,19 @@ PROGRAM_FEED = 500.0
 """Feed of the flute's G1 moves (mm/min); compensation keeps it as written."""
 
 
-def write_flute_program(path, axes, fl) -> Path:
-    """The flute's nominal axis commands ``axes`` (n, 3: x_mm, z_mm, a_deg) as a G-code program (absolute mm,
-    G18: the grinder's X/Z plane), written whole; returns its path."""
+PLANES = {frozenset("XY"): "G17", frozenset("XZ"): "G18"}
+"""The plane of the flute program's two linear axes (X and the radial one: Z on the grinder)."""
+
+
+def write_flute_program(path, machine, axes, fl) -> Path:
+    """The flute's nominal axis commands ``axes`` (n, 3, the machine's axis columns: X, the radial axis, A) as a
+    G-code program in the machine's axis words (absolute mm, the plane of its two linear axes: G18 on the
+    grinder), written whole; returns its path."""
     d = PROGRAM_DECIMALS
-    words = [f"X{x:.{d}f} Z{z:.{d}f} A{a:.{d}f}" for x, z, a in axes]
+    plane = PLANES[frozenset(a.word for a in machine.axes if a.kind == "linear")]
+    words = [" ".join(f"{a.word}{v:.{d}f}" for a, v in zip(machine.axes, row)) for row in axes]
     lines = ["%", f"(volcomp demo: variable-helix flute, {fl.settings.turns:g} turns, {len(axes)} points, nominal)",
-             "G21 G90 G18 G94", f"G0 {words[0]}", f"G1 {words[1]} F{PROGRAM_FEED:g}", *words[2:], "M30", "%"]
+             f"G21 G90 {plane} G94", f"G0 {words[0]}", f"G1 {words[1]} F{PROGRAM_FEED:g}", *words[2:], "M30", "%"]
     path = Path(path)
     with atomic_write(path) as f:
         f.write("\n".join(lines) + "\n")
@@ -169,7 +175,7 @@ def compensate_program(s: DemoSettings, machine, axes, model_spec: str, log=None
     "compensated", "summary"}`` paths (``compensated`` None when the guards refused it: said on ``log``)."""
     from ...nc_state import MACHINE, read_work_offsets
     from .compensate import CompensateSettings, compensate_files
-    prog = write_flute_program(Path(s.out) / PROGRAM_NAME, axes, s.flute)
+    prog = write_flute_program(Path(s.out) / PROGRAM_NAME, machine, axes, s.flute)
     # the flute program is written in machine coordinates (its axes are the grinder's): said explicitly
     # (--work-offsets machine), as every program's frame must be; the summary and the output record it
     print("compensate: the flute program is in machine coordinates (--work-offsets machine)",

@@ -201,8 +201,7 @@ def _train(machine, el_path: Path, folder: Path, s: dict, name: str) -> tuple:
     tags = {"fleet": s["fleet"], "fleet_machine": name, "featurepoints_file": str(fp_path)}
     settings = TrainSettings(max_iter=s["train_iter"], max_time_s=np.inf, seed=s["seed"], hidden=tuple(s["hidden"]),
                              physics=DEFAULT_PHYSICS)   # as `volcomp train` trains by default
-    chain = machine if "axis_columns" in fp.meta else None
-    res = fit_field(fp, settings, machine=chain, tracking=TrackSettings(tracking_uri=s["tracking_uri"],
+    res = fit_field(fp, settings, machine=machine, tracking=TrackSettings(tracking_uri=s["tracking_uri"],
                     run_name=f"fleet {name}", tags=tags), out_dir=folder / "train", quiet=True)
     return fp_path, res.run_id, int(res.history.iterations), res.metrics
 
