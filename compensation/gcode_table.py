@@ -5,7 +5,7 @@ from __future__ import annotations
 import functools
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -56,7 +56,6 @@ class MoveTable:
     obj: np.ndarray
     objects: list
     spans: np.ndarray
-    cache: dict = field(default_factory=dict, repr=False)  # derived arrays (pathio: path lengths)
 
     def __len__(self) -> int:
         return self.line.shape[0]

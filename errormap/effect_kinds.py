@@ -98,8 +98,6 @@ _BY_ALIAS = {a: k for k in EFFECT_KINDS for a in (k.name, *k.aliases)}
 
 DIAGNOSED_KINDS = tuple(k.name for k in EFFECT_KINDS if k.diagnosed)
 """The kinds the diagnosis library fits, in its order of preference."""
-SIMULATOR_NAMES = tuple(k.simulator for k in EFFECT_KINDS if k.simulator)
-"""The names the simulator knows its effects by (``--effect``, ``truth.json``)."""
 TRUTH_ONLY = tuple(k.simulator for k in EFFECT_KINDS if k.truth_only)
 """Simulator effects no kind of the diagnosis represents."""
 
@@ -127,13 +125,3 @@ def diagnosed_kind(name) -> EffectKind:
     else:
         why = f"effect kind {name!r} is simulated only (no diagnosis kind represents it)"
     raise ValueError(f"{why}; expected one of {list(DIAGNOSED_KINDS)}")
-
-
-def simulator_name(name) -> str:
-    """The simulator's name of kind ``name`` (``periodic`` → ``pitch``); ``ValueError`` for an
-    unknown name or a kind the simulator cannot draw."""
-    kind = effect_kind(name)
-    if kind.simulator is None:
-        raise ValueError(f"effect kind {name!r} cannot be simulated; expected one of {list(SIMULATOR_NAMES)}")
-    return kind.simulator
-

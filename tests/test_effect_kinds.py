@@ -13,8 +13,7 @@ from errormap.diagnosis import effects as fx
 from errormap.chain_elements import ChainElementSet
 from errormap.elements import A_ELEMENTS, IDX, X_ELEMENTS, Z_ELEMENTS
 from errormap.chain_truth import (CHAIN_TRUTH_ONLY as OUT_OF_CATALOGUE, EFFECT_DEFAULTS, ChainTruth as TruthGrinder,
-                                  independent_effect_parameters, random_axes)
-from errormap.effect_kinds import SIMULATOR_NAMES as EFFECT_NAMES
+                                  SIMULATED_KINDS, independent_effect_parameters, make_chain_truth, random_axes)
 
 SEED = 11
 N_POINTS = 200
@@ -44,14 +43,13 @@ def test_every_name_is_registered_once():
 
 
 def test_simulator_draws_registered_kinds_only():
-    assert EFFECT_NAMES == ek.SIMULATOR_NAMES
-    assert set(map(ek.simulator_name, EFFECT_DEFAULTS)) == set(ek.SIMULATOR_NAMES)
-    assert set(map(ek.simulator_name, independent_effect_parameters(np.random.default_rng(0)))) == set(ek.SIMULATOR_NAMES)
+    drawn = {k.name for k in ek.EFFECT_KINDS if k.simulator}   # the registry's kinds with a simulator name
+    assert set(SIMULATED_KINDS) == {ek.effect_kind(n).name for n in EFFECT_DEFAULTS} == drawn
+    assert {ek.effect_kind(n).name for n in independent_effect_parameters(np.random.default_rng(0))} == drawn
     assert set(OUT_OF_CATALOGUE) == set(ek.TRUTH_ONLY) == {"bump", "a_tilt", "squareness", "squareness_xz", "a_lobe_x",
                                                                 "xz_saddle"}
-    for name in EFFECT_NAMES:
-        kind = ek.effect_kind(name)
-        assert kind.simulator == name and kind.simulator_element in IDX
+    for kind in (k for k in ek.EFFECT_KINDS if k.simulator):
+        assert ek.effect_kind(kind.simulator) is kind and kind.simulator_element in IDX
         assert kind.truth_only == (not kind.diagnosed)
 
 
@@ -87,7 +85,7 @@ def test_simulator_alias_is_the_same_physics_as_the_diagnosis_kind(grinder, sim,
     """Merging ``pitch``/``periodic`` and ``worm``/``harmonic`` into one kind each is only right if
     they are the same term: the simulator's addition to the element equals the diagnosis basis
     with the amplitude and phase written as its ``s·sin + c·cos`` coefficients."""
-    assert ek.effect_kind(sim).name == canonical and ek.simulator_name(canonical) == sim
+    assert ek.effect_kind(sim).name == canonical and ek.effect_kind(canonical).simulator == sim
     el = ChainElementSet.zeros(grinder)
     axes = random_axes(grinder, N_POINTS, np.random.default_rng(SEED))
     by_alias = TruthGrinder(grinder, el, {sim: params}).element_values(axes)[:, IDX[element]]
@@ -113,8 +111,8 @@ def test_unknown_kinds_raise_in_code(grinder):
         fx.Candidate("pitch", "x", "dx_x")
     with pytest.raises(ValueError, match="simulated only"):
         fx.Candidate("bump", "x*z", "dx_x")
-    with pytest.raises(ValueError, match="cannot be simulated"):
-        ek.simulator_name("drift")
+    with pytest.raises(ValueError, match="effect kind not simulated on a machine-tool chain: 'drift'"):
+        make_chain_truth(grinder, 0, effects=["drift"])   # the diagnosis fits drift; the simulator draws none
 
 
 def test_the_loop_never_takes_an_unknown_kind_for_another(grinder):

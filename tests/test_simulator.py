@@ -5,8 +5,7 @@ import numpy as np
 from errormap.grinder_file import rho0_mm
 import pytest
 
-from errormap.chain_truth import EFFECT_DEFAULTS, make_chain_truth, random_axes, volume_grid
-from errormap.effect_kinds import SIMULATOR_NAMES as EFFECT_NAMES
+from errormap.chain_truth import EFFECT_DEFAULTS, SIMULATED_KINDS, make_chain_truth, random_axes, volume_grid
 
 MAX_ERROR_BAND_UM = (150.0, 230.0)
 """The required band of the maximum spatial error (vector norm) over the volume; the draw targets [165, 215]."""
@@ -111,6 +110,6 @@ def test_effects_need_their_conditions(grinder):
         truth.spatial_error(np.array([[10.0, 10.0, 10.0]]))
     with pytest.raises(ValueError, match="unknown"):
         make_chain_truth(grinder, 0, effects=["gravity"])
-    assert set(EFFECT_NAMES) == {"thermal", "reversal", "pitch", "worm", "interaction",
+    assert set(SIMULATED_KINDS) == {"thermal", "reversal", "periodic", "harmonic", "interaction",
                                  "bump", "a_tilt", "squareness", "squareness_xz", "a_lobe_x",
                                  "xz_saddle"}  # the last six: out of the effect catalogue
