@@ -184,12 +184,12 @@ def check_in_strokes(machine, axes, label: str = "path") -> None:
     axes = np.asarray(axes, dtype=float)
     bad = []
     for j, a in enumerate(machine.axes):
-        if a.kind == "rotary" and a.full_turn:
+        if a.full_turn:
             continue
         lo, hi = a.stroke
         idx = np.flatnonzero((axes[:, j] < lo) | (axes[:, j] > hi))
         bad += [(int(i), a.column, float(axes[i, j]), (lo, hi)) for i in idx[:5]]
     if bad:
-        words = "/".join(a.word for a in machine.axes if not (a.kind == "rotary" and a.full_turn))
+        words = "/".join(a.word for a in machine.axes if not a.full_turn)
         lines = "; ".join(f"point {i}: {k} = {v:.6f} outside [{lo}, {hi}]" for i, k, v, (lo, hi) in bad)
         raise ValueError(f"Expected {label} inside the {words} strokes, got {lines}")

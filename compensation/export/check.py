@@ -45,14 +45,15 @@ def flute_axes(machine, flute=None):
     """``(targets (n, 3) mm, axes (n, k))`` of the flute path (:func:`compensation.toolpath.flute_path`) on a
     machine it runs on (:func:`compensation.toolpath.runs_flute`) that reaches every point of it inside the
     strokes of its axes that do not turn fully, else None."""
-    from ..toolpath import flute_path, runs_flute
+    from ..toolpath import check_in_strokes, flute_path, runs_flute
     if not runs_flute(machine):
         return None
     fp = flute if flute is not None else flute_path()
     ax = fp.axes(machine)
-    for j, a in enumerate(machine.axes):
-        if not a.full_turn and not np.all((ax[:, j] >= a.stroke[0] - 1e-9) & (ax[:, j] <= a.stroke[1] + 1e-9)):
-            return None
+    try:
+        check_in_strokes(machine, ax)
+    except ValueError:
+        return None
     return fp.targets_mm, ax
 
 

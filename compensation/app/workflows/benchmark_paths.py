@@ -65,16 +65,13 @@ def flute_part(machine, s) -> ChainPath:
     ``flute_points_per_turn``) on a machine it runs on (:func:`compensation.toolpath.runs_flute`); at 24 °C, X
     and A approached in the path's direction of motion (+), the radial axis from above (−: the wheel plunges in
     to the flute-bottom radius). ValueError for any other machine, or a flute outside the linear strokes."""
-    from ...toolpath import FLUTE_DRILL_AXIS, flute_path, runs_flute
+    from ...toolpath import FLUTE_DRILL_AXIS, check_in_strokes, flute_path, runs_flute
     if not runs_flute(machine):
         raise ValueError(f"{machine.name}: the flute needs the workpiece turned about X by a full-turn A axis and one "
                          f"radial linear axis beside X (its axes: {' '.join(a.word for a in machine.axes)})")
     fl = flute_path(turns=s.flute_turns, points_per_turn=s.flute_points_per_turn)
     axes = fl.axes(machine)
-    lo, hi = machine.stroke_lo, machine.stroke_hi
-    for j, a in enumerate(machine.axes):
-        if a.kind == "linear" and (axes[:, j].min() < lo[j] or axes[:, j].max() > hi[j]):
-            raise ValueError(f"{machine.name}: the flute leaves the {a.word} stroke")
+    check_in_strokes(machine, axes, f"{machine.name}: the flute")   # its linear axes (the A turns fully)
     dirs = np.array([1.0 if a.kind == "rotary" or a.word == FLUTE_DRILL_AXIS else -1.0 for a in machine.axes])
     n = len(axes)
     return ChainPath(f"flute ({n} points)", axes, _conditions(machine, n, np.tile(dirs, (n, 1))), fl.targets_mm)
