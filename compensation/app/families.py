@@ -215,8 +215,8 @@ MACHINE_TOOL = Family(
           "interpolate": Gap(OTHER_PATH, "compensate (axis programs)")},
     refusals=(Refusal("simulate", (Opt("--poses", OTHER_PATH),), _BY_POSES), *_DIAGNOSE,
               Refusal("report", _FLUTE_OPTIONS,
-                      "{given}: the flute needs the workpiece turned about X by a full-turn A and one radial linear axis "
-                      "beside X; on {name} "
+                      "{given}: the flute needs the workpiece turned about X by a full-turn A and one radial "
+                      "linear axis beside X; on {name} "
                       "compare the methods on its own --path", unless="flute_axes"),
               Refusal("compensate", (Opt("--compensate-orientation", PHYSICS),),
                       "{given}: the one rotary axis of {name!r} turns the workpiece and none turns the tool axis "
