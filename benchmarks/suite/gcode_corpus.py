@@ -162,9 +162,12 @@ def reason_of(message: str, name: str) -> str:
 
 
 def _lines(path: Path) -> list:
-    """The file's lines as the reader cuts them: its bytes as Latin-1, each line with its own ending kept (only
-    ``\\n`` ends a line: a CRLF file stays CRLF, so a check compares the bytes a controller reads)."""
-    return re.findall(r"[^\n]*\n|[^\n]+$", path.read_bytes().decode("latin-1"))
+    """The file's lines as a controller cuts them: its bytes as Latin-1, each line with its own ending kept (``\\n``
+    ends a line: a CRLF file stays CRLF, so a check compares the bytes a controller reads; in a file with no
+    ``\\n`` at all, old Mac style, ``\\r`` does)."""
+    text = path.read_bytes().decode("latin-1")
+    end = "\n" if "\n" in text or "\r" not in text else "\r"
+    return re.findall(rf"[^{end}]*{end}|[^{end}]+$", text)
 
 
 def compensate_accepted(root: Path, corpus: Path, out: dict, tmp: Path, check: bool = False,
@@ -204,7 +207,9 @@ def independent_check(src: Path, written: Path, dialect: str, truth_file: Path, 
     frames (work offset, tool length) per line from the program's own G54-G59 / G54.1 P / G154 P / G43 H /
     G49 words read by patterns (tests/program_checks.py ``_frame``; the controller's power-on G54 before any),
     the same for the written program. Passes when (1) the lines that are not compensated moves are the
-    source's, byte for byte and in order, and (2) every programmed end point of a compensated move is reached,
+    source's, byte for byte and in order, with the same line ends, (2) every move the reader leaves uncompensated
+    is one it may leave so (a rapid, or a move of Z alone before X and Y were given: the position the controller
+    starts it from is not the program's; any other is counted wrong), and (3) every programmed end point of a compensated move is reached,
     in order, by the TRUE machine at the end of some written move within 1 um. ``"ok: max E um at N points"``,
     ``"WRONG: ..."`` (silently wrong) or ``"not checkable: ..."``. A program the reader expanded (subprograms,
     macros: a flat program is written) is judged against the reader's flat program. ``offsets`` {system: (3,) mm}
@@ -212,6 +217,7 @@ def independent_check(src: Path, written: Path, dialect: str, truth_file: Path, 
     system at :data:`PART_ZERO_MM`, every tool 100 mm). A program with canned cycles is judged by
     :func:`cycle_check`."""
     text = src.read_text(encoding="latin-1")
+    lf_ends = "\n" in text  # none: CR-only line ends, which the written program must keep
     if re.search(CYCLE_RE, text):
         return cycle_check(src, written, dialect, truth_file, offsets, tools)
     if NURBS_RE.search(text):  # its control-point lines are written as comments, the curve as compensated chords
@@ -251,6 +257,12 @@ def independent_check(src: Path, written: Path, dialect: str, truth_file: Path, 
         return "not checkable: the G53 lines placed in the program's frame split into other lines"
     m_src = [m for m in p_src.moves if m.compensate]
     m_out = [m for m in p_out.moves if m.compensate]
+    feed = next((m for m in p_src.moves if not m.compensate and m.kind != "rapid" and set(m.words) & set("XYZ") != {"Z"}),
+                None)  # uncompensated by design: rapids, and a move of Z alone before X and Y were given
+    if feed is not None:
+        return f"WRONG: line {feed.index + 1} ({p_src.lines[feed.index].strip()[:40]!r}), a feed, left uncompensated"
+    if lf_ends != (b"\n" in written.read_bytes()):
+        return "WRONG: the line ends changed (CR-only and LF)"
     keep_src = [ln for i, ln in enumerate(src_lines) if i not in {m.index for m in m_src}]
     out_lines = _lines(bare) if placed_out is not None else p_out.lines
     keep_out = [ln for i, ln in enumerate(out_lines) if i not in {m.index for m in m_out}]
