@@ -27,6 +27,9 @@ What differs (and what the reader does with it, :mod:`compensation.gcode`):
   axis word after it is an error. Recognised from no word (Fusion 360's Fanuc and Haas posts write none),
   such a line is read the group-09 way (:data:`UNRECOGNISED`: the only reading under which it runs) and
   the summary says so;
+* **probing** ``G38.2``-``G38.5`` (:data:`PROBES`): probe moves on LinuxCNC and grbl, and without a dialect (no
+  controller read here gives them another meaning); Fanuc, Haas, Siemens ISO and Mach3 probe with ``G31`` and
+  refuse them;
 * **block delete** ``/``: every dialect but grbl (which has no block-delete switch) skips the line
   when the switch is on (``--block-delete``).
 * **grbl** ``$`` **system commands** (a line that starts with ``$``; grbl v1.1 "Grbl $ commands"; such a line names

@@ -416,9 +416,9 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
         lacking = [a for a, k in zip(ax.words, known) if not k]
         compensate = not (kind == "rapid" or _from_start_position(st, axis_words, lacking, ax))
     if compensate and not known.all():
-        raise _Refuse(first.start + 1, f"'{first.letter}{first.text}': a {st.mode} move before {ax.joined('and')} are "
-                                       f"all known (no value yet for {', '.join(lacking)}; only a G0 there is written "
-                                       f"as programmed: a feed may cut){_unknown_since(st, lacking)}")
+        raise _Refuse(first.start + 1, f"'{first.letter}{first.text}': {st.mode} before {ax.joined('and')} are all "
+                                       f"known (no value yet for {', '.join(lacking)}; a feed may cut: only a G0 is "
+                                       f"kept){_unknown_since(st, lacking)}")
     move = GMove(idx, kind, start, end, "inch" if st.inch else "mm", st.incremental, words, motion_word,
                  compensate, known=known, diameter=st.diameter)
     if kind == "arc":
