@@ -144,6 +144,7 @@ def test_a_probe_move_is_written_as_programmed_and_leaves_its_axes_unknown(tmp_p
         assert [(e[0] + 1, e[3], e[4]) for e in prog.events if e[2] == "probe"] == [
             (3, ("Z",), "G38.2"), (5, ("X",), "G38.3"), (6, ("X",), "G38.3")]
         assert [m.index + 1 for m in prog.moves if m.compensate] == [8, 9]
+    assert program_frames(prog, read_work_offsets_csv(tmp_path), None).notes["probe_lines"] == [3, 5, 6]
 
 
 @pytest.mark.parametrize("text, line, words", [
