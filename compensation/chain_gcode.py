@@ -14,6 +14,7 @@ import numpy as np
 from errormap.io import InputError
 
 from .gcode import DEFAULT_RAPIDS, AxisWords, GProgram, arc_segments, move_points, parse_program, render_program
+from .gcode_words import cr_line_ends, with_line_end
 from .nc_cycles import cycle_pass
 
 MAX_SEGMENTS_PER_MOVE = 100_000
@@ -44,7 +45,7 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
     from .tcp import attach, tcp_prepass
     data, pre, name, evidence, dia = None, None, None, "", None
     if Path(path).is_file() and Path(path).stat().st_size <= MAX_PROGRAM_BYTES:  # TCP and G93 words (compensation.tcp)
-        raw = Path(path).read_bytes()
+        raw, line_end = cr_line_ends(Path(path).read_bytes())
         try:
             dia, evidence = _dialect_of(path, raw, dialect)
             name = dia.name
@@ -61,6 +62,8 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
                          dialect=named, cycles=None if cycles is None else partial(cycle_pass, mode=cycles),
                          data=data, found=(dia, evidence) if named == "auto" and dia is not None else None,
                          tables=tables, subprograms=subprograms)
+    if data is not None:
+        prog.line_end = line_end  # the pre-pass's bytes: LF in place of a CR-only file's CR, read above
     if pre is not None:
         attach(prog, pre)
     if pre is not None or (dialect == "auto" and name is not None):
@@ -432,7 +435,7 @@ def _table_vertices(start, end, counts, known, arcs) -> np.ndarray:
 # ---------------------------------------------------------------------------- writing
 def render_chain_axes(program: GProgram, axes, counts, header=(), held=None) -> str:
     """The program with its compensated vertices ``axes`` (n, k), ``counts`` (c,) of them per compensated
-    move; every other line byte for byte (:func:`compensation.gcode.render_program`; a program read in bulk
+    move; every other line byte for byte, with the file's line end (:func:`compensation.gcode.render_program`; a program read in bulk
     written in bulk, :func:`compensation.gcode.render_table`; kept canned cycles written back as cycles,
     :func:`compensation.nc_cycles.render_kept`). ``held`` (c, k) bool: the axes each move holds at a ``G53``
     value (:mod:`compensation.held_axes`)."""
@@ -440,12 +443,13 @@ def render_chain_axes(program: GProgram, axes, counts, header=(), held=None) -> 
     from .gcode import _bulk_words, render_table
     if (program.tcp is None and t is not None and not t.incremental.any() and program.expanded is None
             and _bulk_words(program.axis_words) and held is None):  # read in bulk: written in bulk, the same text
-        return render_table(program, np.asarray(axes), list(counts), header=header)[0]
+        return with_line_end(render_table(program, np.asarray(axes), list(counts), header=header)[0],
+                             program.line_end)
     vertices = np.split(np.asarray(axes), np.cumsum(counts)[:-1]) if len(counts) else []
     if program.tcp is not None:
         from .tcp import render_tcp
-        return render_tcp(program, vertices, header=header)
+        return with_line_end(render_tcp(program, vertices, header=header), program.line_end)
     if getattr(program.expanded, "mode", None) == "keep":
         from .nc_cycles import render_kept
-        return render_kept(program, vertices, header=header)
-    return render_program(program, vertices, header=header, held=held)[0]
+        return with_line_end(render_kept(program, vertices, header=header), program.line_end)
+    return with_line_end(render_program(program, vertices, header=header, held=held)[0], program.line_end)

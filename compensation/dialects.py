@@ -27,6 +27,9 @@ What differs (and what the reader does with it, :mod:`compensation.gcode`):
   axis word after it is an error. Recognised from no word (Fusion 360's Fanuc and Haas posts write none),
   such a line is read the group-09 way (:data:`UNRECOGNISED`: the only reading under which it runs) and
   the summary says so;
+* **probing** ``G38.2``-``G38.5`` (:data:`PROBES`): probe moves on LinuxCNC and grbl, and without a dialect (no
+  controller read here gives them another meaning); Fanuc, Haas, Siemens ISO and Mach3 probe with ``G31`` and
+  refuse them;
 * **block delete** ``/``: every dialect but grbl (which has no block-delete switch) skips the line
   when the switch is on (``--block-delete``).
 * **grbl** ``$`` **system commands** (a line that starts with ``$``; grbl v1.1 "Grbl $ commands"; such a line names
@@ -101,6 +104,8 @@ class Dialect:
     number may be changed in G43 mode; H00's value is always 0). Otherwise ``H`` only with ``G43``."""
     synced: dict = field(default_factory=dict)
     """Spindle-synchronised motion codes {code: meaning} (LinuxCNC ``G33``, ``G33.1``: :data:`SYNCED`)."""
+    probes: dict = field(default_factory=dict)
+    """Probe move codes {code: meaning} (RS274NGC ``G38.2``; LinuxCNC and grbl ``G38.2``-``G38.5``: :data:`PROBES`)."""
     lathe_modes: dict = field(default_factory=dict)
     """Lathe X modes of the program {code: meaning} (LinuxCNC ``G7`` diameter / ``G8`` radius, :data:`LATHE_MODES`)."""
     lathe_x_by_parameter: bool = False
@@ -173,13 +178,24 @@ SYNCED = {"G33": "spindle-synchronised motion (G33 X Y Z K: a straight line, K p
           "G33.1": "rigid tapping (G33.1 X Y Z K [I]: a synchronised line to the point and back to the start)"}
 """LinuxCNC G-code reference, "G33 Spindle Synchronized Motion", "G33.1 Rigid Tapping": motion codes read as one
 straight line each, its end compensated, never split (:mod:`compensation.gcode_state`)."""
+PROBES = {"G38.2": "probe towards the part, stop on contact (an error if none)",
+          "G38.3": "probe towards the part, stop on contact", "G38.4": "probe away from the part, stop on loss of "
+          "contact (an error if none)", "G38.5": "probe away from the part, stop on loss of contact"}
+"""RS274NGC v3 "Straight Probe" (G38.2), LinuxCNC G-code reference "G38.x Straight Probe", grbl v1.1 (G38.2-G38.5):
+a motion code (group 1); the machine moves in a straight line at the feed towards the programmed point and stops
+where the probe input changes (or at the point): its position along the axes of the line is not known afterwards
+(LinuxCNC's interpreter: "after probing is performed, the location of the probe cannot be predicted"). No other
+controller read here gives G38.2-G38.5 another meaning (Fanuc's G38 is a cutter-compensation vector hold, no
+decimal), so the reader without a dialect reads them too; Fanuc, Haas, Siemens ISO and Mach3 probe with G31
+(refused). The line is written as programmed (a measurement, not a cut;
+:func:`compensation.gcode_state.probe_move`); a read of its result (``#5061``-``#5070``) is refused by name."""
 DIALECTS = {
     "linuxcnc": Dialect("linuxcnc", {**_COMMON, 19: "orient spindle", 48: "overrides on", 49: "overrides off",
                                      50: "feed override control", 51: "spindle override control",
                                      52: "adaptive feed", 53: "feed stop control", 60: "pallet change pause"},
                         io_codes=IO_CODES, arc_radius_tol=LINUXCNC_ARC_TOL, modes={"G50": SCALING_OFF},
                         splines=SPLINES, g92_offsets=True, synced=SYNCED, dwell_with_motion=True,
-                        lathe_modes=LATHE_MODES),
+                        lathe_modes=LATHE_MODES, probes=PROBES),
     "fanuc": Dialect("fanuc", {**_COMMON, 19: "orient spindle", 29: "rigid tapping mode for the next G84 (moves nothing)",
                                48: "overrides on", 49: "overrides off"},
                      program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G50": SCALING_OFF, "G50.1": MIRROR_OFF,
@@ -202,14 +218,15 @@ DIALECTS = {
                            lathe_x_by_parameter=True),
     "mach3": Dialect("mach3", {**_COMMON, 48: "overrides on", 49: "overrides off"}, g80_with_motion=True,
                      modes={"G50": SCALING_OFF}),
-    "grbl": Dialect("grbl", {**_COMMON, 56: "parking motion override"}, block_delete=False, g92_offsets=True),
+    "grbl": Dialect("grbl", {**_COMMON, 56: "parking motion override"}, block_delete=False, g92_offsets=True,
+                    probes=PROBES),
     # Heidenhain TNC DIN/ISO programs: '%NAME G71 *' framing and the '*' block end are read by the
     # tool-centre-point pre-pass (compensation.tcp), as are M128/M129 (TCPM) and the 'T n' tool call
     "heidenhain-iso": Dialect("heidenhain-iso", dict(_COMMON)),
 }
 GENERIC = Dialect(RS274, {**_COMMON, 48: "overrides on", 49: "overrides off", 50: "feed override control",
                           51: "spindle override control", 52: "adaptive feed", 53: "feed stop control",
-                          60: "pallet change pause"})
+                          60: "pallet change pause"}, probes=PROBES)
 """The reader without a dialect (what every controller read here agrees on)."""
 UNRECOGNISED = replace(GENERIC, g80_unrecognised=True)
 """The reader under ``--dialect auto`` where the content names no dialect: :data:`GENERIC`, and a bare axis
@@ -274,6 +291,8 @@ def other_dialects_with_g(code: str, current: str) -> str:
     spl = [n for n, d in DIALECTS.items() if n != current and code in d.splines]
     out = f"; on {', '.join(known)} it is {what}" if known else ""
     out += f"; on {', '.join(spl)} it is {DIALECTS[spl[0]].splines[code].split(' (')[0]}" if spl else ""
+    prb = [n for n, d in DIALECTS.items() if n != current and code in d.probes]
+    out += f"; on {', '.join(prb)} it is a probe move" if prb else ""
     return f"{out}: name the controller with --dialect" if out else ""
 
 

@@ -25,7 +25,7 @@ from .gcode_state import MM_PER_INCH, _Refuse
 from .nc_state import FrameReplay
 from .gcode_table import _BULK_PASS, MoveTable, _bulk_move, _forward_fill, _LazyMoves, _Lines, _piece_from_move
 from .gcode_words import (AxisWords, BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, GProgram, RAPIDS_CHOICES, _err,
-                          check_program_bytes, default_axis_words, g80_note, split_lines)
+                          check_program_bytes, cr_line_ends, default_axis_words, g80_note, split_lines)
 # the reader's other public names, importable from here (callers and docs name compensation.gcode.X):
 from .gcode_classify import arc_segments, classify_line, move_points, plane_arc  # noqa: F401
 from .gcode_words import (ALLOWED_G, ALLOWED_M, ARC_RADIUS_TOL_INCH_MM, ARC_RADIUS_TOL_MM,  # noqa: F401
@@ -85,12 +85,12 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     if size > MAX_PROGRAM_BYTES:
         raise InputError(f"{path}: {size / 2**30:.3g} GiB exceeds the limit of {MAX_PROGRAM_BYTES / 2**30:g} GiB per "
                          "program (more lines than the 10,000,000 vertices a file may have); split the program")
-    data = path.read_bytes() if data is None else data
+    data, line_end = cr_line_ends(path.read_bytes() if data is None else data)
     check_program_bytes(path, data)
     dia, evidence = found if found is not None and dialect == "auto" else _dialect_of(path, data, dialect)
     try:  # the allow-list refuses every mark of a subprogram, macro or parameter: a program without
         return _g80_noted(_parse_data(path, data, rapids, block_delete, fast, ax, dia, evidence, lathe_x,  # full speed
-                                      tables))
+                                      tables), line_end)
     except InputError as plain_refusal:
         from . import nc_expand
         from .gcode_classify import ProgramState
@@ -111,11 +111,13 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     except InputError as exc:
         raise expanded.relocate(exc) from None
     prog.expanded = expanded
-    return _g80_noted(prog)
+    return _g80_noted(prog, line_end)
 
 
-def _g80_noted(prog: GProgram) -> GProgram:
-    """``prog`` with the line of its group-09 ``G80`` reading in the source's numbering and in its evidence."""
+def _g80_noted(prog: GProgram, line_end: str = "\n") -> GProgram:
+    """``prog`` with the line of its group-09 ``G80`` reading in the source's numbering and in its evidence, and
+    the file's line end (:attr:`GProgram.line_end`)."""
+    prog.line_end = line_end
     if prog.g80_line:
         if prog.expanded is not None:
             prog.g80_line = prog.expanded.origin[prog.g80_line - 1][0]

@@ -8,7 +8,7 @@ import re
 
 import numpy as np
 
-from .gcode_state import (LOCAL_SHIFT_DIALECTS, lathe_t_offset, MODE_E, bare_d, bare_g43_rule, bare_g43_tool, d_modal, _dialect_mode, _forget, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
+from .gcode_state import (LOCAL_SHIFT_DIALECTS, lathe_t_offset, MODE_E, bare_d, bare_g43_rule, bare_g43_tool, d_modal, _dialect_mode, _forget, _g10, _g92, probe_move, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
 from .nc_flow import TRACKED_NAMES
 from .nc_state import lathe_words
@@ -71,7 +71,7 @@ def _checked_words(words, ax: AxisWords, dia=None):
             if round(w.value, 1) != round(w.value, 6):
                 raise _Refuse(w.start + 1, f"'G{w.text}': unknown G code")
             if code in dia.modes or code in dia.work_systems or code in dia.splines or code in dia.synced or (
-                    code in dia.lathe_modes) or (
+                    code in dia.lathe_modes) or code in dia.probes or (
                     dia.g92_offsets and code in G92_CODES) or (code == "G52" and dia.name in LOCAL_SHIFT_DIALECTS):
                 gs.append((code, w))
                 continue
@@ -147,7 +147,7 @@ def _modal_groups(gs, dia=None) -> dict:
     groups = {}
     for code, w in gs:
         grp = "lathe" if dia is not None and code in dia.lathe_modes else "nonmodal" if code in G92_CODES or code == "G52" else "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
-            code in dia.splines or code in dia.synced) else ALLOWED_G[code][0] if code in ALLOWED_G else (
+            code in dia.splines or code in dia.synced or code in dia.probes) else ALLOWED_G[code][0] if code in ALLOWED_G else (
             "coords" if dia is not None and code in dia.work_systems else "dialect mode")  # a dialect's own first
         g80_motion = dia is not None and (dia.g80_with_motion or dia.g80_unrecognised)  # no dialect: the one reading
         if grp == "motion" and grp in groups and g80_motion and "G80" in (code, groups[grp][0]):
@@ -329,7 +329,7 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
 
 def _mode_move(idx, st: _State, groups, by, axis_words, arc_words, motion_word, rapids, ax, plain):
     """The move of a line in a dialect's spline mode (:func:`spline_move`) or spindle-synchronised mode
-    (:func:`synced_move`); None where the line is not one (``plain``: no non-modal code, or a G4 that moves)."""
+    (:func:`synced_move`), ``"state"`` for a probe move (:func:`probe_move`: written as programmed); None where the line is not one (``plain``: no non-modal code, or a G4 that moves)."""
     dia = st.dialect
     if dia is None:
         return None
@@ -343,6 +343,9 @@ def _mode_move(idx, st: _State, groups, by, axis_words, arc_words, motion_word, 
         return spline_move(idx, st, by, axis_words, motion_word, ax)
     if plain and st.mode in dia.synced and axis_words:
         return synced_move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)
+    if plain and st.mode in dia.probes and (axis_words or arc_words):
+        probe_move(idx, st, axis_words, arc_words, motion_word, ax)
+        return "state"
     return None
 
 
@@ -411,10 +414,11 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
     known = np.isfinite(end)
     if compensate and not known.all():
         lacking = [a for a, k in zip(ax.words, known) if not k]
-        compensate = not _from_start_position(st, axis_words, lacking, ax)
+        compensate = not (kind == "rapid" or _from_start_position(st, axis_words, lacking, ax))
     if compensate and not known.all():
-        raise _Refuse(first.start + 1, f"'{first.letter}{first.text}': motion before {ax.joined('and')} are all "
-                                       f"known (no value yet for {', '.join(lacking)}){_unknown_since(st, lacking)}")
+        raise _Refuse(first.start + 1, f"'{first.letter}{first.text}': {st.mode} before {ax.joined('and')} are all "
+                                       f"known (no value yet for {', '.join(lacking)}; a feed may cut: only a G0 is "
+                                       f"kept){_unknown_since(st, lacking)}")
     move = GMove(idx, kind, start, end, "inch" if st.inch else "mm", st.incremental, words, motion_word,
                  compensate, known=known, diameter=st.diameter)
     if kind == "arc":
@@ -446,13 +450,15 @@ def _g53_end(st: _State, axis_words, ax: AxisWords) -> None:
 
 
 def _from_start_position(st: _State, axis_words, lacking, ax: AxisWords) -> bool:
-    """On a mill (X, Y, Z), a line moving Z alone before the program ever gave the ``lacking`` X or Y (no ``G53``
+    """(A ``G0`` rapid with an axis not known, whatever it moves, is written as programmed and listed the same way
+    under ``--rapids compensate`` too: the machine goes where it goes without compensation, and a rapid cuts
+    nothing; :func:`_move`.) On a mill (X, Y, Z), a line moving Z alone before the program ever gave the ``lacking`` X or Y (no ``G53``
     moved them either): the controller keeps them where the machine stands at cycle start, which the program does
     not say. Such a line (the first retract of many posts, ``G0 Z5``) is written as programmed, not compensated,
     and listed (:func:`compensation.nc_state.program_frames`, ``moves_before_position_known``)."""
     if set(axis_words) != {"Z"} or not set(lacking) <= {"X", "Y"} or not {"X", "Y", "Z"} <= set(ax.words):
         return False
-    moved_g53 = {a for e in st.events if e[2] == "g53" for a in e[3]}
+    moved_g53 = {a for e in st.events if e[2] in ("g53", "probe") for a in e[3]}  # or a probe move
     return not any(a in st.last_given or a in moved_g53 for a in lacking)
 
 
@@ -460,6 +466,10 @@ def _unknown_since(st: _State, lacking) -> str:
     """Why an axis has no value in the program's frame, and what gives it one: a ``G53`` line that moved it after
     the program last gave it (machine coordinates are not the part's), else none given yet."""
     for idx, _col, kind, axes, _text in reversed(st.events):
+        probed = kind == "probe" and ", ".join(a for a in lacking if a in axes and idx > st.last_given.get(a, -1))
+        if probed:
+            return f"; line {idx + 1} probed {probed} ({_text}: it stops where the probe trips): give it in the " \
+                   "program (absolute) before this move"
         moved = kind == "g53" and ", ".join(a for a in lacking if a in axes and idx > st.last_given.get(a, -1))
         if moved:
             tables = st.replay is not None and st.replay.offsets_given

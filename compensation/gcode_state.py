@@ -35,6 +35,26 @@ def _forget(st: _State, ax: AxisWords, words) -> None:
             st.pos[j] = np.nan
 
 
+def probe_move(idx, st: _State, axis_words, arc_words, motion_word, ax: AxisWords) -> None:
+    """A probe move (``G38.2``-``G38.5``, :data:`compensation.dialects.PROBES`): the machine moves towards the line's
+    point at the feed and stops where the probe input changes, a measurement, not a cut: the line is written as
+    programmed and recorded as a ``probe`` event; the position along the axes the line names is unknown afterwards
+    (the next move there must give them absolutely; an offset set from the current position, ``G92``, ``G10 L20``,
+    is refused until then). Refused as the controllers refuse it: arc words, or cutter radius compensation on
+    (LinuxCNC: "Cannot probe with cutter radius compensation on")."""
+    if arc_words:
+        w = next(iter(arc_words.values()))
+        raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' on a {st.mode} probe line (arc words need G2/G3)")
+    first = motion_word or min(axis_words.values(), key=lambda w: w.start)
+    if not axis_words:
+        raise _Refuse(first.start + 1, f"'{st.mode}' without axis words (the probe's target)")
+    if st.cutter != "G40":
+        raise _Refuse(first.start + 1, f"'{st.mode}' probe move with cutter radius compensation ({st.cutter}) on: the "
+                                       "controllers refuse it; cancel it with G40 first")
+    st.events.append((idx, first.start + 1, "probe", tuple(axis_words), st.mode))
+    _forget(st, ax, tuple(axis_words))
+
+
 def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
     """A work-system selection (``G54`` … ``G59.3``, ``G54.1 Pn``) or a tool length offset (``G43 Hn``,
     ``G49``): recorded as an event (:attr:`GProgram.events`); where the frame changes, the position

@@ -326,6 +326,9 @@ class GProgram:
     tcp: object = field(default=None, repr=False)
     """:class:`compensation.tcp.TcpProgram` where the program holds tool-centre-point or G93 words (chain
     readers); None otherwise."""
+    line_end: str = "\n"
+    """The file's line end: ``"\r"`` for a CR-only file (old Mac style, :func:`cr_line_ends`: read with LF in its
+    place, ``lines`` end with ``"\n"``); the writer ends every written line with it again."""
     g80_line: int = 0
     """Recognised as no dialect (:data:`compensation.dialects.UNRECOGNISED`): the first line (1-based, of the
     file) whose bare axis word after ``G80`` was read in the G0-G3 of before it (group 09); 0: none."""
@@ -347,14 +350,15 @@ _CSV_CELL = re.compile(r"^\s*\"?[A-Za-z_][A-Za-z0-9_ ()./%-]*\"?\s*$")
 
 def check_program_bytes(path, data: bytes) -> None:
     """Refuse, before any line is parsed, what is not a G-code program in the bytes a controller
-    reads: UTF-16/32 text (:func:`errormap.io.check_not_wide`), CR-only line endings (the whole
-    program would be one line: "repeated 'X' word"), and a CSV table (a header of names and
+    reads: UTF-16/32 text (:func:`errormap.io.check_not_wide`), CR-only line endings at the start of a file with
+    LF further on (mixed ends: the start would be one line, "repeated 'X' word"; a file of CR-only ends throughout
+    is read by :func:`cr_line_ends` before this), and a CSV table (a header of names and
     comma-separated rows: no G-code word holds a comma), each one :class:`InputError` naming the file."""
     check_not_wide(data, path)
     head = data[:SNIFF_BYTES]
     if b"\n" not in head and head.count(b"\r") >= 2:
-        raise InputError(f"{path}: CR-only line endings (old Mac style): the file reads as one line; convert it to "
-                         "LF or CRLF line endings")
+        raise InputError(f"{path}: CR-only line endings (old Mac style) at its start and LF line endings further "
+                         "on: mixed line ends; convert it to LF or CRLF line endings")
     text = head.decode("latin-1").replace("\r", "")
     lines = [(k + 1, ln) for k, ln in enumerate(text.split("\n"))
              if ln.strip() and not ln.lstrip().startswith(("#", "(", ";", "%"))][:3]
@@ -367,6 +371,20 @@ def check_program_bytes(path, data: bytes) -> None:
                              "axis columns (the grinder's x_mm, z_mm, a_deg) or the target columns px_mm, py_mm, "
                              "pz_mm (docs/reference/tool-paths.md)")
 
+
+
+def cr_line_ends(data: bytes) -> tuple:
+    """``(bytes, line_end)``: a file with CR-only line ends (old Mac style: a CR ends each line and no LF occurs
+    anywhere; Fanuc and LinuxCNC take CR as the end of a block too) with LF in place of each CR, byte for byte (same
+    length, so every column is the file's), and ``"\r"``; any other file as it is, and ``"\n"``."""
+    if b"\r" not in data or b"\n" in data:
+        return data, "\n"
+    return data.replace(b"\r", b"\n"), "\r"
+
+
+def with_line_end(text: str, line_end: str) -> str:
+    """A written program (LF line ends) with the source's line end (:attr:`GProgram.line_end`)."""
+    return text if line_end == "\n" else text.replace("\n", line_end)
 
 
 SNIFF_BYTES = 1 << 16

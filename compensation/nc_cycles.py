@@ -95,6 +95,9 @@ RAPID_DELTA_IN = 0.010
 OTHER_G = ("G90", "G91", "G98", "G99", "G17")
 SYNCED = ("G33", "G33.1")
 """LinuxCNC's spindle-synchronised motion codes (motion group: they end a cycle mode; compensation.gcode_state)."""
+PROBES = ("G38.2", "G38.3", "G38.4", "G38.5")
+"""Probe moves (motion group: they end a cycle mode; the axes a probe line names are unknown after it,
+compensation.gcode_state.probe_move)."""
 INVALIDATE_G = ("G54", "G55", "G56", "G57", "G58", "G59", "G54.1", "G59.1", "G59.2", "G59.3", "G10", "G92", "G52",
                 "G154", *(f"G{c}" for c in range(110, 130)))
 """Codes after which the current position in program coordinates is not known to this pass (every axis)."""
@@ -175,6 +178,7 @@ class _St:
         self.keeps_g01_unrecognised = False  # no dialect recognised: a bare G70/G71 sets the units
         self.dwell_x = False  # 'G04 X' is a dwell time (compensation.dialects.Dialect.dwell_x)
         self.tapping = False  # G33.1 in force: each of its lines ends where it started (rigid tapping returns)
+        self.probing = False  # G38.2-G38.5 in force: each of its lines stops where the probe trips (not known)
 
 
 def expand_cycles(text: str, path, mode: str, dialect: str | None = None, inner=None,
@@ -224,7 +228,7 @@ def _line(body, st: _St, mode, dialect, lineno, holes, out_at):
     by = {w.letter: w for w in words}
     gs = [w.code for w in _codes(words)]
     cyc = [c for c in gs if c in CYCLE_CODES]
-    motion = [c for c in gs if c in ("G0", "G1", "G2", "G3", "G80", *SYNCED)]
+    motion = [c for c in gs if c in ("G0", "G1", "G2", "G3", "G80", *SYNCED, *PROBES)]
     if cyc or (st.mode is not None and not motion and any(a in by for a in "XYZ")):
         if bd:
             raise _Refuse(body.index("/") + 1, "'/' (block delete) on a canned-cycle line: whether the hole is "
@@ -281,12 +285,17 @@ def _track(words, by, gs, motion, st: _St):
             st.why_unknown = c
     if motion:
         st.tapping = motion[-1] == "G33.1"
+        st.probing = motion[-1] in PROBES
         st.mode = None
         st.sticky = {}
         st.series_g99 = False
         st.initial = math.nan
     if "F" in by:
         st.feed = by["F"].text
+    if st.probing and any(a in by for a in "XYZ"):
+        st.pos[[j for j, a in enumerate("XYZ") if a in by]] = np.nan
+        st.why_unknown = "a probe move (G38.2-G38.5)"
+        return
     if any(c in NOT_A_POSITION_G for c in gs) or st.tapping or ("G4" in gs and st.dwell_x):
         return  # a via point, machine coordinates or data (the position stays unknown), a tap that returned, or a
         # Fanuc 'G04 X' dwell time

@@ -575,6 +575,7 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
     notes["g53_lines"] = [e[0] + 1 for e in events if e[2] == "g53"]
     notes["g92_lines"] = [e[0] + 1 for e in events if e[2].startswith("g92")]
     notes["g52_lines"] = [e[0] + 1 for e in events if e[2] == "g52"]
+    notes["probe_lines"] = [e[0] + 1 for e in events if e[2] == "probe"]  # G38.2-G38.5: written as programmed
     notes["dialect_modes"] = sorted({e[3] for e in events if e[2] == "mode"})
     notes["machine_m_codes"] = [f"line {e[0] + 1}: {e[4]}" for e in events if e[2] == "machine-m"]
     t = getattr(program, "table", None)  # written as programmed before their axes were known (a first G0 Z5)

@@ -65,14 +65,15 @@ def _groups(src, dst):
     return out
 
 
-def true_point_errors_um(prog, out_file, mill, truth_els, offsets, tools, dialect=None, power_on=None):
+def true_point_errors_um(prog, out_file, mill, truth_els, offsets, tools, dialect=None, power_on=None, rapids="keep"):
     """|TRUE tool point − programmed point| (μm) at every programmed end point of the program's compensated
     moves, running ``out_file`` as the shop would: machine axes = written + offset (+ tool length on Z), the
     truth machine with its tool at that length. Also checks every non-motion line byte-identical.
-    ``power_on``: :func:`_frame`'s (the corpus count, benchmarks/suite/gcode_corpus.py ``--check``)."""
+    ``power_on``: :func:`_frame`'s (the corpus count, benchmarks/suite/gcode_corpus.py ``--check``); ``rapids``:
+    what the program was compensated with (``--rapids``)."""
     aw = AxisWords.of(mill)
-    p_src = parse_program(prog, axis_words=aw, fast=False, dialect=dialect)
-    p_out = parse_program(out_file, axis_words=aw, fast=False, dialect=dialect)
+    p_src = parse_program(prog, axis_words=aw, fast=False, dialect=dialect, rapids=rapids)
+    p_out = parse_program(out_file, axis_words=aw, fast=False, dialect=dialect, rapids=rapids)
     src, dst = p_src.lines, p_out.lines
     moves_src = {m.index: m for m in p_src.moves if m.compensate}
     moves_out = {m.index: m for m in p_out.moves}

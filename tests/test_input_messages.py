@@ -104,12 +104,19 @@ def _compensate(tmp_path, model, src):
 
 
 def test_cr_only_line_endings(tmp_path, model):
+    """CR-only ends throughout: read line by line and written back with CR (tests/test_gcode_unknown_position.py);
+    CR-only at the start and LF further on (mixed): one line naming the file, not "repeated 'X' word"."""
     src = tmp_path / "mac.nc"
     src.write_bytes(PROGRAM.replace("\n", "\r").encode())
     rc, _, err = _compensate(tmp_path, model, src)
+    assert rc == 0, err
+    assert b"\n" not in (tmp_path / "o" / "mac.nc").read_bytes()
+    src = tmp_path / "mixed" / "mac.nc"
+    src.parent.mkdir()
+    src.write_bytes(("G21 G90 G18\r" + "G1 X100. Z0.3 A0 F100\r" * 4000 + "G1 X110. Z0.5 A30\n").encode())
+    rc, _, err = _compensate(src.parent, model, src)
     line = one_line(rc, err, str(src), "CR-only line endings", "convert")
-    assert "repeated" not in line
-    assert not (tmp_path / "o").exists()
+    assert "repeated" not in line and "mixed" in line
 
 
 @pytest.mark.parametrize("encoding", ["utf-16", "utf-16-le", "utf-16-be"])

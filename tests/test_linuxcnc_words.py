@@ -268,7 +268,8 @@ def test_predefined_parameters_are_read_from_the_lines_before(tmp_path, offsets)
 
 @pytest.mark.parametrize("text, line, col, words", [
     ("G21 G90\nG0 X1 Y2\nG1 Z[#<_z> - 1] F100\nM2\n", 3, 6, ("#<_z>", "Z position is not known")),
-    ("G21 G90\nG0 X1 Y2 Z3\nG38.2 Z-5 F50\nG1 X[#<_x> + 1]\nM2\n", 4, 6, ("#<_x>", "not known after line 3")),
+    # a probe move stops where the probe trips: the Z it moves is not known after it (its X is: the line keeps it)
+    ("G21 G90\nG0 X1 Y2 Z3\nG38.2 Z-5 F50\nG1 X[#<_z> + 1]\nM2\n", 4, 6, ("#<_z>", "Z position is not known")),
     ("G18 G21 G90 G7\nG0 X20 Z3\nG1 X[#<_x> - 1] F100\nM2\n", 3, 6, ("#<_x>", "diameter mode")),
 ])
 def test_predefined_parameters_refused_where_the_program_does_not_determine_them(tmp_path, text, line, col, words):
