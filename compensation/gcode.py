@@ -153,13 +153,20 @@ def _dialect_of(path, data: bytes, dialect) -> tuple:
         raise InputError(f"{path}: {exc}") from None
 
 
+def _lathe_x(dia, lathe_x) -> tuple:
+    """``(lathe_x, diameter)`` of the reader's state: ``lathe_x`` applies only to a dialect whose X is a diameter or
+    a radius by a control parameter (Fanuc, Haas, Siemens ISO); LinuxCNC's G7/G8 say it in the program."""
+    lx = lathe_x if getattr(dia, "lathe_x_by_parameter", False) else None
+    return lx, lx == "diameter"
+
+
 def _parse_lines(path, rapids, block_delete, data: bytes, ax: AxisWords, dia, lathe_x=None, replay=None) -> GProgram:
     """The per-line reader (the reference). ``replay``: None, or a maker of the
     :class:`compensation.nc_state.FrameReplay` that places a ``G53`` move's end (:func:`parse_program`'s ``tables``)."""
     lines = split_lines(data.decode("latin-1"))
     st = _State(len(ax.words))
     st.replay = replay() if replay is not None else None
-    st.dialect, st.lathe_x, st.diameter = dia, lathe_x, lathe_x == "diameter"
+    st.dialect, st.lathe_x, st.diameter = dia, *_lathe_x(dia, lathe_x)
     classes, moves = [], []
     for idx, line in enumerate(lines):
         body = line.rstrip("\r\n")
@@ -219,7 +226,7 @@ def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: Axi
     given = np.isfinite(vals)
 
     st = _State(len(ax.words))
-    st.dialect, st.lathe_x, st.diameter = dia, lathe_x, lathe_x == "diameter"
+    st.dialect, st.lathe_x, st.diameter = dia, *_lathe_x(dia, lathe_x)
     st.replay = replay() if replay is not None else None
     classes = ["pass"] * n
     moved = []  # ordinals (k0, k1) of the bulk moves read

@@ -100,6 +100,12 @@ def _checked_words(words, ax: AxisWords, dia=None):
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': {REFUSED_LETTERS[w.letter]}; not supported")
         elif w.letter not in LETTER_RULES:
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': unknown word")
+        elif w.letter == "T" and _lathe_t_dialect(ax, dia) and not _lathe_t_word(w, ax, dia):
+            short = w.text.strip().isdigit() and len(w.text.strip()) <= 2
+            why = ("1 or 2 digits leave the offset register to a machine setting (the station's own or OO)" if short
+                   else "not four digits")
+            raise _Refuse(w.start + 1, f"'T{w.text}': a {dia.name} lathe's T word is TttOO (tool tt, offset register OO; "
+                                       f"T202 reads as T0202): {why}; write the four digits, like T0202")
         elif w.letter == "T" and not _plain_tool_number(w, ax) and not _lathe_t_word(w, ax, dia):
             raise _Refuse(w.start + 1, f"'T{w.text}': a T word of more than {MAX_TOOL_DIGITS} digits (or not a "
                                        "whole number) may select a tool offset (lathe 'TttOO': tool tt, offset "
@@ -119,12 +125,19 @@ def _machine_m_codes(st: _State, ms, idx: int, ax: AxisWords, dia) -> None:
             st.events.append((idx, w.start + 1, "machine-m", int(w.value), f"M{w.text}"))
 
 
+def _lathe_t_dialect(ax: AxisWords, dia) -> bool:
+    """A lathe (X and Z, no Y: :func:`compensation.nc_state.lathe_words`) of a dialect whose T word selects the
+    tool and its offset register (``TttOO``: Fanuc, Haas turning)."""
+    return getattr(dia, "lathe_t_offset", False) and lathe_words(ax.words)
+
+
 def _lathe_t_word(w: Word, ax: AxisWords, dia) -> bool:
-    """A ``TttOO`` word (four digits as written) of a dialect that reads it so, on a lathe (X and Z, no Y):
-    tool ``tt`` with offset ``OO`` (:func:`compensation.gcode_state.lathe_t_offset`; a lathe:
-    :func:`compensation.nc_state.lathe_words`)."""
+    """A ``TttOO`` word of a dialect that reads it so, on a lathe (:func:`_lathe_t_dialect`): tool ``tt`` with
+    offset ``OO`` (:func:`compensation.gcode_state.lathe_t_offset`), four digits as written or three (a word's
+    leading zeros may be left out: ``T202`` is ``T0202``). One or two digits are not read: the control takes
+    the offset register from them by a machine setting (the station's own offset, or ``OO``)."""
     digits = w.text.strip()
-    return getattr(dia, "lathe_t_offset", False) and len(digits) == 4 and digits.isdigit() and lathe_words(ax.words)
+    return _lathe_t_dialect(ax, dia) and len(digits) in (3, 4) and digits.isdigit()
 
 
 def _plain_tool_number(w: Word, ax: AxisWords) -> bool:
@@ -367,11 +380,13 @@ def _nurbs_move(idx, st: _State, groups, by, axis_words, motion_word, ax):
 def _diameter_mode(st: _State, groups, by, ax: AxisWords) -> None:
     """LinuxCNC ``G7``/``G8`` (this line's X read in the new mode, as its interpreter does): in diameter mode the
     line's X word is replaced by one holding the radius (its text and span kept for the writer). On a lathe of a
-    dialect whose X is a diameter or a radius by a control parameter, X is refused unless ``st.lathe_x`` says which."""
+    dialect whose X is a diameter or a radius by a control parameter, X is refused unless ``st.lathe_x`` says which
+    (``--lathe-x`` or the machine file: :func:`compensation.turning.lathe_x_words`)."""
     if "X" in by and st.lathe_x is None and getattr(st.dialect, "lathe_x_by_parameter", False) and lathe_words(ax.words):
         w = by["X"]
         raise _Refuse(w.start + 1, f"'X{w.text}': on a {st.dialect.name} lathe X is a diameter or a radius by a machine "
-                                   "parameter, not a word of the program: say which with --lathe-x diameter|radius")
+                                   "parameter, not a word of the program: say which with --lathe-x diameter|radius or "
+                                   "the machine file's [spindle] x_words")
     if "lathe" in groups:
         st.diameter = groups["lathe"][0] == "G7"
     if st.diameter and "X" in by:

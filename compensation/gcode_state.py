@@ -115,9 +115,10 @@ def _tool_axes(ax: AxisWords) -> tuple:
 
 def lathe_t_offset(idx, st: _State, t, ax: AxisWords) -> None:
     """A lathe's ``TttOO`` word (Fanuc, Haas turning): tool ``tt``, offset register ``OO`` applied from this line
-    (``OO = 00``: no offset), recorded as a tool event (:func:`compensation.nc_state.program_frames`)."""
+    (``OO = 00``: no offset), recorded as a tool event (:func:`compensation.nc_state.program_frames`). Three
+    digits are the four with the leading zero left out (``T202``: tool 02, register 02)."""
     digits = t.text.strip()
-    value = int(digits[2:]) or None
+    value = int(digits.zfill(4)[2:]) or None
     st.events.append((idx, t.start + 1, "tool", value, f"T{digits}"))
     if value != st.tool:
         _forget(st, ax, _tool_axes(ax))

@@ -59,25 +59,53 @@ def _refuse_lathe_x(prog, lathe_x) -> None:
                          "parameter (LinuxCNC's G7/G8 say it in the program): leave --lathe-x out")
 
 
+LATHE_X_KEY = "[spindle] x_words"
+"""The machine file's key that says what a Fanuc, Haas or Siemens ISO lathe's X words are (its control's
+parameter: Fanuc 1006 bit 3); ``--lathe-x`` overrides it for one run."""
+
+
+def lathe_x_words(machine, option) -> tuple:
+    """``(value, source)``: what a Fanuc, Haas or Siemens ISO lathe's X words are (``"diameter"``, ``"radius"``)
+    and who said it: the option ``--lathe-x`` (``option``) over the machine file's :data:`LATHE_X_KEY`;
+    ``(None, None)`` where neither does (such a program's X is refused, naming both)."""
+    if option is not None:
+        return option, "--lathe-x"
+    value = (getattr(machine, "spindle", None) or {}).get("x_words")
+    return (value, f"machine file {LATHE_X_KEY}") if value is not None else (None, None)
+
+
+def lathe_x_entry(machine, option, dialect) -> dict:
+    """The summary's ``lathe_x`` and ``lathe_x_source`` of a program whose dialect reads X by a control parameter
+    (:func:`lathe_x_words`); empty otherwise."""
+    from .dialects import DIALECTS
+    value, source = lathe_x_words(machine, option)
+    if value is None or not getattr(DIALECTS.get(dialect), "lathe_x_by_parameter", False):
+        return {}
+    return {"lathe_x": value, "lathe_x_source": source}
+
+
 def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe_x=None,
                         subprograms=None) -> tuple[GProgram, np.ndarray]:
     """A program for a machine with a ``[spindle]``: ``(program, turning)`` with ``turning`` (n_moves,) per
     move of ``program.moves`` (module docstring). ``lathe_x``: ``"diameter"`` or ``"radius"``, what a Fanuc, Haas
-    or Siemens ISO lathe's X words are (``--lathe-x``; None: such a program's X is refused)."""
+    or Siemens ISO lathe's X words are (``--lathe-x``; None: the machine file's :data:`LATHE_X_KEY`, and without
+    it such a program's X is refused)."""
+    option = lathe_x
+    lathe_x = lathe_x_words(machine, lathe_x)[0]
     c = machine.spindle["axis"]
     full = AxisWords.of(machine)
     xz = AxisWords(machine.name, tuple(w for w in full.words if w != c), tuple(r for r in full.rotary if r != c))
     try:
         prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=xz, dialect=dialect,
                              lathe_x=lathe_x, subprograms=subprograms)
-        _refuse_lathe_x(prog, lathe_x)
+        _refuse_lathe_x(prog, option)
         return prog, np.ones(len(prog.moves), dtype=bool)
     except InputError as exc:
         if f"no {c} axis" not in str(exc):
             raise  # a program without C words: the reading that applies to it names the refusal
     prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=full, dialect=dialect,
                          lathe_x=lathe_x, subprograms=subprograms)
-    _refuse_lathe_x(prog, lathe_x)
+    _refuse_lathe_x(prog, option)
     flags = spindle_turning(prog.lines, machine.spindle)
     turning = np.array([flags[m.index] for m in prog.moves], dtype=bool)
     if not turning.any():

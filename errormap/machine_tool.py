@@ -138,7 +138,8 @@ class MachineTool:
     description: str = ""
     spindle: dict | None = None
     """``[spindle]`` of the file (a lathe's work spindle): ``axis`` (its rotary axis word),
-    ``turning_on`` / ``turning_off`` (the M codes that start turning and end it); None without one."""
+    ``turning_on`` / ``turning_off`` (the M codes that start turning and end it), ``x_words`` (``"diameter"``,
+    ``"radius"`` or None: what a Fanuc, Haas or Siemens ISO control's X words are); None without one."""
     tcp: dict | None = None
     """``[tcp]`` of the file: ``switch_on`` / ``switch_off`` (tuples of M code numbers) that switch the
     controller's tool-centre-point kinematics on and off (LinuxCNC's switchable kinematics, remapped M

@@ -327,16 +327,21 @@ def read_controller(t, path):
 
 def read_spindle(t, path, axes):
     """``[spindle]``: ``axis`` a rotary axis word of the machine; ``turning_on`` / ``turning_off`` lists
-    of M codes (``"M3"``); the codes are the machine's, so they live in its file."""
+    of M codes (``"M3"``); the codes are the machine's, so they live in its file. Optional ``x_words``:
+    ``"diameter"`` or ``"radius"``, what the control's X words are where a parameter says it (Fanuc, Haas,
+    Siemens ISO lathes; Fanuc parameter 1006 bit 3); absent: unset (such programs' X is refused)."""
     if t is None:
         return None
-    check_known_keys(t, ("axis", "turning_on", "turning_off"), "spindle", path)
+    check_known_keys(t, ("axis", "turning_on", "turning_off", "x_words"), "spindle", path)
     rotary = [a.word for a in axes if a.kind != "linear"]
     if t.get("axis") not in rotary:
         raise MachineFileError(f"{path}: key 'spindle.axis': expected a rotary axis of the machine {rotary}, "
                                f"got {short_repr(t.get('axis'))}")
     codes = {k: _m_codes(t.get(k), f"spindle.{k}", "M3", path) for k in ("turning_on", "turning_off")}
-    return {"axis": t["axis"], **codes}
+    if "x_words" in t and t["x_words"] not in ("diameter", "radius"):
+        raise MachineFileError(f"{path}: key 'spindle.x_words': expected \"diameter\" or \"radius\", "
+                               f"got {short_repr(t['x_words'])}")
+    return {"axis": t["axis"], **codes, "x_words": t.get("x_words")}
 
 
 def _m_codes(v, key: str, example: str, path) -> tuple:

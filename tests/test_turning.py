@@ -60,7 +60,8 @@ def lathe_models(tmp_path_factory):
 
 def test_the_spindle_state_follows_the_machine_files_codes():
     spindle = load_machine(LATHE).spindle
-    assert spindle == {"axis": "C", "turning_on": (3, 4), "turning_off": (5,)}
+    # x_words unset: no manual settles the built-in's control
+    assert spindle == {"axis": "C", "turning_on": (3, 4), "turning_off": (5,), "x_words": None}
     lines = TURNING.splitlines(keepends=True)
     on = spindle_turning(lines, spindle)
     assert [i + 1 for i in np.flatnonzero(on)] == list(range(6, 13))  # from 'G96 S180 M3' to before 'M5'

@@ -105,7 +105,8 @@ def register(sub):
     p.add_argument("--lathe-x", default=None, choices=("diameter", "radius"),
                    help="a Fanuc, Haas or Siemens ISO lathe program: whether its X words are diameters or radii (a "
                         "parameter of the control, not a word of the program; LinuxCNC programs say it with G7/G8). "
-                        "Without it such a program's X is refused")
+                        "Overrides the machine file's [spindle] x_words for this run; without either such a "
+                        "program's X is refused")
     p.add_argument("--subprograms", action="append", default=None, metavar="DIR",
                    help="G-code: a folder of subprograms kept outside the program (repeatable, searched in the order "
                         "given, like LinuxCNC's SUBROUTINE_PATH): o<name> call reads DIR/name.ngc; M98/G65 Pn finds "

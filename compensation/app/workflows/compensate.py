@@ -520,6 +520,9 @@ def gcode_entry(entry, tp: ToolPath, res, true_r, true_base, field_, truth, mach
                   "moves_kept": int(len(job.kept_lines)), "rapids": s.rapids, "block_delete": s.block_delete,
                   "arc_tolerance_um": s.arc_tolerance_um, **job.frames.notes,
                   "dialect": job.program.dialect, "dialect_evidence": job.program.dialect_evidence})
+    if tp.turning is not None:  # a lathe: what its X words are and who said it (option or machine file)
+        from ...turning import lathe_x_entry
+        entry.update(lathe_x_entry(machine, getattr(s, "lathe_x", None), job.program.dialect))
     files = getattr(job.program.expanded, "files", ())
     if files:  # subprograms read from --subprograms folders (compensation.nc_subfiles)
         entry["subprogram_files"] = [{"path": p, "sha256": h} for _, p, h in files]
