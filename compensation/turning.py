@@ -94,7 +94,8 @@ def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe
     lathe_x = lathe_x_words(machine, lathe_x)[0]
     c = machine.spindle["axis"]
     full = AxisWords.of(machine)
-    xz = AxisWords(machine.name, tuple(w for w in full.words if w != c), tuple(r for r in full.rotary if r != c))
+    xz = dataclasses.replace(full, words=tuple(w for w in full.words if w != c),  # the file's harmless M codes kept
+                             rotary=tuple(r for r in full.rotary if r != c))
     try:
         prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=xz, dialect=dialect,
                              lathe_x=lathe_x, subprograms=subprograms)

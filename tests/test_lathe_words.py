@@ -146,3 +146,13 @@ def test_on_a_mill_the_t_word_stays_a_tool_number(tmp_path):
     for t in ("T2", "T202", "T20200"):
         p.write_text(f"G21 G90\n{t} M6\nG0 X1 Y1 Z1\nG1 X2 F100\nM30\n")
         assert [e for e in parse_program(p, axis_words=mill, dialect="fanuc").events if e[2] == "tool"] == []
+
+
+def test_a_lathe_keeps_the_machine_files_harmless_m_codes(tmp_path):
+    """The turning reader (X and Z words, C left out) keeps ``[controller] harmless_m``: a vendor's code the file
+    lists passes, the same code without the file's word is refused naming it."""
+    text = PROGRAM.replace("S500 M3", "S500 M3\nM155")
+    with pytest.raises(InputError, match=r"line 4, column 1: 'M155': M code not on the fanuc allow-list"):
+        _x_read(tmp_path, load_machine(LATHE), lathe_x="radius", text=text)
+    listed = load_machine(_machine_file(tmp_path, '\n[controller]\nharmless_m = ["M155"]'))
+    assert np.abs(np.array(_x_read(tmp_path, listed, lathe_x="radius", text=text)) - PROGRAM_X).max() <= TOL_MM
