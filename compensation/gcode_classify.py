@@ -101,11 +101,7 @@ def _checked_words(words, ax: AxisWords, dia=None):
         elif w.letter not in LETTER_RULES:
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': unknown word")
         elif w.letter == "T" and _lathe_t_dialect(ax, dia) and not _lathe_t_word(w, ax, dia):
-            short = w.text.strip().isdigit() and len(w.text.strip()) <= 2
-            why = ("1 or 2 digits leave the offset register to a machine setting (the station's own or OO)" if short
-                   else "not four digits")
-            raise _Refuse(w.start + 1, f"'T{w.text}': a {dia.name} lathe's T word is TttOO (tool tt, offset register OO; "
-                                       f"T202 reads as T0202): {why}; write the four digits, like T0202")
+            raise _lathe_t_refusal(w, dia)
         elif w.letter == "T" and not _plain_tool_number(w, ax) and not _lathe_t_word(w, ax, dia):
             raise _Refuse(w.start + 1, f"'T{w.text}': a T word of more than {MAX_TOOL_DIGITS} digits (or not a "
                                        "whole number) may select a tool offset (lathe 'TttOO': tool tt, offset "
@@ -129,6 +125,15 @@ def _lathe_t_dialect(ax: AxisWords, dia) -> bool:
     """A lathe (X and Z, no Y: :func:`compensation.nc_state.lathe_words`) of a dialect whose T word selects the
     tool and its offset register (``TttOO``: Fanuc, Haas turning)."""
     return getattr(dia, "lathe_t_offset", False) and lathe_words(ax.words)
+
+
+def _lathe_t_refusal(w: Word, dia) -> _Refuse:
+    """A T word of a lathe that reads ``TttOO`` (:func:`_lathe_t_dialect`) that is not one (:func:`_lathe_t_word`)."""
+    short = w.text.strip().isdigit() and len(w.text.strip()) <= 2
+    why = "1 or 2 digits leave the offset register to a machine setting (the station's own or OO)" if short else \
+        "not four digits"
+    return _Refuse(w.start + 1, f"'T{w.text}': a {dia.name} lathe's T word is TttOO (tool tt, offset register OO; "
+                                f"T202 reads as T0202): {why}; write the four digits, like T0202")
 
 
 def _lathe_t_word(w: Word, ax: AxisWords, dia) -> bool:
