@@ -616,7 +616,8 @@ def print_gcode_notes(entry) -> None:
     print(f"  dialect {entry['dialect']}" + (f" ({entry['dialect_evidence']})" if entry["dialect_evidence"] else "")
           + f"; work offsets: {entry['work_offsets']}" + (f"; tools {entry['tools_used']}" if entry["tools_used"]
                                                            else "")
-          + (f" (lathe tools' X offsets {entry['tool_x_used']})" if entry.get("tool_x_used") else ""))
+          + (f" (lathe tools' X offsets {entry['tool_x_used']})" if entry.get("tool_x_used") else "")
+          + (f"; X words: {entry['lathe_x']} ({entry['lathe_x_source']})" if "lathe_x" in entry else ""))
     if entry["g53_lines"]:
         print(f"  G53 (machine coordinates) on line(s) {', '.join(map(str, entry['g53_lines'][:10]))}: passed "
               "through unchanged, not compensated")
