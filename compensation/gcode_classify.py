@@ -8,7 +8,7 @@ import re
 
 import numpy as np
 
-from .gcode_state import (LOCAL_SHIFT_DIALECTS, lathe_t_offset, MODE_E, bare_d, bare_g43_rule, bare_g43_tool, d_modal, _dialect_mode, _forget, _g10, _g92, probe_move, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
+from .gcode_state import (LOCAL_SHIFT_DIALECTS, lathe_nose, lathe_t_offset, MODE_E, bare_d, bare_g43_rule, bare_g43_tool, d_modal, _dialect_mode, _forget, _g10, _g92, probe_move, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
 from .nc_flow import TRACKED_NAMES
 from .nc_state import lathe_words
@@ -39,6 +39,7 @@ class _State:
         self.last_h = None         # the last H number the program gave (Fanuc: H is modal; a bare G43 takes it)
         self.last_d = None         # the last D number (Fanuc: D is modal; a bare G41/G42 takes it)
         self.cutter = "G40"        # the cutter compensation in force (G40, G41, G42)
+        self.t_changed = None      # the column of a lathe T word that changed the offset register on this line
         self.spline_pq = None      # ((P, Q) mm, end) of the G5 move just read (a next G5 may omit I J)
         self.nurbs = None          # the open G5.2 block (compensation.gcode_spline.nurbs_line)
         self.diameter = False      # lathe diameter mode (LinuxCNC G7): X words are diameters
@@ -60,7 +61,7 @@ def _checked_words(words, ax: AxisWords, dia=None):
     """Check every word against the allow-lists (``dia``: the :class:`compensation.dialects.Dialect`'s
     M codes and mode codes; None: the generic one) and the machine's axis words:
     ``(by letter, [(G code, word)], [M words])``."""
-    from .dialects import GENERIC, other_dialects_with_g, other_dialects_with_m
+    from .dialects import GENERIC, g7x_refusal, other_dialects_with_g, other_dialects_with_m
     dia = GENERIC if dia is None else dia
     by = {}
     gs, ms = [], []
@@ -78,6 +79,9 @@ def _checked_words(words, ax: AxisWords, dia=None):
             if code in BARE_UNITS and dia.g80_unrecognised and "Y" in ax.words and all(x.letter in "GN" for x in words):
                 gs.append((BARE_UNITS[code], w))  # a bare G70/G71 on a mill: inch/mm wherever it runs
                 continue
+            g7x = g7x_refusal(code, dia.name, lathe_words(ax.words)) if code in ("G70", "G71", "G72") else None
+            if g7x is not None:
+                raise _Refuse(w.start + 1, g7x)
             if code in REFUSED_G:
                 raise _Refuse(w.start + 1, f"'{code}' ({REFUSED_G[code]}) is not supported"
                                            f"{other_dialects_with_g(code, dia.name)}")
@@ -205,8 +209,9 @@ def _apply_modal(st: _State, groups: dict):
     return motion_word
 
 
-def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
-    """``P`` only with G4/G64 (or P1 on an arc), ``Q`` only with G64."""
+def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words, nose: bool = False):
+    """``P`` only with G4/G64 (or P1 on an arc), ``Q`` only with G64; ``D`` only with G41/G42, and not at all on a
+    lathe whose ``G41``/``G42`` take the T word's register (``nose``: :func:`compensation.gcode_state.lathe_nose`)."""
     for letter, allowed_with in (("P", ("G4", "G64", "G54.1", "G154", "G10", "G187")), ("Q", ("G64", "G5.1")), ("H", ("G43",)),
                                  ("L", ("G10",))):
         if letter in by:
@@ -218,12 +223,16 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
             if not (h_alone or arc_p1 or mode_p or spline or any(c in allowed_with for c, _ in gs)):
                 raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(allowed_with)}"
                               + (" (or P1 on an arc)" if letter == "P" else "") + (H_HINT if letter == "H" else ""))
+    if nose and "D" in by:
+        raise _Refuse(by["D"].start + 1, f"'D{by['D'].text}' on a {st.dialect.name} lathe: G41/G42 take the nose radius "
+                                         "of the T word's offset register (TttOO); what a D word selects is not settled "
+                                         "here: leave it out and give the radius in the tool table's radius_mm column")
     for letter, code in (("D", ("G41", "G42")),):
         if letter in by and not any(c in code for c, _ in gs) and not d_modal(st):
             raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(code)}")
     loaded = st.dialect is not None and st.dialect.name in LOADED_TOOL_DIALECTS  # resolved by _work_state
     for c, w in gs:
-        if c in ("G41", "G42") and "D" not in by and not loaded and bare_d(st) is None:
+        if c in ("G41", "G42") and "D" not in by and not loaded and not nose and bare_d(st) is None:
             raise _Refuse(w.start + 1, f"'{c}' without D (the current tool's radius): write '{c} Dn' with the tool "
                                        "table's number n")
     if "G43" in (c for c, _ in gs) and "H" not in by and not loaded and bare_g43_tool(st) is None:
@@ -289,6 +298,7 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     by, gs, ms = _checked_words(words, ax, dia)
     _machine_m_codes(st, ms, idx, ax, dia)
     _tool_change(st, by, ms, idx)
+    st.t_changed = None
     if "T" in by and _lathe_t_word(by["T"], ax, dia):
         lathe_t_offset(idx, st, by["T"], ax)
     groups = _modal_groups(gs, dia)
@@ -308,7 +318,7 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
         raise _Refuse(body.index("/") + 1, "block delete '/' on a line that moves or changes modal state; "
                                            "say whether the controller skips it: --block-delete on|off")
     motion_word = _apply_modal(st, groups)
-    _check_p_q(st, by, gs, axis_words, arc_words)
+    _check_p_q(st, by, gs, axis_words, arc_words, lathe_nose(dia, ax))
     if "nonmodal" in groups and groups["nonmodal"][0] == "G10":
         return _g10(idx, st, groups, by, axis_words, ax), None
     if "nonmodal" in groups and (groups["nonmodal"][0] in G92_CODES or groups["nonmodal"][0] == "G52"):

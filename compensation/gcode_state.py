@@ -76,7 +76,16 @@ def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
         if name != st.system:
             _forget(st, ax, ax.words)
             st.system = name
-    if "cutter" in groups or "D" in by:
+    nose = lathe_nose(st.dialect, ax)
+    if nose and st.t_changed is not None and st.cutter != "G40" and groups.get("cutter", ("",))[0] != "G40":
+        raise _Refuse(st.t_changed, f"a T word changing the offset register while {st.cutter} is in force: the nose "
+                                    "radius the control takes mid-contour is not read here; write G40 before it")
+    if nose and "cutter" in groups:  # a Fanuc/Haas lathe: the nose radius of the T word's register
+        code, w = groups["cutter"]
+        value = None if code == "G40" else _nose_register(st, code, w)
+        st.events.append((idx, w.start + 1, "nose", value, code if value is None else f"{code} (T offset {value:02d})"))
+        st.cutter = code
+    elif "cutter" in groups or "D" in by:
         code, w = groups["cutter"] if "cutter" in groups else (st.cutter, by["D"])  # a D alone: Fanuc (d_modal)
         d = by.get("D")
         if d is not None and (d.value != int(d.value) or d.value < 0):
@@ -120,9 +129,26 @@ def lathe_t_offset(idx, st: _State, t, ax: AxisWords) -> None:
     digits = t.text.strip()
     value = int(digits.zfill(4)[2:]) or None
     st.events.append((idx, t.start + 1, "tool", value, f"T{digits}"))
+    st.t_changed = t.start + 1 if value != st.tool else None  # checked against G41/G42 (_work_state)
     if value != st.tool:
         _forget(st, ax, _tool_axes(ax))
         st.tool = value
+
+
+def lathe_nose(dia, ax: AxisWords) -> bool:
+    """Tool nose radius compensation of a lathe whose T word selects the offset register (``TttOO``: Fanuc, Haas
+    turning, :attr:`compensation.dialects.Dialect.lathe_t_offset`): ``G41``/``G42`` take the nose radius of the
+    register in force (Fanuc 0i-TF, Haas lathe manual: the radius and imaginary tip are set on the offset page of
+    the register the T word selects), not a D word."""
+    return getattr(dia, "lathe_t_offset", False) and lathe_words(ax.words)
+
+
+def _nose_register(st: _State, code, w) -> int:
+    """The offset register whose nose radius ``G41``/``G42`` take on a :func:`lathe_nose` lathe: the T word's."""
+    if st.tool is None:
+        raise _Refuse(w.start + 1, f"'{code}' takes the nose radius of the T word's offset register (TttOO), and no "
+                                   "register is in force: give the T word (like T0202) before it or on its line")
+    return st.tool
 
 
 def bare_g43_tool(st: _State):

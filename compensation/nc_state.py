@@ -11,7 +11,6 @@ plus the shift of every work system (``G92`` on LinuxCNC and grbl; ``G52``, the 
 LinuxCNC keeps in the same registers), and, on LinuxCNC, the work system's XY rotation (``G10 L2 R``, a ``.var``'s
 parameter ``5230 + 20·(P−1)``): the program's X Y are turned by it about the work system's origin before the
 offsets are added (:meth:`ProgramFrames.place`).
-
 and the tool tip is then the machine file's tool point with its gauge length (the ``[geometry]``
 constant ``tool_length``) set to the tool table's length (:func:`machine_with_tool`):
 the nominal tip does not depend on the tool, but the angular errors act on its Abbe arm.
@@ -483,8 +482,11 @@ class _Controller:
         if value is not None:
             self.used_tools.add(value)
 
-    def select_cutter(self, value, where) -> None:
-        if value is not None and not np.isfinite(self.radii.get(value, np.nan)):
+    def select_cutter(self, value, where, nose: bool = False) -> None:  # nose: a T register's (lathe_nose)
+        if value is not None and not np.isfinite(self.radii.get(value, np.nan)) and nose:
+            raise InputError(f"{where}: the nose radius of offset register {value:02d} is not known: the tool "
+                             f"table's radius_mm column gives it (--tool-table, row tool {value})")
+        elif value is not None and not np.isfinite(self.radii.get(value, np.nan)):
             raise InputError(f"{where}: cutter radius compensation D{value}: the radius of tool {value} is not "
                              "known: give it in --tool-table (radius_mm, or D of a .tbl) or G10 L1 P.. R.."
                              + _part_note(value, "radius", self.parts))
@@ -530,7 +532,8 @@ class _Controller:
         """One event of :attr:`compensation.gcode.GProgram.events` ``(line, column, kind, value, text)``."""
         line, col, kind, value, text = event
         where = f"{self.path}: line {line + 1}, column {col}: '{text}'"
-        select = {"system": self.select_system, "tool": self.select_tool, "cutter": self.select_cutter}
+        select = {"system": self.select_system, "tool": self.select_tool, "cutter": self.select_cutter,
+                  "nose": lambda v, w: self.select_cutter(v, w, nose=True)}
         if kind in select:
             select[kind](value, where)
         elif kind.startswith("g10-"):

@@ -537,6 +537,7 @@ def gcode_entry(entry, tp: ToolPath, res, true_r, true_base, field_, truth, mach
     bound = cutter_radius_bound_um(axes_field(field_), machine, tp)
     if bound is not None:
         entry["cutter_radius_bound_um"] = bound
+        entry["cutter_radius_arm"] = "tool radius" if tp.turning is None else "(1 + sqrt 2) x nose radius: the imaginary tip"
 
 
 def write_outputs(outcomes) -> None:
@@ -637,7 +638,7 @@ def print_gcode_notes(entry) -> None:
             if c["mode"] == "keep" else ""))
     if "cutter_radius_bound_um" in entry:
         print(f"  G41/G42 cutter radius compensation: the path is compensated as programmed; the error it "
-              f"leaves is at most {entry['cutter_radius_bound_um']:.3g} um (field gradient x tool radius)")
+              f"leaves is at most {entry['cutter_radius_bound_um']:.3g} um (field gradient x {entry['cutter_radius_arm']})")
 
 
 def print_refusals(run: CompensateRun, show: int) -> None:

@@ -83,7 +83,8 @@ CUTTER_STEP_MM = 0.5
 
 def cutter_radius_bound_um(field_, machine, tp: ToolPath):
     """Under cutter radius compensation (G41/G42 D) the controller cuts up to the tool radius r away from
-    the compensated point, where the error differs by at most |dE/dp|·r: that bound (μm, the largest over
+    the compensated point, where the error differs by at most |dE/dp|·r (a lathe's nose radius:
+    :func:`compensation.turning.nose_radius_bound_um`): that bound (μm, the largest over
     the points under G41/G42; the spectral norm of the field's gradient along the linear axes, central
     differences of :data:`CUTTER_STEP_MM`, at the tool each point runs with). None: no G41/G42 in the program."""
     job = tp.source
@@ -93,6 +94,9 @@ def cutter_radius_bound_um(field_, machine, tp: ToolPath):
     on = np.flatnonzero(np.isfinite(r))
     if not on.size:
         return None
+    if tp.turning is not None:  # a lathe: the imaginary tool tip's arm, over the turn (compensation.turning)
+        from ...turning import nose_radius_bound_um
+        return nose_radius_bound_um(field_, machine, tp.axes, r, tp.tool_xz, tp.turning)
     lin = [j for j, a in enumerate(machine.axes) if a.kind == "linear"]
     tool = tp.tool_mm[on]
     keys = np.where(np.isfinite(tool), tool, -np.inf)
