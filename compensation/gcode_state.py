@@ -1,13 +1,13 @@
 """The controller-state words of the G-code reader (:mod:`compensation.gcode`), line by line: work-system
 selections (``G54`` … ``G59.3``, ``G54.1 Pn``, Haas ``G154 Pn``), tool length offsets (``G43 Hn`` / ``G49``; on
-LinuxCNC a bare ``G43`` is the tool the program's ``Tn M6`` loaded), cutter radius compensation (on a Fanuc/Haas lathe the ``TttOO`` register's nose radius; ``G41``/``G42
-Dn`` / ``G40``), the program's own tables (``G10 L1 L2 L10–L13 L20`` by dialect; LinuxCNC's ``G10 L2 R``
-rotation), the shifts of every work system (``G92`` family, ``G52``), moves in machine coordinates (``G53``), a
-dialect's mode codes (:mod:`compensation.dialects`), LinuxCNC's output/input M codes (:func:`io_line`) and
-Siemens native-mode lines (:func:`siemens_native`, refused). Each is recorded as an event
-(:attr:`compensation.gcode.GProgram.events`) that :func:`compensation.nc_state.program_frames`
-resolves against the controller's tables; where a frame changes, the program position along the axes it
-moves becomes unknown (the next move there must give it absolutely)."""
+LinuxCNC a bare ``G43`` is the tool the program's ``Tn M6`` loaded), cutter radius compensation (``G41``/``G42
+Dn`` / ``G40``; on a Fanuc/Haas lathe the nose radius of the ``TttOO`` word's register), the program's own
+tables (``G10 L1 L2 L10–L13 L20`` by dialect; LinuxCNC's ``G10 L2 R`` rotation), the shifts of every work
+system (``G92`` family, ``G52``), moves in machine coordinates (``G53``), a dialect's mode codes
+(:mod:`compensation.dialects`), LinuxCNC's output/input M codes (:func:`io_line`) and Siemens native-mode lines
+(:func:`siemens_native`, refused). Each is recorded as an event (:attr:`compensation.gcode.GProgram.events`) that
+:func:`compensation.nc_state.program_frames` resolves against the controller's tables; where a frame changes, the
+program position along the axes it moves becomes unknown (the next move there must give it absolutely)."""
 from __future__ import annotations
 
 import re

@@ -537,7 +537,8 @@ def gcode_entry(entry, tp: ToolPath, res, true_r, true_base, field_, truth, mach
     bound = cutter_radius_bound_um(axes_field(field_), machine, tp)
     if bound is not None:
         entry["cutter_radius_bound_um"] = bound
-        entry["cutter_radius_arm"] = "tool radius" if tp.turning is None else "(1 + sqrt 2) x nose radius: the imaginary tip"
+        entry["cutter_radius_arm"] = ("tool radius" if tp.turning is None else
+                                      "(1 + sqrt 2) x nose radius: the imaginary tip")
 
 
 def write_outputs(outcomes) -> None:
