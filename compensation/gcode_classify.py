@@ -209,7 +209,10 @@ def _apply_modal(st: _State, groups: dict):
     return motion_word
 
 
-def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words, nose: bool = False):
+LATHE_NOSE_HINT = "; on a Fanuc or Haas lathe the TttOO word's register gives it: name the controller with --dialect"
+
+
+def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words, nose: bool = False, lathe: bool = False):
     """``P`` only with G4/G64 (or P1 on an arc), ``Q`` only with G64; ``D`` only with G41/G42, and not at all on a
     lathe whose ``G41``/``G42`` take the T word's register (``nose``: :func:`compensation.gcode_state.lathe_nose`)."""
     for letter, allowed_with in (("P", ("G4", "G64", "G54.1", "G154", "G10", "G187")), ("Q", ("G64", "G5.1")), ("H", ("G43",)),
@@ -234,7 +237,7 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words, nose: bool = Fal
     for c, w in gs:
         if c in ("G41", "G42") and "D" not in by and not loaded and not nose and bare_d(st) is None:
             raise _Refuse(w.start + 1, f"'{c}' without D (the current tool's radius): write '{c} Dn' with the tool "
-                                       "table's number n")
+                                       "table's number n" + (LATHE_NOSE_HINT if lathe else ""))
     if "G43" in (c for c, _ in gs) and "H" not in by and not loaded and bare_g43_tool(st) is None:
         w = next(w for c, w in gs if c == "G43")
         raise _Refuse(w.start + 1, "'G43' without H (the current tool's length): " + bare_g43_rule(st.dialect))
@@ -318,7 +321,7 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
         raise _Refuse(body.index("/") + 1, "block delete '/' on a line that moves or changes modal state; "
                                            "say whether the controller skips it: --block-delete on|off")
     motion_word = _apply_modal(st, groups)
-    _check_p_q(st, by, gs, axis_words, arc_words, lathe_nose(dia, ax))
+    _check_p_q(st, by, gs, axis_words, arc_words, lathe_nose(dia, ax), lathe_words(ax.words))
     if "nonmodal" in groups and groups["nonmodal"][0] == "G10":
         return _g10(idx, st, groups, by, axis_words, ax), None
     if "nonmodal" in groups and (groups["nonmodal"][0] in G92_CODES or groups["nonmodal"][0] == "G52"):

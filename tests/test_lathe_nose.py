@@ -111,6 +111,9 @@ def test_a_register_without_a_radius_is_refused_naming_the_column(tmp_path):
     (PROGRAM.replace("G1 Z-30.", "D2"), "haas", "line 7, column 1: 'D2' on a haas lathe"),
     (PROGRAM.replace("G1 Z-30.", "T0202 G1 Z-30."), "fanuc", "line 7, column 1: a T word changing the offset "
                                                              "register while G42 is in force"),
+    (PROGRAM.replace("T0101\n", ""), None, "line 5, column 1: 'G42' without D (the current tool's radius): write 'G42 "
+                                           "Dn' with the tool table's number n; on a Fanuc or Haas lathe the TttOO "
+                                           "word's register gives it: name the controller with --dialect"),
 ])
 def test_what_the_manuals_do_not_settle_is_refused(tmp_path, text, dialect, where):
     assert where in _refusal(tmp_path, text, dialect)
