@@ -51,12 +51,14 @@ def pytest_terminal_summary(terminalreporter):
 
 
 SAME_WORKER = {
-    "tests/test_demo.py": "tiny demo, mill-xyz reversal:Z diagnosis",
-    "tests/test_report_pages.py": "tiny demo, mill-xyz reversal:Z diagnosis",
-    "tests/test_chain_report.py": "tiny demo, mill-xyz reversal:Z diagnosis",
-    "tests/test_diagnose_chain_output.py": "tiny demo, mill-xyz reversal:Z diagnosis",
+    "tests/test_demo.py": "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark",
+    "tests/test_report_pages.py": "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark",
+    "tests/test_chain_report.py": "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark",
+    "tests/test_diagnose_chain_output.py": "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark",
     "tests/test_hybrid_user_path.py": "bump user path",
     "tests/test_tracking_learned_residual.py": "bump user path",
+    "tests/test_benchmark.py": "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark",
+    "tests/test_plain_csv_outputs.py": "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark",
 }
 """Test files whose tests read one session-shared run (tests/shared_runs.py): one unit of work under
 ``--dist loadscope``, so the run happens once, on one worker."""
@@ -76,6 +78,7 @@ UNIT_CPU_S = {
     "tests/test_chain_loop_terms.py::test_cli_term_the_joint_fit_does_not_support_is_dropped": 100.0,
     "tests/test_hybrid_backfit.py::test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt": 40.0,
     "tests/test_cluster.py": 100.0,
+    "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark": 150.0,   # with tests/test_benchmark.py
 }
 """The slow tier's longest units of work (CPU s, about their wall time on a quiet core; the slowest tests
 of the last full slow-tier run plus the fixtures they build; test_hybrid.py's and the five-axis term test's
@@ -152,6 +155,14 @@ def tiny_demo(tmp_path_factory):
     read it (``SAME_WORKER``)."""
     import shared_runs
     return shared_runs.tiny_demo(tmp_path_factory.mktemp("tiny-demo"))
+
+
+@pytest.fixture(scope="session")
+def mill_quick_benchmark(tmp_path_factory):
+    """``volcomp benchmark --machine mill-xyz --quick --no-track`` (tests/shared_runs.py): run once for the tests
+    that read it (``SAME_WORKER``)."""
+    import shared_runs
+    return shared_runs.mill_quick_benchmark(tmp_path_factory.mktemp("mill-quick-benchmark"))
 
 
 @pytest.fixture

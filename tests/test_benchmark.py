@@ -530,11 +530,10 @@ def test_the_grinders_test_part_is_the_flute_read_from_its_chain():
 
 
 @pytest.mark.slow
-def test_benchmark_cli_on_a_chain_writes_rows_and_its_report_section(tmp_path, capsys):
-    """``volcomp benchmark --machine mill-xyz --quick``: rows in benchmark.json, a machine-tool section in report.html."""
-    from compensation.app.cli import main
-    out = tmp_path / "b"
-    assert main(["benchmark", "--machine", "mill-xyz", "--quick", "--no-track", "--out", str(out)]) == 0
+def test_benchmark_cli_on_a_chain_writes_rows_and_its_report_section(mill_quick_benchmark):
+    """``volcomp benchmark --machine mill-xyz --quick`` (the shared run, tests/shared_runs.py; its CSVs are
+    tests/test_plain_csv_outputs.py's): rows in benchmark.json, a machine-tool section in report.html."""
+    out = mill_quick_benchmark.root / "b"
     doc = json.loads((out / "benchmark.json").read_text())
     parametric = [r for r in doc["rows"] if r["path"] == "parametric"]
     conds = [r["condition"] for r in parametric]
@@ -549,7 +548,7 @@ def test_benchmark_cli_on_a_chain_writes_rows_and_its_report_section(tmp_path, c
     assert "thermal:X" in thermal["effects_found"] and thermal["true_rms_um"] < parametric[1]["true_rms_um"]
     html = (out / "report.html").read_text()
     assert "Machine tool mill-xyz" in html and "held-out measured RMS" in html
-    assert "mill-xyz parametric" in capsys.readouterr().out
+    assert "mill-xyz parametric" in mill_quick_benchmark.out
 
 
 def test_benchmark_checks_option_sets_the_out_of_catalogue_counts(monkeypatch, tmp_path, capsys):
