@@ -51,12 +51,16 @@ def pytest_terminal_summary(terminalreporter):
 
 
 SAME_WORKER = {
-    "tests/test_demo.py": "tiny demo, mill-xyz reversal:Z diagnosis",
-    "tests/test_report_pages.py": "tiny demo, mill-xyz reversal:Z diagnosis",
-    "tests/test_chain_report.py": "tiny demo, mill-xyz reversal:Z diagnosis",
-    "tests/test_diagnose_chain_output.py": "tiny demo, mill-xyz reversal:Z diagnosis",
+    "tests/test_demo.py": "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark",
+    "tests/test_report_pages.py": "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark",
+    "tests/test_chain_report.py": "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark",
+    "tests/test_diagnose_chain_output.py": "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark",
     "tests/test_hybrid_user_path.py": "bump user path",
     "tests/test_tracking_learned_residual.py": "bump user path",
+    "tests/test_cluster.py": "Ray, MLflow tracking server",
+    "tests/test_mlflow_server.py": "Ray, MLflow tracking server",
+    "tests/test_benchmark.py": "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark",
+    "tests/test_plain_csv_outputs.py": "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark",
 }
 """Test files whose tests read one session-shared run (tests/shared_runs.py): one unit of work under
 ``--dist loadscope``, so the run happens once, on one worker."""
@@ -75,7 +79,10 @@ UNIT_CPU_S = {
     "tests/test_hybrid.py": 100.0,
     "tests/test_chain_loop_terms.py::test_cli_term_the_joint_fit_does_not_support_is_dropped": 100.0,
     "tests/test_hybrid_backfit.py::test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt": 40.0,
-    "tests/test_cluster.py": 100.0,
+    "Ray, MLflow tracking server": 110.0,   # tests/test_cluster.py 100 and tests/test_mlflow_server.py
+    # the shared runs of tests/shared_runs.py plus tests/test_benchmark.py's slow tests (-n 0 on a loaded machine,
+    # 2026-12-03: ~220 s, of which test_benchmark.py ~150): the longest unit since test_benchmark.py joined it
+    "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark": 150.0,
 }
 """The slow tier's longest units of work (CPU s, about their wall time on a quiet core; the slowest tests
 of the last full slow-tier run plus the fixtures they build; test_hybrid.py's and the five-axis term test's
@@ -152,6 +159,52 @@ def tiny_demo(tmp_path_factory):
     read it (``SAME_WORKER``)."""
     import shared_runs
     return shared_runs.tiny_demo(tmp_path_factory.mktemp("tiny-demo"))
+
+
+MLFLOW_STARTUP_LIMIT_S = 120.0
+"""Bounded poll for a test's ``mlflow server`` to answer /health."""
+
+
+def free_port() -> int:
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="session")
+def mlflow_server(tmp_path_factory):
+    """A real ``mlflow server`` (own SQLite store, artifact folder ``art``, in a temp dir), started once for the
+    tests that track on a server (``SAME_WORKER``): ``(url, folder)``. A test finds its own runs' artifacts under
+    ``folder/art`` by their run ids."""
+    import shutil
+    import sys
+    from pathlib import Path
+    tmp = tmp_path_factory.mktemp("mlflow-server")
+    exe = Path(sys.executable).with_name("mlflow")
+    exe = str(exe) if exe.is_file() else (shutil.which("mlflow") or "mlflow")
+    port = free_port()
+    log = open(tmp / "server.log", "wb")
+    cmd = [exe, "server", "--backend-store-uri", f"sqlite:///{tmp / 'db.sqlite'}",
+           "--artifacts-destination", str(tmp / "art"), "--serve-artifacts",
+           "--host", "127.0.0.1", "--port", str(port), "--workers", "1"]
+    proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
+                            env={**os.environ, "MLFLOW_TRACKING_URI": ""})
+    url = f"http://127.0.0.1:{port}"
+    try:
+        wait_until_serving(proc, url + "/health", MLFLOW_STARTUP_LIMIT_S, tmp / "server.log", "mlflow server")
+        yield url, tmp
+    finally:
+        stop_process_group(proc)   # the server runs in its own session: end exactly that process group
+        log.close()
+
+
+@pytest.fixture(scope="session")
+def mill_quick_benchmark(tmp_path_factory):
+    """``volcomp benchmark --machine mill-xyz --quick --no-track`` (tests/shared_runs.py): run once for the tests
+    that read it (``SAME_WORKER``)."""
+    import shared_runs
+    return shared_runs.mill_quick_benchmark(tmp_path_factory.mktemp("mill-quick-benchmark"))
 
 
 @pytest.fixture

@@ -77,3 +77,9 @@ def tiny_demo(root: Path) -> SharedRun:
                     "1", "--points-per-turn", "24", "--train-s", "8", "--hidden", "8,8", "--ga-points", "3",
                     "--seed", "1"])
     return SharedRun(root, out, err)
+
+
+def mill_quick_benchmark(root: Path) -> SharedRun:
+    """``volcomp benchmark --machine mill-xyz --quick --no-track`` into ``root/b``; ``out`` is what it printed."""
+    out, err = _ok(["benchmark", "--machine", "mill-xyz", "--quick", "--no-track", "--out", root / "b"])
+    return SharedRun(root, out, err)

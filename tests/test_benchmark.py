@@ -436,15 +436,17 @@ def _by_key(rows) -> dict:
 @pytest.mark.slow
 def test_chain_benchmark_rows_are_the_users_path_judged_by_the_truth(tmp_path):
     """mill-xyz, no effect: simulate → sweeps → identify → diagnose → exact compensation of the body
-    diagonals; the loop's model beats the identified set, which beats no compensation; the files stay."""
+    diagonals; the loop's model beats the identified set, which beats no compensation; the files stay. The
+    out-of-catalogue group is named by an effect the mill leaves out (a_tilt), so only its effect=none condition runs
+    (the one asserted here; the mill's bump rows are test_benchmark_cli_on_a_chain_writes_rows_and_its_report_section's)."""
     from compensation.app.workflows.benchmark_common import RowLog, Tracker
     from compensation.app.workflows.chain_benchmark import run_chain
     from errormap.machine import load_machine
     m = load_machine("mill-xyz")
-    s = _chain_settings(stations=(), noises_um=())
+    s = _chain_settings(stations=(), noises_um=(), ooc_effects=("a_tilt",))
     log = RowLog(Tracker(None, enabled=False))
     skipped = run_chain(m, s, log, tmp_path)
-    assert skipped == []
+    assert [w["why"].split(":")[0] for w in skipped] == ["effect a_tilt"]   # nothing else left out
     rows = _by_key(log.rows)
     before, after = rows["parametric", "effect=none (before closed loop)"], rows["parametric", "effect=none (after closed loop)"]
     learned = rows["learned", "effect=none (before closed loop)"]
@@ -467,13 +469,18 @@ def test_chain_benchmark_rows_are_the_users_path_judged_by_the_truth(tmp_path):
 @pytest.mark.slow
 def test_chain_benchmark_runs_its_loop_once_per_check_count(tmp_path):
     """--checks N (repeatable) on a chain: one row after the closed loop per count, the same truth, each loop on
-    its own n checks (files in each condition's folder)."""
+    its own n checks (files in each condition's folder). The out-of-catalogue group is named by an effect the mill
+    leaves out (a_tilt needs a rotary axis), so only its effect=none conditions run: the ones asserted here (a
+    drawn effect's rows at each count are the same per-condition code; their condition names per count are
+    test_out_of_catalogue_conditions_run_the_loop_at_each_check_count's)."""
     from compensation.app.workflows.benchmark_common import RowLog, Tracker
     from compensation.app.workflows.chain_benchmark import run_chain
     from errormap.machine import load_machine
-    s = _chain_settings(ooc_checks=(300, 150), train_iter=5, stations=(), noises_um=(), ooc_effects=("bump",))
+    s = _chain_settings(ooc_checks=(300, 150), train_iter=5, stations=(), noises_um=(), ooc_effects=("a_tilt",))
     log = RowLog(Tracker(None, enabled=False))
-    assert run_chain(load_machine("mill-xyz"), s, log, tmp_path) == []
+    skipped = run_chain(load_machine("mill-xyz"), s, log, tmp_path)
+    assert [w["why"].split(":")[0] for w in skipped] == ["effect a_tilt"]   # nothing else left out
+    assert {r["condition"].split(" (")[0] for r in log.rows} == {"effect=none, checks=300", "effect=none, checks=150"}
     rows = _by_key(log.rows)
     a300 = rows["parametric", "effect=none, checks=300 (after closed loop)"]
     a150 = rows["parametric", "effect=none, checks=150 (after closed loop)"]
@@ -523,11 +530,10 @@ def test_the_grinders_test_part_is_the_flute_read_from_its_chain():
 
 
 @pytest.mark.slow
-def test_benchmark_cli_on_a_chain_writes_rows_and_its_report_section(tmp_path, capsys):
-    """``volcomp benchmark --machine mill-xyz --quick``: rows in benchmark.json, a machine-tool section in report.html."""
-    from compensation.app.cli import main
-    out = tmp_path / "b"
-    assert main(["benchmark", "--machine", "mill-xyz", "--quick", "--no-track", "--out", str(out)]) == 0
+def test_benchmark_cli_on_a_chain_writes_rows_and_its_report_section(mill_quick_benchmark):
+    """``volcomp benchmark --machine mill-xyz --quick`` (the shared run, tests/shared_runs.py; its CSVs are
+    tests/test_plain_csv_outputs.py's): rows in benchmark.json, a machine-tool section in report.html."""
+    out = mill_quick_benchmark.root / "b"
     doc = json.loads((out / "benchmark.json").read_text())
     parametric = [r for r in doc["rows"] if r["path"] == "parametric"]
     conds = [r["condition"] for r in parametric]
@@ -542,7 +548,7 @@ def test_benchmark_cli_on_a_chain_writes_rows_and_its_report_section(tmp_path, c
     assert "thermal:X" in thermal["effects_found"] and thermal["true_rms_um"] < parametric[1]["true_rms_um"]
     html = (out / "report.html").read_text()
     assert "Machine tool mill-xyz" in html and "held-out measured RMS" in html
-    assert "mill-xyz parametric" in capsys.readouterr().out
+    assert "mill-xyz parametric" in mill_quick_benchmark.out
 
 
 def test_benchmark_checks_option_sets_the_out_of_catalogue_counts(monkeypatch, tmp_path, capsys):

@@ -45,9 +45,10 @@ def sim(tmp_path_factory):
 
 @pytest.mark.slow
 def test_benchmark_ctrl_c_leaves_no_chains_folder(tmp_path):
-    """Interrupted after its first condition wrote ``B/chains/mill-xyz/effect_none/``: B is gone."""
+    """Interrupted after its first closed-loop condition wrote ``B/chains/mill-xyz/effect_thermal/`` (the quick
+    run's second condition; the ones after it are not needed to have a folder in B): B is gone."""
     proc = _start(["benchmark", "--machine", "mill-xyz", "--quick", "--no-track", "--out", "B"], tmp_path)
-    rc, err = _interrupt(proc, 0.5, wait_for="effect=none (after closed loop)")
+    rc, err = _interrupt(proc, 0.5, wait_for="effect=thermal (after closed loop)")
     _assert_interrupted(rc, err, tmp_path)
     assert not (tmp_path / "B").exists(), _tree(tmp_path / "B")
 

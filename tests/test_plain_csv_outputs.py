@@ -157,11 +157,10 @@ def test_every_csv_of_the_arm_parallel_and_chain_commands_opens_in_pandas(tmp_pa
     assert {p.suffix for p in (tmp_path / "ac").iterdir()} & {".csv"}   # the arm's compensated program
 
 
-@pytest.mark.slow  # the shared tiny demo run (tests/shared_runs.py) and the quick benchmark of a chain
-def test_every_csv_of_demo_and_benchmark_opens_in_pandas(tiny_demo, tmp_path):
+@pytest.mark.slow  # the shared tiny demo run and the shared quick benchmark of a chain (tests/shared_runs.py)
+def test_every_csv_of_demo_and_benchmark_opens_in_pandas(tiny_demo, mill_quick_benchmark):
     _check_every_csv(tiny_demo.root / "demo", {"residuals.csv", "sim/featurepoints.csv", "sim/checks.csv"})
-    _ok("benchmark", "--machine", "mill-xyz", "--quick", "--no-track", "--out", tmp_path / "b")
-    assert len(_check_every_csv(tmp_path / "b", set())) >= 1
+    assert len(_check_every_csv(mill_quick_benchmark.root / "b", set())) >= 1
 
 
 def test_ctrl_c_removes_the_new_csv_and_its_sidecar_and_keeps_an_old_pair(tmp_path):
