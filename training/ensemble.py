@@ -8,6 +8,8 @@ members' mean, band their spread, noise the mean's training residual variance; c
 docs/reference/learned-stage.md."""
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from scipy.optimize import minimize
 
@@ -38,13 +40,20 @@ def _shapes(d: int, h: int, k: int):
     return [(d, h), (h,), (h, h), (h,), (h, k), (k,)]
 
 
-def _unpack(w, d, h, k):
+@lru_cache(maxsize=64)
+def _slices(d: int, h: int, k: int):
+    """Per weight array of :func:`_shapes`: (its slice of the flat weights, its shape). Cached: L-BFGS asks
+    for the loss thousands of times per member."""
     out, i = [], 0
     for s in _shapes(d, h, k):
-        n = int(np.prod(s))
-        out.append(w[i:i + n].reshape(s))
+        n = s[0] * s[1] if len(s) == 2 else s[0]
+        out.append((slice(i, i + n), s))
         i += n
-    return out
+    return tuple(out)
+
+
+def _unpack(w, d, h, k):
+    return [w[sl].reshape(s) for sl, s in _slices(d, h, k)]
 
 
 def _init(rng, d, h, k):
@@ -57,8 +66,9 @@ def _init(rng, d, h, k):
     return np.concatenate(parts)
 
 
-def _forward(w, X, d, h, k):
-    W1, b1, W2, b2, W3, b3 = _unpack(w, d, h, k)
+def _forward(w, X, d, h, k, parts=None):
+    """``parts``: :func:`_unpack` of ``w`` where the caller has it already."""
+    W1, b1, W2, b2, W3, b3 = _unpack(w, d, h, k) if parts is None else parts
     h1 = np.tanh(X @ W1 + b1)
     h2 = np.tanh(h1 @ W2 + b2)
     return h1, h2, h2 @ W3 + b3
@@ -66,8 +76,9 @@ def _forward(w, X, d, h, k):
 
 def _loss_grad(w, X, Y, d, h, k, decay):
     """Mean squared error (over n × k) + decay · mean of squared weights (biases free), gradient."""
-    W1, b1, W2, b2, W3, b3 = _unpack(w, d, h, k)
-    h1, h2, y = _forward(w, X, d, h, k)
+    parts = _unpack(w, d, h, k)
+    W1, b1, W2, b2, W3, b3 = parts
+    h1, h2, y = _forward(w, X, d, h, k, parts)
     n = X.shape[0]
     r = y - Y
     nw = W1.size + W2.size + W3.size

@@ -56,7 +56,9 @@ def _kernel(S, sf2, kind="rbf"):
     S (n, m) → (K (n, m), H (n, m)) with dK/dlog l_j = H ⊙ Δ_j²/l_j² and dK/dx_j = −H ⊙ Δ_j/l_j²
     (one form for every kernel: the marginal-likelihood gradient and the Jacobian use H)."""
     if kind == "rbf":
-        K = sf2 * np.exp(-0.5 * S)
+        K = np.multiply(S, -0.5)
+        np.exp(K, out=K)
+        K *= sf2
         return K, K
     r = np.sqrt(S)
     if kind == "matern52":
@@ -165,7 +167,8 @@ def _gp_nll(theta, X, y, D, kind="rbf", terms=None):
         return _additive_nll(theta, y, D, terms)
     parts, sn2 = _parts(theta, d, kind, terms)
     KH = [_kernel(np.tensordot(inv_l2, D, axes=1), sf2, base) for inv_l2, sf2, base, _, _ in parts]
-    K = sum(k for k, _ in KH) + sn2 * np.eye(len(y))
+    K = _summed([k for k, _ in KH])
+    K[np.diag_indices(len(y))] += sn2
     got = _nll_from_K(K, y)
     if got is None:
         return 1e25, np.zeros_like(theta)
@@ -174,8 +177,9 @@ def _gp_nll(theta, X, y, D, kind="rbf", terms=None):
     for (inv_l2, _, _, sl, isf), (Kf, H) in zip(parts, KH):
         # dK/dlog l_j = H ⊙ D_j / l_j² (H = Kf for the squared exponential); each part has its own
         # length scales here (the additive kernel, whose terms share them, is :func:`_additive_nll`)
-        grad[sl] += -0.5 * inv_l2 * np.tensordot(D, W * H, axes=([1, 2], [0, 1]))
-        grad[isf] = -0.5 * (W * Kf).sum()
+        WH = W * H
+        grad[sl] += -0.5 * inv_l2 * np.tensordot(D, WH, axes=([1, 2], [0, 1]))
+        grad[isf] = -0.5 * (WH if H is Kf else W * Kf).sum()
     grad[-1] = -0.5 * sn2 * np.trace(W)
     return nll, grad
 
@@ -196,16 +200,35 @@ def _nll_from_K(K, y):
     """(nll, W = ααᵀ − K⁻¹) of a zero-mean GP with covariance K (n, n) at y (n,); None where K is not
     positive definite."""
     try:
-        c = cho_factor(K, lower=True, check_finite=False)
+        c = cho_factor(K, lower=True, overwrite_a=True, check_finite=False)   # K is not used after: factored in place
     except np.linalg.LinAlgError:
         return None
     alpha = cho_solve(c, y, check_finite=False)
     nll = 0.5 * y @ alpha + np.log(np.diag(c[0])).sum() + 0.5 * len(y) * np.log(2 * np.pi)
-    Kinv, info = dpotri(c[0], lower=1)          # K⁻¹ from its Cholesky factor (lower triangle filled)
+    Kinv, info = dpotri(c[0], lower=1, overwrite_c=1)   # K⁻¹ from its Cholesky factor (lower triangle filled)
     if info != 0:
         return None
-    Kinv = np.tril(Kinv) + np.tril(Kinv, -1).T
-    return nll, np.outer(alpha, alpha) - Kinv
+    Kinv = np.tril(Kinv)
+    diag = Kinv.diagonal().copy()
+    Kinv += Kinv.T                              # the mirror; the diagonal doubled, then put back exactly
+    Kinv[np.diag_indices(len(y))] = diag
+    W = np.outer(alpha, alpha)
+    W -= Kinv
+    return nll, W
+
+
+def _summed(mats):
+    """Σ of the (n, n) arrays ``mats`` in their order, into a new array (the first copied, the others added)."""
+    out = mats[0].copy()
+    for m in mats[1:]:
+        out += m
+    return out
+
+
+def _rows(D, cols):
+    """``D[cols]`` (len(cols), n, n): a view where ``cols`` is one ascending run, else a copy."""
+    c0 = cols[0]
+    return D[c0:c0 + len(cols)] if tuple(cols) == tuple(range(c0, c0 + len(cols))) else D[list(cols)]
 
 
 def _additive_nll(theta, y, D, terms):
@@ -216,14 +239,18 @@ def _additive_nll(theta, y, D, terms):
     d, n = D.shape[0], len(y)
     atoms, made_of = _atoms(d, terms)
     inv_l2 = np.exp(-2.0 * theta[:d])
-    E = [np.exp(-0.5 * np.tensordot(inv_l2[list(cols)], D[list(cols)], axes=1)) for cols in atoms]
+    E = []
+    for cols in atoms:
+        e = np.tensordot(inv_l2[list(cols)], _rows(D, cols), axes=1)
+        e *= -0.5
+        E.append(np.exp(e, out=e))
     Ks = []
     for t, parts in enumerate(made_of):
         k = np.exp(theta[d + t]) * E[parts[0]]
         for a in parts[1:]:
-            k = k * E[a]
+            k *= E[a]
         Ks.append(k)
-    K = sum(Ks)
+    K = _summed(Ks)
     K[np.diag_indices(n)] += np.exp(theta[-1])
     got = _nll_from_K(K, y)
     if got is None:
@@ -231,7 +258,8 @@ def _additive_nll(theta, y, D, terms):
     nll, W = got
     grad = np.zeros_like(theta)
     for a, cols in enumerate(atoms):
-        M = W * sum(Ks[t] for t, parts in enumerate(made_of) if a in parts)
+        M = _summed([Ks[t] for t, parts in enumerate(made_of) if a in parts])
+        M *= W
         for j in cols:
             grad[j] = -0.5 * inv_l2[j] * np.vdot(D[j], M)
     for t in range(len(terms)):
