@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import socket
 import subprocess
 import sys
 import urllib.request
@@ -14,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import stop_process_group, wait_until_serving
+from tests.conftest import free_port, stop_process_group, wait_until_serving
 from errormap.featurepoints import FeaturePoints, grid_axes
 from errormap.io import read_table, write_csv
 from errormap.machine import builtin_machine_path, load_machine
@@ -22,12 +21,6 @@ from errormap.machine import builtin_machine_path, load_machine
 ROOT = Path(__file__).resolve().parents[1]
 STARTUP_LIMIT_S = 180.0  # bounded poll for the scoring server to answer /ping (a loaded 2-core machine)
 CSV_DIGITS = "%.9g"      # volcomp predict writes 9 significant digits: the served float64 is compared at that
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")
@@ -79,7 +72,7 @@ def test_served_model_equals_volcomp_predict(tracked):
     t = read_table(tmp / "pred.csv")
     # the CSV round trip of the inputs is what both sides see
     axes = np.stack([t.float(c) for c in ("x_mm", "z_mm", "a_deg")], axis=1)
-    port = _free_port()
+    port = free_port()
     exe = Path(sys.executable).with_name("mlflow")
     log = open(tmp / "serve.log", "wb")
     proc = subprocess.Popen([str(exe), "models", "serve", "-m", f"runs:/{res.run_id}/model", "--env-manager", "local",
