@@ -79,6 +79,20 @@ def check_model_files(cls, d: Path, cfg: dict) -> None:
                              f"config.json records); the folder holds a partial or mixed set")
 
 
+def periodic_columns(periodic, axes_deg, values) -> list:
+    """The input columns of axes flagged ``periodic`` as the network takes them: per axis ``j``, ``cos`` and ``sin``
+    of ``axes_deg[:, j]`` (degrees) where periodic, else ``values[:, j]``; ``axes_deg``, ``values`` (n, k) -> list of
+    (n,) columns (the network's scaled inputs, or the OLS baseline's raw ones)."""
+    cols = []
+    for j, per in enumerate(periodic):
+        if per:
+            r = np.deg2rad(axes_deg[:, j])
+            cols += [np.cos(r), np.sin(r)]
+        else:
+            cols.append(values[:, j])
+    return cols
+
+
 class MLPField:
     """A multilayer perceptron error field with built-in scaling, over a machine tool's axes.
 
@@ -273,14 +287,7 @@ class MLPField:
         """Network inputs (n, n_inputs): the scaled columns ``u`` (n, k), a periodic axis of ``x`` as cos/sin."""
         if not any(self.periodic):
             return u
-        cols = []
-        for j, per in enumerate(self.periodic):
-            if per:
-                r = np.deg2rad(x[:, j])
-                cols += [np.cos(r), np.sin(r)]
-            else:
-                cols.append(u[:, j])
-        return np.column_stack(cols)
+        return np.column_stack(periodic_columns(self.periodic, x, u))
 
     def scale_errors(self, errors_um) -> np.ndarray:
         return (np.asarray(errors_um, dtype=float) - self.out_mean_) / self.out_scale_

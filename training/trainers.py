@@ -28,7 +28,8 @@ from errormap.threads import limit_threads
 
 from . import DEFAULT_MAX_ITER
 from .lm import LMSettings, TrainHistory, stop_reason, train_lm
-from .model import A_ENCODINGS, ACTIVATIONS, PAPER_HIDDEN, MLPField, PhysicsMLPField, uses_fused_network
+from .model import (A_ENCODINGS, ACTIVATIONS, PAPER_HIDDEN, MLPField, PhysicsMLPField, periodic_columns,
+                    uses_fused_network)
 from .physics import MAX_STATIONS, MIN_STATIONS, PHYSICS
 
 TRAINERS = ("lm", "adam", "lbfgs")
@@ -514,14 +515,7 @@ def ols_baseline(periodic, train_axes, train_errors_um, eval_axes) -> np.ndarray
     the axis columns (affine; an axis flagged in ``periodic`` as cos/sin, as the network takes it), fitted on
     the training points and evaluated at ``eval_axes``; (m, k) -> (m, 3) μm."""
     def design(a):
-        cols = [np.ones(len(a))]
-        for j, per in enumerate(periodic):
-            if per:
-                r = np.deg2rad(a[:, j])
-                cols += [np.cos(r), np.sin(r)]
-            else:
-                cols.append(a[:, j])
-        return np.column_stack(cols)
+        return np.column_stack([np.ones(len(a))] + periodic_columns(periodic, a, a))
     coef = np.linalg.lstsq(design(np.asarray(train_axes, float)), np.asarray(train_errors_um, float), rcond=None)[0]
     return design(np.asarray(eval_axes, float)) @ coef
 
