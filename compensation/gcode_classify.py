@@ -8,7 +8,7 @@ import re
 
 import numpy as np
 
-from .gcode_state import (LOCAL_SHIFT_DIALECTS, lathe_nose, lathe_t_offset, MODE_E, bare_d, bare_g43_rule, bare_g43_tool, d_modal, _dialect_mode, _forget, _g10, _g92, probe_move, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
+from .gcode_state import (LOCAL_SHIFT_DIALECTS, lathe_t_offset, ttoo_lathe, MODE_E, bare_d, bare_g43_rule, bare_g43_tool, d_modal, _dialect_mode, _forget, _g10, _g92, probe_move, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
 from .nc_flow import TRACKED_NAMES
 from .nc_state import lathe_words
@@ -104,7 +104,7 @@ def _checked_words(words, ax: AxisWords, dia=None):
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': {REFUSED_LETTERS[w.letter]}; not supported")
         elif w.letter not in LETTER_RULES:
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': unknown word")
-        elif w.letter == "T" and _lathe_t_dialect(ax, dia) and not _lathe_t_word(w, ax, dia):
+        elif w.letter == "T" and ttoo_lathe(dia, ax) and not _lathe_t_word(w, ax, dia):
             raise _lathe_t_refusal(w, dia)
         elif w.letter == "T" and not _plain_tool_number(w, ax) and not _lathe_t_word(w, ax, dia):
             raise _Refuse(w.start + 1, f"'T{w.text}': a T word of more than {MAX_TOOL_DIGITS} digits (or not a "
@@ -125,14 +125,9 @@ def _machine_m_codes(st: _State, ms, idx: int, ax: AxisWords, dia) -> None:
             st.events.append((idx, w.start + 1, "machine-m", int(w.value), f"M{w.text}"))
 
 
-def _lathe_t_dialect(ax: AxisWords, dia) -> bool:
-    """A lathe (X and Z, no Y: :func:`compensation.nc_state.lathe_words`) of a dialect whose T word selects the
-    tool and its offset register (``TttOO``: Fanuc, Haas turning)."""
-    return getattr(dia, "lathe_t_offset", False) and lathe_words(ax.words)
-
-
 def _lathe_t_refusal(w: Word, dia) -> _Refuse:
-    """A T word of a lathe that reads ``TttOO`` (:func:`_lathe_t_dialect`) that is not one (:func:`_lathe_t_word`)."""
+    """A T word of a lathe that reads ``TttOO`` (:func:`compensation.gcode_state.ttoo_lathe`) that is not one
+    (:func:`_lathe_t_word`)."""
     short = w.text.strip().isdigit() and len(w.text.strip()) <= 2
     why = "1 or 2 digits leave the offset register to a machine setting (the station's own or OO)" if short else \
         "not four digits"
@@ -141,12 +136,12 @@ def _lathe_t_refusal(w: Word, dia) -> _Refuse:
 
 
 def _lathe_t_word(w: Word, ax: AxisWords, dia) -> bool:
-    """A ``TttOO`` word of a dialect that reads it so, on a lathe (:func:`_lathe_t_dialect`): tool ``tt`` with
-    offset ``OO`` (:func:`compensation.gcode_state.lathe_t_offset`), four digits as written or three (a word's
-    leading zeros may be left out: ``T202`` is ``T0202``). One or two digits are not read: the control takes
-    the offset register from them by a machine setting (the station's own offset, or ``OO``)."""
+    """A ``TttOO`` word of a dialect that reads it so, on a lathe (:func:`compensation.gcode_state.ttoo_lathe`):
+    tool ``tt`` with offset ``OO`` (:func:`compensation.gcode_state.lathe_t_offset`), four digits as written or
+    three (a word's leading zeros may be left out: ``T202`` is ``T0202``). One or two digits are not read: the
+    control takes the offset register from them by a machine setting (the station's own offset, or ``OO``)."""
     digits = w.text.strip()
-    return _lathe_t_dialect(ax, dia) and len(digits) in (3, 4) and digits.isdigit()
+    return ttoo_lathe(dia, ax) and len(digits) in (3, 4) and digits.isdigit()
 
 
 def _plain_tool_number(w: Word, ax: AxisWords) -> bool:
@@ -214,7 +209,7 @@ LATHE_NOSE_HINT = "; on a Fanuc or Haas lathe the TttOO word's register gives it
 
 def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words, nose: bool = False, lathe: bool = False):
     """``P`` only with G4/G64 (or P1 on an arc), ``Q`` only with G64; ``D`` only with G41/G42, and not at all on a
-    lathe whose ``G41``/``G42`` take the T word's register (``nose``: :func:`compensation.gcode_state.lathe_nose`)."""
+    lathe whose ``G41``/``G42`` take the T word's register (``nose``: :func:`compensation.gcode_state.ttoo_lathe`)."""
     for letter, allowed_with in (("P", ("G4", "G64", "G54.1", "G154", "G10", "G187")), ("Q", ("G64", "G5.1")), ("H", ("G43",)),
                                  ("L", ("G10",))):
         if letter in by:
@@ -321,7 +316,7 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
         raise _Refuse(body.index("/") + 1, "block delete '/' on a line that moves or changes modal state; "
                                            "say whether the controller skips it: --block-delete on|off")
     motion_word = _apply_modal(st, groups)
-    _check_p_q(st, by, gs, axis_words, arc_words, lathe_nose(dia, ax), lathe_words(ax.words))
+    _check_p_q(st, by, gs, axis_words, arc_words, ttoo_lathe(dia, ax), lathe_words(ax.words))
     if "nonmodal" in groups and groups["nonmodal"][0] == "G10":
         return _g10(idx, st, groups, by, axis_words, ax), None
     if "nonmodal" in groups and (groups["nonmodal"][0] in G92_CODES or groups["nonmodal"][0] == "G52"):

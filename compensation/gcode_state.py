@@ -76,7 +76,7 @@ def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
         if name != st.system:
             _forget(st, ax, ax.words)
             st.system = name
-    nose = lathe_nose(st.dialect, ax)
+    nose = ttoo_lathe(st.dialect, ax)
     if nose and st.t_changed is not None and st.cutter != "G40" and groups.get("cutter", ("",))[0] != "G40":
         raise _Refuse(st.t_changed, f"a T word changing the offset register while {st.cutter} is in force: the nose "
                                     "radius the control takes mid-contour is not read here; write G40 before it")
@@ -135,16 +135,16 @@ def lathe_t_offset(idx, st: _State, t, ax: AxisWords) -> None:
         st.tool = value
 
 
-def lathe_nose(dia, ax: AxisWords) -> bool:
-    """Tool nose radius compensation of a lathe whose T word selects the offset register (``TttOO``: Fanuc, Haas
-    turning, :attr:`compensation.dialects.Dialect.lathe_t_offset`): ``G41``/``G42`` take the nose radius of the
-    register in force (Fanuc 0i-TF, Haas lathe manual: the radius and imaginary tip are set on the offset page of
-    the register the T word selects), not a D word."""
+def ttoo_lathe(dia, ax: AxisWords) -> bool:
+    """A lathe (X and Z, no Y: :func:`compensation.nc_state.lathe_words`) of a dialect whose T word selects the tool
+    and its offset register (``TttOO``: Fanuc, Haas turning, :attr:`compensation.dialects.Dialect.lathe_t_offset`).
+    There ``G41``/``G42`` take the nose radius of the register in force (Fanuc 0i-TF, Haas lathe manual: the radius
+    and imaginary tip are set on the offset page of the register the T word selects), not a D word."""
     return getattr(dia, "lathe_t_offset", False) and lathe_words(ax.words)
 
 
 def _nose_register(st: _State, code, w) -> int:
-    """The offset register whose nose radius ``G41``/``G42`` take on a :func:`lathe_nose` lathe: the T word's."""
+    """The offset register whose nose radius ``G41``/``G42`` take on a :func:`ttoo_lathe` lathe: the T word's."""
     if st.tool is None:
         raise _Refuse(w.start + 1, f"'{code}' takes the nose radius of the T word's offset register (TttOO), and no "
                                    "register is in force: give the T word (like T0202) before it or on its line")

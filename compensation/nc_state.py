@@ -482,11 +482,11 @@ class _Controller:
         if value is not None:
             self.used_tools.add(value)
 
-    def select_cutter(self, value, where, nose: bool = False) -> None:  # nose: a T register's (lathe_nose)
-        if value is not None and not np.isfinite(self.radii.get(value, np.nan)) and nose:
-            raise InputError(f"{where}: the nose radius of offset register {value:02d} is not known: the tool "
-                             f"table's radius_mm column gives it (--tool-table, row tool {value})")
-        elif value is not None and not np.isfinite(self.radii.get(value, np.nan)):
+    def select_cutter(self, value, where, nose: bool = False) -> None:  # nose: a T register's (ttoo_lathe)
+        if value is not None and not np.isfinite(self.radii.get(value, np.nan)):
+            if nose:
+                raise InputError(f"{where}: the nose radius of offset register {value:02d} is not known: the tool "
+                                 f"table's radius_mm column gives it (--tool-table, row tool {value})")
             raise InputError(f"{where}: cutter radius compensation D{value}: the radius of tool {value} is not "
                              "known: give it in --tool-table (radius_mm, or D of a .tbl) or G10 L1 P.. R.."
                              + _part_note(value, "radius", self.parts))
