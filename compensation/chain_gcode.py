@@ -435,21 +435,23 @@ def _table_vertices(start, end, counts, known, arcs) -> np.ndarray:
 # ---------------------------------------------------------------------------- writing
 def render_chain_axes(program: GProgram, axes, counts, header=(), held=None) -> str:
     """The program with its compensated vertices ``axes`` (n, k), ``counts`` (c,) of them per compensated
-    move; every other line byte for byte, with the file's line end (:func:`compensation.gcode.render_program`; a program read in bulk
-    written in bulk, :func:`compensation.gcode.render_table`; kept canned cycles written back as cycles,
-    :func:`compensation.nc_cycles.render_kept`). ``held`` (c, k) bool: the axes each move holds at a ``G53``
+    move; every other line byte for byte, with the file's line end (:func:`compensation.gcode.render_program`; a
+    program read in bulk written in bulk, :func:`compensation.gcode.render_table`; kept canned cycles written back
+    as cycles, :func:`compensation.nc_cycles.render_kept`). ``held`` (c, k) bool: the axes each move holds at a ``G53``
     value (:mod:`compensation.held_axes`)."""
     t = program.table
     from .gcode import _bulk_words, render_table
     if (program.tcp is None and t is not None and not t.incremental.any() and program.expanded is None
             and _bulk_words(program.axis_words) and held is None):  # read in bulk: written in bulk, the same text
-        return with_line_end(render_table(program, np.asarray(axes), list(counts), header=header)[0],
-                             program.line_end)
-    vertices = np.split(np.asarray(axes), np.cumsum(counts)[:-1]) if len(counts) else []
-    if program.tcp is not None:
-        from .tcp import render_tcp
-        return with_line_end(render_tcp(program, vertices, header=header), program.line_end)
-    if getattr(program.expanded, "mode", None) == "keep":
-        from .nc_cycles import render_kept
-        return with_line_end(render_kept(program, vertices, header=header), program.line_end)
-    return with_line_end(render_program(program, vertices, header=header, held=held)[0], program.line_end)
+        text = render_table(program, np.asarray(axes), list(counts), header=header)[0]
+    else:
+        vertices = np.split(np.asarray(axes), np.cumsum(counts)[:-1]) if len(counts) else []
+        if program.tcp is not None:
+            from .tcp import render_tcp
+            text = render_tcp(program, vertices, header=header)
+        elif getattr(program.expanded, "mode", None) == "keep":
+            from .nc_cycles import render_kept
+            text = render_kept(program, vertices, header=header)
+        else:
+            text = render_program(program, vertices, header=header, held=held)[0]
+    return with_line_end(text, program.line_end)

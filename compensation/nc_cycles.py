@@ -68,6 +68,8 @@ import numpy as np
 
 from errormap.io import InputError
 
+from .dialects import PROBES, SYNCED  # motion codes too (they end a cycle mode); after a probe line the axes it
+# names are unknown (compensation.gcode_state.probe_move)
 from .gcode import DECIMALS, fmt, tokenize
 from .gcode_state import MM_PER_INCH, _Refuse
 from .nc_expand import Expanded
@@ -93,11 +95,6 @@ PECK_DIALECTS = ("linuxcnc",)
 RAPID_DELTA_IN = 0.010
 """LinuxCNC 2.9 G83_RAPID_DELTA (inch; ×25.4 under G21): G83 re-entry clearance and G73 chip-break retract."""
 OTHER_G = ("G90", "G91", "G98", "G99", "G17")
-SYNCED = ("G33", "G33.1")
-"""LinuxCNC's spindle-synchronised motion codes (motion group: they end a cycle mode; compensation.gcode_state)."""
-PROBES = ("G38.2", "G38.3", "G38.4", "G38.5")
-"""Probe moves (motion group: they end a cycle mode; the axes a probe line names are unknown after it,
-compensation.gcode_state.probe_move)."""
 INVALIDATE_G = ("G54", "G55", "G56", "G57", "G58", "G59", "G54.1", "G59.1", "G59.2", "G59.3", "G10", "G92", "G52",
                 "G154", *(f"G{c}" for c in range(110, 130)))
 """Codes after which the current position in program coordinates is not known to this pass (every axis)."""

@@ -3,8 +3,8 @@
 A test part is what a machine of that structure is accepted on, read from its chain, never from its name: the
 flute of a micro drill (:func:`flute_part`, where :func:`compensation.toolpath.runs_flute`: a workpiece turned
 about X by a full-turn A axis, the wheel fed by the other linear axis), the four body diagonals of three linear
-axes (ISO 230-6, :func:`diagonal_path`), a turning centre's lines and face/diameter set (:func:`turning_path`); :func:`judging_path` takes the first the
-machine can make. :func:`volume_path`: random points over every stroke. :func:`compensate_true`: the ``exact``
+axes (ISO 230-6, :func:`diagonal_path`), a turning centre's lines and face/diameter set (:func:`turning_path`);
+:func:`judging_path` takes the first the machine can make. :func:`volume_path`: random points over every stroke. :func:`compensate_true`: the ``exact``
 (or ``batched-ga``) solve of a part with a field and the TRUE residual on the hidden truth at the part's
 conditions. docs/reference/benchmark.md.
 """
