@@ -75,6 +75,7 @@ from numpy.polynomial import chebyshev
 from scipy.stats import qmc
 
 from .effect_kinds import EFFECT_KINDS as _REGISTRY
+from .effect_kinds import TRUTH_ONLY as CHAIN_TRUTH_ONLY
 from .effect_kinds import effect_kind
 from .machine_checks import MachineFileError, check_known_keys, short_repr
 from .machine_tool import COMPONENTS, MachineTool
@@ -169,11 +170,10 @@ EFFECT_KINDS = tuple(k.name for k in _REGISTRY if k.name in CHAIN_SIMULATED)
 EFFECT_ALIASES = {a: k.name for k in _REGISTRY if k.name in EFFECT_KINDS for a in k.aliases}
 """The registry's aliases of those kinds (``pitch`` → ``periodic``, ``worm`` → ``harmonic``,
 ``backlash`` → ``reversal``)."""
-CHAIN_TRUTH_ONLY = ("bump", "squareness", "squareness_xz", "xz_saddle", "a_tilt", "a_lobe_x")
-"""The registry's truth-only kinds this simulator draws on a chain (module doc): no diagnosis kind represents
-them, so they are not :data:`EFFECT_KINDS` (the kinds a chain model's terms may have)."""
 SIMULATED_KINDS = EFFECT_KINDS + CHAIN_TRUTH_ONLY
-"""Every kind ``simulate --effect`` takes on a chain."""
+"""Every kind ``simulate --effect`` takes on a chain: :data:`EFFECT_KINDS` and the registry's truth-only kinds
+(``CHAIN_TRUTH_ONLY``, :data:`errormap.effect_kinds.TRUTH_ONLY`: no diagnosis kind represents them, so a chain
+model's terms never have them)."""
 EFFECT_DEFAULTS = {
     "bump": {"amplitude_um": 8.0, "p_frac": 0.6, "q_frac": 0.4, "width_frac": 0.18},
     "xz_saddle": {"amplitude_um": 8.0, "p_frac": 0.5, "q_frac": 0.5, "width_frac": 0.15},

@@ -4,8 +4,8 @@ the export can write.
 An effect is a small physical term the error elements do not carry (thermal growth, backlash, a ball-screw
 pitch error, …); its canonical name is the diagnosis's, the simulator's (``pitch``, ``worm``) an alias. Each
 entry gives ``acts_on`` (``"linear"``, ``"rotary"``, ``"any"``, ``"pair"``), ``parameters`` (with units,
-``{u}``: μm or μrad), ``needs`` (condition columns, ``{axis}`` the axis word), ``simulator`` /
-``simulator_element`` (``None``: not drawn), ``diagnosed``, ``truth_only`` and ``export`` (``None``: no
+``{u}``: μm or μrad), ``needs`` (condition columns, ``{axis}`` the axis word), ``simulator``
+(``None``: not drawn), ``diagnosed``, ``truth_only`` and ``export`` (``None``: no
 controller table carries it). An unknown name is a ``ValueError`` naming the known ones."""
 from __future__ import annotations
 
@@ -24,7 +24,6 @@ class EffectKind:
     needs: tuple = ()
     """Condition columns; ``{axis}`` is the axis word (``dir_{axis}`` → ``dir_z``)."""
     simulator: str | None = None
-    simulator_element: str | None = None
     diagnosed: bool = True
     truth_only: bool = False
     nonlinear: str | None = None
@@ -58,40 +57,40 @@ class EffectKind:
 EFFECT_KINDS = (
     EffectKind("thermal", (), "linear", "k·(temp_c − ref_temp_c)·(pos − lo)",
                (("k_{u}_per_mm_c", "{u}/(mm·°C)"),), needs=("temp_c",),
-               simulator="thermal", simulator_element="dx_x"),
+               simulator="thermal"),
     EffectKind("drift", (), "linear", "k·(time_s − ref_time_s)/3600·(pos − lo)",
                (("k_{u}_per_mm_h", "{u}/(mm·h)"),), needs=("time_s",)),
     EffectKind("reversal", ("backlash",), "any", "b/2·dir",
                (("backlash_{u}", "{u}"),), needs=("dir_{axis}",),
-               simulator="reversal", simulator_element="dz_z", export="linuxcnc-backlash"),
+               simulator="reversal", export="linuxcnc-backlash"),
     EffectKind("periodic", ("pitch",), "linear", "A·sin(2π·pos/P + φ)",
                (("amplitude_{u}", "{u}"), ("phase_rad", "rad"), ("period_mm", "mm")),
-               simulator="pitch", simulator_element="dx_x", nonlinear="period_mm"),
+               simulator="pitch", nonlinear="period_mm"),
     EffectKind("harmonic", ("worm",), "rotary", "A·sin(N·a + φ)",
                (("amplitude_{u}", "{u}"), ("phase_rad", "rad"), ("order", "per revolution")),
-               simulator="worm", simulator_element="ex_a", nonlinear="order"),
+               simulator="worm", nonlinear="order"),
     EffectKind("interaction", (), "pair", "k·(p − p_lo)(q − q_lo)/(Δp·Δq)",
-               (("corner_{u}", "{u}"),), simulator="interaction", simulator_element="dx_x"),
+               (("corner_{u}", "{u}"),), simulator="interaction"),
     EffectKind("bump", (), "pair", "A·exp(−½((p−pc)/wp)² − ½((q−qc)/wq)²)",
                (("amplitude_um", "um"), ("x_frac", "1"), ("z_frac", "1"), ("width_frac", "1")),
-               simulator="bump", simulator_element="dy_x", diagnosed=False, truth_only=True),
+               simulator="bump", diagnosed=False, truth_only=True),
     EffectKind("a_tilt", (), "pair", "k·(p − p_lo)/Δp on a rotary axis' tilt",
-               (("k_urad", "urad"),), simulator="a_tilt", simulator_element="ey_a",
+               (("k_urad", "urad"),), simulator="a_tilt",
                diagnosed=False, truth_only=True),
     EffectKind("squareness", (), "pair", "k·sin(π·(p − p_lo)/Δp) on a squareness",
-               (("k_urad", "urad"),), simulator="squareness", simulator_element="s_xz",
+               (("k_urad", "urad"),), simulator="squareness",
                diagnosed=False, truth_only=True),
     EffectKind("squareness_xz", (), "pair", "k·sin(π·(p − p_lo)/Δp)·sin(π·(q − q_lo)/Δq) on a squareness",
-               (("k_urad", "urad"),), simulator="squareness_xz", simulator_element="s_xz",
+               (("k_urad", "urad"),), simulator="squareness_xz",
                diagnosed=False, truth_only=True),
     EffectKind("a_lobe_x", (), "pair", "A·u·exp(½ − ½u²)·cos(2a + φ), u = ((p − p_lo)/Δp − pc)/w, on a rotary "
                "axis' radial motion",
                (("amplitude_um", "um"), ("x_frac", "1"), ("width_frac", "1"), ("phase_rad", "rad")),
-               simulator="a_lobe_x", simulator_element="dy_a", diagnosed=False, truth_only=True),
+               simulator="a_lobe_x", diagnosed=False, truth_only=True),
     EffectKind("xz_saddle", (), "pair", "A·u·exp(½ − ½u²)·(1 − v²)·exp(−½v²), u = ((p − p_lo)/Δp − pc)/w, "
                "v = ((q − q_lo)/Δq − qc)/w, on the second axis' straightness",
                (("amplitude_um", "um"), ("x_frac", "1"), ("z_frac", "1"), ("width_frac", "1")),
-               simulator="xz_saddle", simulator_element="dy_z", diagnosed=False, truth_only=True),
+               simulator="xz_saddle", diagnosed=False, truth_only=True),
 )
 
 _BY_ALIAS = {a: k for k in EFFECT_KINDS for a in (k.name, *k.aliases)}
