@@ -1,0 +1,337 @@
+"""The rotary built-in machines (errormap/machines/mill-xyza.toml: a vertical mill with a 4th-axis A table;
+hmc-xyzb.toml: a horizontal machining centre with a B table; five-axis-bc.toml: a B/C trunnion 5-axis machine):
+each file read as written (axes, strokes, sides, the machines listing), and a program written for this project
+in the manner of the controllers' manuals (Haas 4th-axis indexing and a wrapped move; a Fanuc horizontal
+machine indexing B between work systems; a Haas UMC 3+2 cut, G93 simultaneous B/C moves and G234 TCP)
+compensated on it and judged independently of the reader: frames from the program's own G54-G56 / G43 H words
+(tests/program_checks.py ``_frame``), every line that is not a compensated move byte-identical, every programmed
+end point reached by the TRUE machine at some written move within 1 μm (in order), the rotary words kept as
+programmed and every linear correction inside the solver's ball, and G93 block times kept."""
+import json
+import re
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from compensation.app.cli import main
+from compensation.chain_gcode import parse_chain_program
+from compensation.nc_state import machine_with_tool
+from compensation.solvers.base import BALL_RADIUS_UM
+from errormap.chain_elements import ChainElementSet
+from errormap.chain_field import ChainField
+from errormap.machine import builtin_machines, load_machine
+from program_checks import TOL_POINT_UM, _frame
+
+MACHINES_DIR = Path(__file__).resolve().parents[1] / "errormap" / "machines"
+ELEMENT_SCALE_UM = 10.0
+"""Truth elements of ±10 μm / μrad (1 σ), as the corpus count (benchmarks/suite/gcode_corpus.py)."""
+TRUTH_SEED = 101
+TOOL_MM = 100.0
+"""Tool 1's length in the tool table (the corpus count's)."""
+ROTARY_KEPT_DEG = 1e-6
+"""The rotary words are kept as programmed: written back to their 6 decimals of a degree."""
+G93_TIME_REL = 1e-5
+"""A G93 block's time (1/F minutes) kept over its split pieces: F is written to 6 decimals
+(compensation/tcp.py INVERSE_TIME_DECIMALS), so each piece's time is exact to < 5e-7 relative."""
+
+AXES = {"mill-xyza": ("XYZA", "A", "work"), "hmc-xyzb": ("XYZB", "B", "work"), "five-axis-bc": ("XYZBC", "BC", "work")}
+"""Per built-in: its axis words, its rotary words and the side the rotary axes are on."""
+
+PROGRAMS = {
+    # Haas 4th axis (HRT on a VF mill): index with the brake released (M11 G00 A.. M10), cut 3-axis faces, then a
+    # wrapped move that turns A while X and Z feed; Y and Z zero on the A axis line.
+    "mill-xyza": ("haas", {"G54": (300.0, 200.0, -425.0)}, """%
+O01000 (4TH AXIS: INDEXED FACES THEN A WRAPPED MOVE)
+T1 M06
+G00 G17 G21 G40 G49 G80 G90
+G54 G00 X0. Y0. A0.
+S2000 M03
+G43 H01 Z50.
+M11
+G00 A90.
+M10
+G00 X10. Y5.
+Z27.
+G01 Z23. F200.
+X60.
+Y-5.
+X10.
+G00 Z50.
+M11
+G00 A180.
+M10
+G00 X10. Y0.
+Z27.
+G01 Z22.5 F150.
+X70.
+G00 Z50.
+M11
+G00 A0.
+G01 X20. Z23. F300.
+G01 X40. A90.
+G01 X60. A180.
+G00 Z50.
+M05
+M30
+%
+"""),
+    # Fanuc horizontal machining centre: one work system per face (G54 B0, G55 B90, G56 B180), the table clamped
+    # (M10) while cutting; a pocket outline, an arc, a plunge.
+    "hmc-xyzb": ("fanuc", {"G54": (0.0, 150.0, -650.0), "G55": (0.0, 150.0, -650.0), "G56": (0.0, 150.0, -650.0)},
+                 """%
+O02000 (HMC: FACES BY B INDEX)
+T1 M06
+G00 G17 G21 G40 G49 G80 G90
+G54 G00 B0. X-40. Y20.
+S3000 M03
+G43 H01 Z20.
+G01 Z-3. F250.
+X40.
+Y60.
+X-40.
+G00 Z50.
+M11
+G55 G00 B90.
+M10
+G00 X-30. Y30.
+Z5.
+G01 Z-2. F250.
+G02 X30. R30.
+G00 Z50.
+M11
+G56 G00 B180.
+M10
+G00 X0. Y40.
+G01 Z-5. F100.
+G00 Z50.
+M05
+M30
+%
+"""),
+    # Haas UMC (B/C trunnion): a 3+2 cut at B30 C45, then simultaneous B/C moves in inverse time (G93: every block
+    # its own F, the time of the block in 1/F minutes).
+    "five-axis-bc": ("haas", {"G54": (0.0, 0.0, -460.0)}, """%
+O03000 (B/C TRUNNION: 3+2 CUT, THEN SIMULTANEOUS B C IN G93)
+T1 M06
+G00 G17 G21 G40 G49 G80 G90
+G54 G00 B0. C0. X0. Y0.
+S8000 M03
+G43 H01 Z60.
+G00 B30. C45.
+G00 X-20. Y-10.
+Z5.
+G01 Z-1. F400.
+X20.
+Y10.
+X-20.
+G00 Z60.
+G00 B0. C0.
+G00 X30. Y0. Z10.
+G93 G01 X28. Y5. Z9. B10. C20. F60.
+X25. Y10. Z8. B20. C40. F60.
+X20. Y14. Z7. B30. C60. F45.
+G94 G00 Z60.
+M05
+M30
+%
+"""),
+}
+
+
+@pytest.mark.parametrize("name", sorted(AXES))
+def test_the_machine_file_is_read_as_written(name):
+    """Axes, strokes and sides as the TOML states them (read here directly); a rotary stroke wide enough for
+    its programs (the B/C trunnion's tilt is the UMC's -35..110 deg); the machine listed by ``volcomp machines``."""
+    doc = tomllib.loads((MACHINES_DIR / f"{name}.toml").read_text(encoding="utf-8"))
+    mt = load_machine(name)
+    words, rotary, side = AXES[name]
+    assert "".join(a.word for a in mt.axes) == words and mt.name == name == doc["machine"]["name"]
+    joints = {d["axis"]: d for d in doc["work"] + doc["tool"] if "joint" in d}
+    for a in mt.axes:
+        assert a.stroke == tuple(joints[a.word]["stroke"]) and a.kind == joints[a.word]["joint"]
+        assert (a.side == side) if a.word in rotary else a.kind == "linear"
+    assert name in builtin_machines()
+    # 6 component errors per axis, 4 location errors per rotary axis, 3 squareness constants
+    assert len(mt.slot_names) == 6 * len(words) + 4 * len(rotary) + 3
+
+
+def _write_tables(tmp_path, offsets):
+    off = tmp_path / "offsets.csv"
+    off.write_text("system,x_mm,y_mm,z_mm\n" + "".join(f"{s},{x},{y},{z}\n" for s, (x, y, z) in offsets.items()))
+    tools = tmp_path / "tools.csv"
+    tools.write_text(f"tool,length_mm,radius_mm\n1,{TOOL_MM},5\n")
+    return off, tools
+
+
+def _compensate(tmp_path, name, text, dialect, offsets):
+    mt = load_machine(name)
+    truth = ChainElementSet.random(mt, TRUTH_SEED, ELEMENT_SCALE_UM, 11).save(tmp_path / "truth.json")
+    prog = tmp_path / f"{name}.nc"
+    prog.write_text(text, encoding="ascii")
+    off, tools = _write_tables(tmp_path, offsets)
+    out = tmp_path / "out"
+    assert main(["compensate", str(prog), "--machine", name, "--model", str(truth), "--truth", str(truth),
+                 "--method", "exact", "--out", str(out), "--dialect", dialect, "--work-offsets", str(off),
+                 "--tool-table", str(tools)]) == 0
+    summary = json.loads((out / "compensate_summary.json").read_text())["files"][0]
+    return mt, truth, prog, out / prog.name, summary
+
+
+def _placed(mt, move, frame, fields, truth_els):
+    """Machine axes of a move's end (offset on X Y Z, the tool length on Z) and the machine at its tool."""
+    off, tool = frame[move.index]
+    q = move.end.copy()
+    q[:3] += off + [0.0, 0.0, tool if tool is not None else 0.0]
+    if tool not in fields:
+        at = machine_with_tool(mt, tool) if tool is not None else mt
+        fields[tool] = (at, ChainField(at, truth_els))
+    return q, fields[tool]
+
+
+@pytest.mark.parametrize("name", sorted(PROGRAMS))
+def test_a_manual_style_program_is_compensated_on_the_rotary_machine(tmp_path, name):
+    dialect, offsets, text = PROGRAMS[name]
+    mt, truth_file, prog, written, summary = _compensate(tmp_path, name, text, dialect, offsets)
+    assert summary["true_uncompensated"]["max_um"] > 10 * TOL_POINT_UM  # the check below has teeth
+    errs, blocks = _judge(name, mt, truth_file, prog, written)
+    assert max(errs) <= TOL_POINT_UM
+    assert blocks == (3 if name == "five-axis-bc" else 0)  # its three G93 blocks were split and checked
+
+
+def test_the_check_sees_an_uncompensated_program(tmp_path):
+    """The program itself as its 'compensated' output: its first cut is reached by no written move."""
+    dialect, offsets, text = PROGRAMS["mill-xyza"]
+    mt, truth_file, prog, _, _ = _compensate(tmp_path, "mill-xyza", text, dialect, offsets)
+    with pytest.raises(AssertionError, match="line 13 .* reached by no written move"):
+        _judge("mill-xyza", mt, truth_file, prog, prog)
+
+
+def _judge(name, mt, truth_file, prog, written):
+    """The independent check (module docstring): (errors μm per programmed end point, G93 blocks split and
+    checked); an AssertionError names what failed."""
+    dialect, offsets, _ = PROGRAMS[name]
+    words, rotary, _ = AXES[name]
+    p_src, p_out = (parse_chain_program(f, mt, dialect=dialect) for f in (prog, written))
+    tables = {s: np.asarray(v) for s, v in offsets.items()}
+    f_src, f_out = (_frame(p.lines, tables, {1: TOOL_MM}, "G54") for p in (p_src, p_out))
+    m_src = [m for m in p_src.moves if m.compensate]
+    m_out = [m for m in p_out.moves if m.compensate]
+    assert m_src and {m.kind for m in p_src.moves if not m.compensate} <= {"rapid"}  # every feed compensated
+    out_lines = [ln for ln in p_out.lines if not ln.startswith("(volcomp:")]
+    keep_src = [ln for i, ln in enumerate(p_src.lines) if i not in {m.index for m in m_src}]
+    keep_out = [ln for i, ln in enumerate(p_out.lines) if i not in {m.index for m in m_out} and ln in out_lines]
+    assert keep_src == keep_out  # every line that is not a compensated move, byte for byte and in order
+    truth_els, fields = ChainElementSet.load(truth_file, mt), {}
+    jrot = [words.index(w) for w in rotary]
+    g93, j, errs, blocks = _inverse_time(p_src.lines), 0, [], 0
+    for m in m_src:
+        q, (at, _) = _placed(mt, m, f_src, fields, truth_els)
+        target = at.nominal(q[None])[0]
+        first = j
+        while j < len(m_out):
+            qo, (ato, tf) = _placed(mt, m_out[j], f_out, fields, truth_els)
+            j += 1
+            e_um = np.linalg.norm(ato.nominal(qo[None])[0] + tf.predict(qo[None])[0] * 1e-3 - target) * 1e3
+            if e_um <= TOL_POINT_UM:
+                errs.append(e_um)
+                assert np.abs(qo[jrot] - q[jrot]).max() <= ROTARY_KEPT_DEG  # the rotary words as programmed
+                assert np.linalg.norm(qo[:3] - q[:3]) * 1e3 <= BALL_RADIUS_UM  # the linear correction in the ball
+                if g93[m.index]:  # the block's time kept over its pieces
+                    pieces = [p_out.lines[k.index] for k in m_out[first:j]]
+                    t_src = _block_minutes([p_src.lines[m.index]])
+                    assert abs(_block_minutes(pieces) - t_src) <= G93_TIME_REL * t_src
+                    blocks += len(pieces) > 1
+                break
+        else:
+            raise AssertionError(f"{name}: line {m.index + 1} ({p_src.lines[m.index].strip()!r}) reached by no "
+                                 "written move")
+    return errs, blocks
+
+
+def _inverse_time(lines):
+    """Per line, whether G93 (inverse-time feed) is in force there, read by pattern (G93 / G94 are modal)."""
+    on, out = False, []
+    for ln in lines:
+        for g in re.findall(r"G9([34])(?![.\d])", re.sub(r"\(.*?\)", "", ln)):
+            on = g == "3"
+        out.append(on)
+    return out
+
+
+def _block_minutes(lines):
+    """Minutes of G93 blocks: 1/F of each line (every G93 block carries its F)."""
+    return sum(1.0 / float(re.search(r"F([\d.]+)", ln).group(1)) for ln in lines)
+
+
+TCP_PROGRAM = """%
+O03001 (B/C TRUNNION IN TCP: G234, THE TIP IN THE WORKPIECE FRAME)
+T1 M06
+G00 G17 G21 G40 G49 G80 G90
+G54 G00 B0. C0. X0. Y0.
+S8000 M03
+G234 H01
+G00 X30. Y0. Z10. B0. C0.
+G01 X28. Y5. Z9. B10. C20. F300.
+X25. Y10. Z8. B20. C40.
+G49
+G00 X0. Y0. Z-100. B0. C0.
+M30
+%
+"""
+TCP_ZERO_MM = (0.0, 0.0, 50.0)
+"""Under TCP the work offset is the part zero in the workpiece (table) frame: 50 mm above the C table top."""
+
+
+def test_a_tcp_program_is_compensated_on_the_b_c_trunnion(tmp_path):
+    """G234 (Haas TCPC) on five-axis-bc: the written tip, placed by the chain's nominal inverse (solved here: the
+    tip is affine in X Y Z at fixed B C), is where the TRUE machine puts the programmed tip, within 1 μm."""
+    mt, truth_file, prog, written, _ = _compensate(tmp_path, "five-axis-bc", TCP_PROGRAM, "haas", {"G54": TCP_ZERO_MM})
+    at = machine_with_tool(mt, TOOL_MM)
+    truth = ChainField(at, ChainElementSet.load(truth_file, mt))
+    src, out = prog.read_text().splitlines(), written.read_text().splitlines()
+    on = [i for i, ln in enumerate(src) if ln.startswith(("G01", "X")) and "G234" not in ln]
+    tips = _words_modal(src[:on[0]])  # the modal tip and rotary words, as programmed
+    start = out.index(src[on[0] - 1]) + 1  # the lines before the first TCP feed are the source's
+    modal, k, checked, unc = _words_modal(out[:start]), start, 0, []
+    for i in on:
+        tips.update(_words(src[i]))
+        target = np.array([tips[w] for w in "XYZ"]) + TCP_ZERO_MM
+        rot = [tips["B"], tips["C"]]
+        while k < len(out):  # the written piece that ends this block: its rotary words reach the block's
+            modal.update(_words(out[k]))
+            k += 1
+            if max(abs(modal["B"] - rot[0]), abs(modal["C"] - rot[1])) <= ROTARY_KEPT_DEG:
+                break
+        else:
+            pytest.fail(f"line {i + 1}: no written piece ends at B{rot[0]} C{rot[1]}")
+        q = _nominal_inverse(at, np.array([modal[w] for w in "XYZ"]) + TCP_ZERO_MM, rot)
+        tip_um = (at.nominal(q[None])[0] + truth.predict(q[None])[0] * 1e-3 - target) * 1e3
+        assert np.linalg.norm(tip_um) <= TOL_POINT_UM
+        q0 = _nominal_inverse(at, target, rot)  # the block as programmed: the check has teeth
+        unc.append(np.linalg.norm(at.nominal(q0[None])[0] + truth.predict(q0[None])[0] * 1e-3 - target) * 1e3)
+        checked += 1
+    assert checked == 2 and max(unc) > 10 * TOL_POINT_UM
+
+
+def _words(line):
+    return {m.group(1): float(m.group(2)) for m in re.finditer(r"([XYZBC])(-?[\d.]+)", re.sub(r"\(.*?\)", "", line))}
+
+
+def _words_modal(lines):
+    """The modal axis words after ``lines``."""
+    out = {}
+    for ln in lines:
+        out.update(_words(ln))
+    return out
+
+
+def _nominal_inverse(mt, tip_mm, rot_deg):
+    """Machine axes (5,) whose nominal tool point is ``tip_mm`` at the rotary positions ``rot_deg``: the tool
+    point is affine in the linear axes at fixed rotary axes, so four evaluations give it exactly."""
+    base = np.array([[0.0, 0.0, 0.0, *rot_deg]])
+    unit = base + np.hstack([np.eye(3), np.zeros((3, 2))])
+    p0 = mt.nominal(base)[0]
+    lin = np.linalg.solve((mt.nominal(unit) - p0).T, tip_mm - p0)
+    return np.array([*lin, *rot_deg])
