@@ -7,7 +7,9 @@ compensated on it and judged independently of the reader: frames from the progra
 (tests/program_checks.py ``_frame``), every line that is not a compensated move byte-identical, every programmed
 end point reached by the TRUE machine at some written move within 1 μm (in order), the rotary words kept as
 programmed and every linear correction inside the solver's ball, and G93 block times kept."""
+import csv
 import json
+import os
 import re
 import tomllib
 from pathlib import Path
@@ -15,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benchmarks.suite.gcode_corpus import MANIFEST, SAMPLES, sample_of
 from compensation.app.cli import main
 from compensation.chain_gcode import parse_chain_program
 from compensation.nc_state import machine_with_tool
@@ -335,3 +338,30 @@ def _nominal_inverse(mt, tip_mm, rot_deg):
     p0 = mt.nominal(base)[0]
     lin = np.linalg.solve((mt.nominal(unit) - p0).T, tip_mm - p0)
     return np.array([*lin, *rot_deg])
+
+
+ROTARY_SAMPLE = "blind sample rotary"
+"""The 4/5-axis blind sample's mark (benchmarks/suite/gcode_corpus.py SAMPLES; program_corpus/README.md)."""
+MACHINE_OF_AXES = {"A": "mill-xyza", "B": "hmc-xyzb", "AC": "five-axis-ac", "BC": "five-axis-bc"}
+"""The built-in whose rotary axes are a program's rotary words."""
+
+
+def test_the_rotary_rows_run_on_the_built_in_of_their_axis_words():
+    """MANIFEST.csv's 4/5-axis rows (the sample's among them, from fresh repositories) name a built-in with as many
+    rotary axes as their kind, the sample is reported apart, and where the corpus is on this machine
+    (``$VOLCOMP_PROGRAM_CORPUS``) each program's rotary words, read here by pattern, are that machine's axes."""
+    rows = list(csv.DictReader(MANIFEST.open(encoding="utf-8")))
+    rotary = [r for r in rows if r["kind"] in ("4-axis", "5-axis")]
+    sample = [r for r in rotary if sample_of(r["licence"]) == ROTARY_SAMPLE]
+    assert ROTARY_SAMPLE in SAMPLES and sample
+    rest = {r["repository"] for r in rows if sample_of(r["licence"]) != ROTARY_SAMPLE}
+    assert not {r["repository"] for r in sample} & rest  # fresh repositories only
+    corpus = os.environ.get("VOLCOMP_PROGRAM_CORPUS")
+    for r in rotary:
+        mt = load_machine(r["machine"])
+        words = "".join(a.word for a in mt.axes if a.kind == "rotary")
+        assert MACHINE_OF_AXES[words] == r["machine"] and len(words) == int(r["kind"][0]) - 3, r["file"]
+        if corpus and (Path(corpus) / r["file"]).is_file():
+            text = re.sub(r"\([^)\n]*\)|;[^\n]*", "", (Path(corpus) / r["file"]).read_text(encoding="latin-1"))
+            used = {w.upper() for w in re.findall(r"(?i)(?<![A-Z])([ABC])\s*[-+.\d#\[]", text)}
+            assert "".join(sorted(used)) == words, r["file"]
