@@ -2,7 +2,8 @@
 hmc-xyzb.toml: a horizontal machining centre with a B table; five-axis-bc.toml: a B/C trunnion 5-axis machine):
 each file read as written (axes, strokes, sides, the machines listing), and a program written for this project
 in the manner of the controllers' manuals (Haas 4th-axis indexing and a wrapped move; a Fanuc horizontal
-machine indexing B between work systems; a Haas UMC 3+2 cut, G93 simultaneous B/C moves and G234 TCP)
+machine indexing B between work systems; a Haas UMC 3+2 cut and G93 simultaneous B/C moves; TCP programs: Haas
+G234 on the B/C trunnion, Fanuc G43.4 on the 4th axis)
 compensated on it and judged independently of the reader: frames from the program's own G54-G56 / G43 H words
 (tests/program_checks.py ``_frame``), every line that is not a compensated move byte-identical, every programmed
 end point reached by the TRUE machine at some written move within 1 μm (in order), the rotary words kept as
@@ -268,7 +269,9 @@ def _block_minutes(lines):
     return sum(1.0 / float(re.search(r"F([\d.]+)", ln).group(1)) for ln in lines)
 
 
-TCP_PROGRAM = """%
+TCP_CASES = {
+    # Haas UMC: TCPC (G234 Hn), the tip in the workpiece frame; its work offset: 50 mm above the C table top
+    "five-axis-bc": ("haas", (0.0, 0.0, 50.0), """%
 O03001 (B/C TRUNNION IN TCP: G234, THE TIP IN THE WORKPIECE FRAME)
 T1 M06
 G00 G17 G21 G40 G49 G80 G90
@@ -282,34 +285,53 @@ G49
 G00 X0. Y0. Z-100. B0. C0.
 M30
 %
-"""
-TCP_ZERO_MM = (0.0, 0.0, 50.0)
-"""Under TCP the work offset is the part zero in the workpiece (table) frame: 50 mm above the C table top."""
+"""),
+    # Fanuc 4th axis: G43.4 (tool-centre-point control) with A; the work offset on the A axis line
+    "mill-xyza": ("fanuc", (0.0, 0.0, 0.0), """%
+O1002 (4TH AXIS IN TCP: G43.4)
+T1 M06
+G00 G17 G21 G40 G49 G80 G90
+G54 G00 X0. Y0. A0.
+G43.4 H01
+G00 X10. Y0. Z40. A0.
+G01 X20. Y0. Z25. A30. F300.
+X40. Y5. Z24. A90.
+G49
+G00 X0. Y0. Z-200. A0.
+M30
+%
+"""),
+}
+"""Per machine: (dialect, work offset G54 (mm: under TCP the part zero in the workpiece frame), program)."""
 
 
-def test_a_tcp_program_is_compensated_on_the_b_c_trunnion(tmp_path):
-    """G234 (Haas TCPC) on five-axis-bc: the written tip, placed by the chain's nominal inverse (solved here: the
-    tip is affine in X Y Z at fixed B C), is where the TRUE machine puts the programmed tip, within 1 μm."""
-    mt, truth_file, prog, written, _ = _compensate(tmp_path, "five-axis-bc", TCP_PROGRAM, "haas", {"G54": TCP_ZERO_MM})
+@pytest.mark.parametrize("name", sorted(TCP_CASES))
+def test_a_tcp_program_is_compensated_on_the_rotary_machine(tmp_path, name):
+    """A TCP program (Haas G234 on five-axis-bc, Fanuc G43.4 on mill-xyza): the written tip, placed by the chain's
+    nominal inverse (solved here: the tip is affine in X Y Z at fixed rotary axes), is where the TRUE machine puts
+    the programmed tip, within 1 μm; the rotary words kept."""
+    dialect, zero, text = TCP_CASES[name]
+    mt, truth_file, prog, written, _ = _compensate(tmp_path, name, text, dialect, {"G54": zero})
+    rotary = AXES[name][1]
     at = machine_with_tool(mt, TOOL_MM)
     truth = ChainField(at, ChainElementSet.load(truth_file, mt))
     src, out = prog.read_text().splitlines(), written.read_text().splitlines()
-    on = [i for i, ln in enumerate(src) if ln.startswith(("G01", "X")) and "G234" not in ln]
+    on = [i for i, ln in enumerate(src) if ln.startswith(("G01", "X"))]
     tips = _words_modal(src[:on[0]])  # the modal tip and rotary words, as programmed
     start = out.index(src[on[0] - 1]) + 1  # the lines before the first TCP feed are the source's
     modal, k, checked, unc = _words_modal(out[:start]), start, 0, []
     for i in on:
         tips.update(_words(src[i]))
-        target = np.array([tips[w] for w in "XYZ"]) + TCP_ZERO_MM
-        rot = [tips["B"], tips["C"]]
+        target = np.array([tips[w] for w in "XYZ"]) + zero
+        rot = [tips[w] for w in rotary]
         while k < len(out):  # the written piece that ends this block: its rotary words reach the block's
             modal.update(_words(out[k]))
             k += 1
-            if max(abs(modal["B"] - rot[0]), abs(modal["C"] - rot[1])) <= ROTARY_KEPT_DEG:
+            if max(abs(modal[w] - r) for w, r in zip(rotary, rot)) <= ROTARY_KEPT_DEG:
                 break
         else:
-            pytest.fail(f"line {i + 1}: no written piece ends at B{rot[0]} C{rot[1]}")
-        q = _nominal_inverse(at, np.array([modal[w] for w in "XYZ"]) + TCP_ZERO_MM, rot)
+            pytest.fail(f"line {i + 1}: no written piece ends at {rotary} {rot}")
+        q = _nominal_inverse(at, np.array([modal[w] for w in "XYZ"]) + zero, rot)
         tip_um = (at.nominal(q[None])[0] + truth.predict(q[None])[0] * 1e-3 - target) * 1e3
         assert np.linalg.norm(tip_um) <= TOL_POINT_UM
         q0 = _nominal_inverse(at, target, rot)  # the block as programmed: the check has teeth
@@ -319,7 +341,7 @@ def test_a_tcp_program_is_compensated_on_the_b_c_trunnion(tmp_path):
 
 
 def _words(line):
-    return {m.group(1): float(m.group(2)) for m in re.finditer(r"([XYZBC])(-?[\d.]+)", re.sub(r"\(.*?\)", "", line))}
+    return {m.group(1): float(m.group(2)) for m in re.finditer(r"([XYZABC])(-?[\d.]+)", re.sub(r"\(.*?\)", "", line))}
 
 
 def _words_modal(lines):
@@ -331,10 +353,10 @@ def _words_modal(lines):
 
 
 def _nominal_inverse(mt, tip_mm, rot_deg):
-    """Machine axes (5,) whose nominal tool point is ``tip_mm`` at the rotary positions ``rot_deg``: the tool
-    point is affine in the linear axes at fixed rotary axes, so four evaluations give it exactly."""
+    """Machine axes (3 + r,) whose nominal tool point is ``tip_mm`` at the rotary positions ``rot_deg`` (r,): the
+    tool point is affine in the linear axes at fixed rotary axes, so four evaluations give it exactly."""
     base = np.array([[0.0, 0.0, 0.0, *rot_deg]])
-    unit = base + np.hstack([np.eye(3), np.zeros((3, 2))])
+    unit = base + np.hstack([np.eye(3), np.zeros((3, len(rot_deg)))])
     p0 = mt.nominal(base)[0]
     lin = np.linalg.solve((mt.nominal(unit) - p0).T, tip_mm - p0)
     return np.array([*lin, *rot_deg])
