@@ -26,6 +26,7 @@ from compensation.solvers.base import BALL_RADIUS_UM
 from compensation.tcp import ORIENT_ROTARY_LIMIT_DEG
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import ChainField
+from errormap.io import InputError
 from errormap.machine import builtin_machines, load_machine
 from program_checks import TOL_POINT_UM, _frame
 
@@ -441,3 +442,19 @@ def test_the_rotary_rows_run_on_the_built_in_of_their_axis_words():
             text = re.sub(r"\([^)\n]*\)|;[^\n]*", "", (Path(corpus) / r["file"]).read_text(encoding="latin-1"))
             used = {w.upper() for w in re.findall(r"(?i)(?<![A-Z])([ABC])\s*[-+.\d#\[]", text)}
             assert "".join(sorted(used)) == words, r["file"]
+
+
+def test_haas_dynamic_work_offset_is_refused_by_name(tmp_path):
+    """G254 (Haas DWO: the work offset turned with B/C by the control's own settings) is refused naming the line,
+    column and word and what to post instead; the trunnion's brake codes M10-M13 pass on five-axis-bc whatever the
+    dialect (its [controller] table)."""
+    text = "\n".join(["%", "O1004 (UMC 3+2 WITH DWO)", "T1 M06", "G00 G17 G21 G40 G49 G80 G90", "G54 G00 B0. C0.",
+                      "M12", "M10", "G00 B30. C45.", "M11", "M13", "G254", "G00 X0. Y0.", "G43 H01 Z50.",
+                      "G01 Z-1. F300.", "G00 Z50.", "G255", "M30", "%", ""])
+    mt = load_machine("five-axis-bc")
+    prog = tmp_path / "dwo.nc"
+    prog.write_text(text)
+    with pytest.raises(InputError, match=r"line 11, column 1: 'G254' \(Haas dynamic work offset .*TCPC \(G234\)"):
+        parse_chain_program(prog, mt, dialect="fanuc")
+    prog.write_text(text.replace("G254\n", "").replace("G255\n", ""))
+    assert parse_chain_program(prog, mt, dialect="fanuc").moves
