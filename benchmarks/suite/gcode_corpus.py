@@ -138,7 +138,9 @@ table top). The rotary machines' zero is where 4/5-axis posts put it: mill-xyza 
 zero on it, as a 4th-axis program's radii and wrapped Y need), mid-X; hmc-xyzb on the B axis (X), 150 mm above
 the pallet top (Y) and 200 mm from the B axis toward the spindle (Z: a face of a part on the pallet), so that
 both the program's Z 0…+650 retracts and a G43 tool of :data:`TOOL_LENGTH_MM` stay in Z's stroke; five-axis-bc
-on the C axis, 50 mm above the C table top (a part's top), the tip there at B = C = 0."""
+on the C axis, 50 mm above the C table top (a part's top), the tip there at B = C = 0. These are joint-mode zeros
+(machine axes = program + offset); under TCP the offset is the part zero in the workpiece frame, as five-axis-ac's
+is (its corpus programs are TCP demos): a TCP program on the rotary machines would need (0, 0, 50) and the like."""
 
 
 NO_MOTION = "no G0/G1/G2/G3 motion"
