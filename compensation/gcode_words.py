@@ -213,6 +213,8 @@ REFUSED_G = {
     "G54.2": ("dynamic fixture offset: the offset follows the rotary axes from a controller table that no file read "
               "here holds; give the offset at the program's rotary position as a G54-G59 or G54.1 P system in "
               "--work-offsets"),
+    "G254": "Haas dynamic work offset (turned with B/C by the control's settings): post without it (G54 at the "
+            "rotary position, in --work-offsets) or in TCPC (G234)",
     "G52": "local coordinate shift (read on LinuxCNC, Fanuc, Haas, Siemens ISO, Mach3, or with no dialect named)",
     "G60": "unidirectional approach", "G65": "macro call (its letters are arguments, not axes)",
     "G66": "modal macro call", "G66.1": "modal macro call", "G68": "coordinate rotation",

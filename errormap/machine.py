@@ -22,7 +22,7 @@ BUILTIN_ALIASES = {"grinder-chain": "grinder"}
 
 def builtin_machine_path(kind: str = "grinder") -> Path:
     """Path of a built-in machine file (``grinder``, the default, a machine-tool chain also named
-    ``grinder-chain``; ``mill-xyz``, ``five-axis-ac``, ``lathe-xzc``; ``hexapod``, ``tripod``; ``ur5``,
+    ``grinder-chain``; ``mill-xyz``, ``mill-xyza``, ``hmc-xyzb``, ``five-axis-ac``, ``five-axis-bc``, ``lathe-xzc``; ``hexapod``, ``tripod``; ``ur5``,
     ``ur10``, ``wam``)."""
     p = Path(str(resources.files("errormap") / "machines" / f"{BUILTIN_ALIASES.get(kind, kind)}.toml"))
     if not p.is_file():

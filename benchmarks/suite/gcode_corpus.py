@@ -128,11 +128,19 @@ MANIFEST = HERE / "program_corpus" / "MANIFEST.csv"
 STYLES = HERE / "nc_styles"
 TOOL_LENGTH_MM = 100.0
 TOOL_RADIUS_MM = 5.0
-PART_ZERO_MM = {"mill-xyz": (300.0, 200.0, -300.0), "lathe-xzc": (0.0, 0.0, 200.0), "five-axis-ac": (0.0, 0.0, 40.0)}
+PART_ZERO_MM = {"mill-xyz": (300.0, 200.0, -300.0), "lathe-xzc": (0.0, 0.0, 200.0), "five-axis-ac": (0.0, 0.0, 40.0),
+                "mill-xyza": (300.0, 200.0, -425.0), "hmc-xyzb": (0.0, 150.0, -650.0),
+                "five-axis-bc": (0.0, 0.0, -460.0)}
 """Where the tables put every work system: a part zero inside the machine's strokes (mill: the middle of X
 and Y, 100 mm above the bottom of Z's stroke; lathe: the spindle axis, the part's face 200 mm along the bed, so
 that turning towards the chuck (Z < 0) stays inside Z's stroke; five-axis: on the C axis, 40 mm above the C
-table top)."""
+table top). The rotary machines' zero is where 4/5-axis posts put it: mill-xyza on the A axis line (Y and Z
+zero on it, as a 4th-axis program's radii and wrapped Y need), mid-X; hmc-xyzb on the B axis (X), 150 mm above
+the pallet top (Y) and 200 mm from the B axis toward the spindle (Z: a face of a part on the pallet), so that
+both the program's Z 0…+650 retracts and a G43 tool of :data:`TOOL_LENGTH_MM` stay in Z's stroke; five-axis-bc
+on the C axis, 50 mm above the C table top (a part's top), the tip there at B = C = 0. These are joint-mode zeros
+(machine axes = program + offset); under TCP the offset is the part zero in the workpiece frame, as five-axis-ac's
+is (its corpus programs are TCP demos): a TCP program on the rotary machines would need (0, 0, 50) and the like."""
 
 
 NO_MOTION = "no G0/G1/G2/G3 motion"
@@ -671,7 +679,8 @@ SAMPLE_MARK = "blind sample"
 """The manifest's licence column of the rows drawn blind (program_corpus/README.md, "The blind sample" and "The
 second blind sample")."""
 SAMPLES = {"blind sample": "blind sample of public 3-axis mill programs (CAM posts and shops)",
-           "blind sample 2": "second blind sample of public 3-axis mill programs (generators other than Fusion 360)"}
+           "blind sample 2": "second blind sample of public 3-axis mill programs (generators other than Fusion 360)",
+           "blind sample rotary": "4/5-axis blind sample of public programs (rotary-axis words on motion lines)"}
 """Each blind sample's mark in the licence column and the words its figures are reported under."""
 
 
