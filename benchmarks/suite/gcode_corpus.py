@@ -671,7 +671,8 @@ SAMPLE_MARK = "blind sample"
 """The manifest's licence column of the rows drawn blind (program_corpus/README.md, "The blind sample" and "The
 second blind sample")."""
 SAMPLES = {"blind sample": "blind sample of public 3-axis mill programs (CAM posts and shops)",
-           "blind sample 2": "second blind sample of public 3-axis mill programs (generators other than Fusion 360)"}
+           "blind sample 2": "second blind sample of public 3-axis mill programs (generators other than Fusion 360)",
+           "blind sample lathe": "blind sample of public lathe programs (Fanuc/Haas-style shops and CAM posts)"}
 """Each blind sample's mark in the licence column and the words its figures are reported under."""
 
 
