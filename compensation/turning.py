@@ -19,6 +19,7 @@ import numpy as np
 from errormap.io import InputError
 
 from .gcode import AxisWords, GProgram, parse_program, tokenize
+from .nc_contour import refuse_open
 
 TURN_SAMPLES = 24
 """Spindle angles (every 15°) at which the error is averaged over one turn: the chain's errors are smooth
@@ -100,6 +101,7 @@ def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe
         prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=xz, dialect=dialect,
                              lathe_x=lathe_x, subprograms=subprograms)
         _refuse_lathe_x(prog, option)
+        refuse_open(path, prog.events)
         return prog, np.ones(len(prog.moves), dtype=bool)
     except InputError as exc:
         if f"no {c} axis" not in str(exc):
@@ -121,6 +123,7 @@ def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe
     kept = dataclasses.replace(full, kept=(c,))  # C written only where C-axis mode moves it
     prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=kept, dialect=dialect,
                          lathe_x=lathe_x, subprograms=subprograms)
+    refuse_open(path, prog.events)
     return prog, np.array([flags[m.index] for m in prog.moves], dtype=bool)
 
 

@@ -523,6 +523,11 @@ def gcode_entry(entry, tp: ToolPath, res, true_r, true_base, field_, truth, mach
     if tp.turning is not None:  # a lathe: what its X words are and who said it (option or machine file)
         from ...turning import lathe_x_entry
         entry.update(lathe_x_entry(machine, getattr(s, "lathe_x", None), job.program.dialect))
+        from ...nc_contour import check_compensated  # G70-G73: the contour's points compensated, the cycles kept
+        cycles = check_compensated(job.program.path, job.program.events, tp.lines, tp.axes, res.axes,
+                                   machine.axis_words.index("X"), machine.axis_words.index("Z"))
+        if cycles:
+            entry["lathe_cycles"] = cycles
     files = getattr(job.program.expanded, "files", ())
     if files:  # subprograms read from --subprograms folders (compensation.nc_subfiles)
         entry["subprogram_files"] = [{"path": p, "sha256": h} for _, p, h in files]
