@@ -101,8 +101,12 @@ def cycle_line(words, idx: int, st, ax) -> str | None:
                                        "(write other words on a line of their own)")
         by[x.letter] = x
     if "P" not in by and "Q" not in by:
-        if w.code == "G70" or not set(by) <= FIRST_BLOCK[w.code]:
-            raise _Refuse(w.start + 1, f"'{w.code}' without P and Q (the contour's first and last block numbers)")
+        bare = set(by) <= {"G", "N"}
+        if w.code == "G70" or bare or not set(by) <= FIRST_BLOCK[w.code]:
+            sys_c = (" (in Fanuc G-code system C, a parameter, G70/G71 are inch/mm input: write G20/G21)"
+                     if bare and w.code in ("G70", "G71") and st.dialect.name == "fanuc" else "")
+            raise _Refuse(w.start + 1, f"'{w.code}' on a {st.dialect.name} lathe: a contour cycle needs P(ns) and "
+                                       f"Q(nf), its contour's first and last block numbers{sys_c}")
         return "state"  # the two-block format's first block: pass depths, kept as written
     if "P" not in by or "Q" not in by or any(by[k].value != int(by[k].value) or by[k].value <= 0 for k in "PQ"):
         raise _Refuse(w.start + 1, f"'{w.code}' needs whole positive P(ns) and Q(nf) block numbers")
@@ -151,8 +155,7 @@ def _contour_block(words, cs: ContourState) -> None:
         if x.letter not in CONTOUR_LETTERS or (x.letter == "G" and x.code not in CONTOUR_G):
             c = cs.active
             raise _Refuse(x.start + 1, f"'{x.letter}{x.text}' in the contour blocks N{c.ns}-N{c.nf} of the {c.code} "
-                                       f"on line {c.line + 1}: only G0-G3, G40-G42, axis, arc, F, S and N words are "
-                                       "read there (the controller's roughing passes follow the contour alone)")
+                                       f"on line {c.line + 1}: only G0-G3, G40-G42, axis, arc, F, S, N words there")
 
 
 def after_line(words, idx: int, st, ax, move=None) -> None:
@@ -209,7 +212,7 @@ def check_compensated(path, events, lines, axes_d, axes, x_col: int, z_col: int)
     source line of each compensated point, ``axes_d``/``axes`` (n, k) programmed / compensated machine axes."""
     from errormap.io import InputError
     lines = np.asarray(lines)
-    for _, col, kind, span, code in events:
+    for _, _, kind, span, code in events:
         if kind != "lathe-contour" or code not in ("G71", "G72"):
             continue
         sel = np.flatnonzero((lines >= span[0]) & (lines <= span[1]))
@@ -222,6 +225,6 @@ def check_compensated(path, events, lines, axes_d, axes, x_col: int, z_col: int)
                 at = int(lines[sel[back[0] + 1]])
                 raise InputError(f"{path}: line {at}: compensation moves {name} back by "
                                  f"{abs(np.diff(axes[sel, colj])[back[0]]) * 1e3:.3g} um in the {code} contour of "
-                                 f"line {span[2]} (column {col}), monotonic in {name} as programmed: the controller "
-                                 "would alarm; post the contour's passes as G1/G2/G3, or use G73")
+                                 f"line {span[2]}, monotonic in {name} as programmed (the controller would alarm); "
+                                 "use G73 or post the passes as G1/G2/G3")
     return [e[4] for e in events if e[2] == "lathe-cycle"]
