@@ -20,8 +20,9 @@ lathe operator's manual, G70-G73):
 
 Compensation must not break what the controller checks: a ``G71``/``G72`` contour monotonic along an axis as
 programmed (type I: both; type II: Z for G71, X for G72) must stay monotonic in the same direction after compensation
-(:func:`check_compensated`); where a compensated step goes back (a Z-only step whose X the compensation moves the other
-way), the program is refused with the line and word, as the controller would alarm on it."""
+(:func:`hold_back_steps`): where a compensated step goes back (a Z-only step whose X the compensation moves the other
+way) by at most :data:`HOLD_UM` the point keeps the previous value on that axis (listed in the summary); by more, the
+program is refused with the line, as the controller would alarm on it."""
 from __future__ import annotations
 
 import dataclasses
@@ -42,6 +43,10 @@ CONTOUR_LETTERS = frozenset("NGXZUWIKRFS")
 CONTOUR_G = ("G0", "G1", "G2", "G3", "G40", "G41", "G42")
 MONOTONIC_TOL_MM = 1e-6
 """A compensated step against the contour's direction smaller than this (1 nm: the written resolution) is none."""
+HOLD_UM = 0.5
+"""A compensated back-step along a contour's monotonic axis up to this is written as no step (half the least input
+increment, 0.001 mm, of a Fanuc or Haas control in mm: a step the control's rounding may show either way); the
+point's error that leaves is in the TRUE and model residuals (the points are checked to 1 um)."""
 
 
 @dataclasses.dataclass
@@ -206,25 +211,37 @@ def _direction(steps: np.ndarray) -> int:
     return 1 if nz[0] > 0 else -1
 
 
-def check_compensated(path, events, lines, axes_d, axes, x_col: int, z_col: int) -> list:
-    """Refuse (InputError) a ``G71``/``G72`` contour that compensation made non-monotonic along an axis it was
-    monotonic along as programmed; the summary's lines of every contour cycle otherwise. ``lines`` (n,) 1-based
-    source line of each compensated point, ``axes_d``/``axes`` (n, k) programmed / compensated machine axes."""
+def hold_back_steps(path, events, lines, axes_d, axes, x_col: int, z_col: int) -> tuple:
+    """A ``G71``/``G72`` contour monotonic along an axis as programmed (:func:`_direction`) kept monotonic after
+    compensation: a compensated step back along it of at most :data:`HOLD_UM` is written as no step (the point takes
+    the previous point's value on that axis); a larger one is refused (InputError, the line and axis: the controller
+    would alarm). ``lines`` (n,) 1-based source line of each compensated point, ``axes_d``/``axes`` (n, k)
+    programmed / compensated machine axes. Returns ``(axes (n, k), rows changed, [summary line per hold])``."""
     from errormap.io import InputError
-    lines = np.asarray(lines)
+    lines, out, held, rows = np.asarray(lines), np.array(axes, dtype=float), [], []
     for _, _, kind, span, code in events:
         if kind != "lathe-contour" or code not in ("G71", "G72"):
             continue
         sel = np.flatnonzero((lines >= span[0]) & (lines <= span[1]))
-        for j, (name, colj) in enumerate((("X", x_col), ("Z", z_col))):
-            d = _direction(np.diff(axes_d[sel, colj]))
-            if d == 0:
-                continue
-            back = np.flatnonzero(np.diff(axes[sel, colj]) * d < -MONOTONIC_TOL_MM)
-            if back.size:
-                at = int(lines[sel[back[0] + 1]])
-                raise InputError(f"{path}: line {at}: compensation moves {name} back by "
-                                 f"{abs(np.diff(axes[sel, colj])[back[0]]) * 1e3:.3g} um in the {code} contour of "
-                                 f"line {span[2]}, monotonic in {name} as programmed (the controller would alarm); "
-                                 "use G73 or post the passes as G1/G2/G3")
+        for name, col in (("X", x_col), ("Z", z_col)):
+            d = _direction(np.diff(axes_d[sel, col]))
+            for a, b in zip(sel[:-1], sel[1:]) if d else ():
+                back_um = -(out[b, col] - out[a, col]) * d * 1e3
+                if back_um <= MONOTONIC_TOL_MM * 1e3:
+                    continue
+                if back_um > HOLD_UM:
+                    raise InputError(f"{path}: line {int(lines[b])}: compensation moves {name} back by {back_um:.3g} "
+                                     f"um in the {code} contour of line {span[2]}, monotonic in {name} as programmed "
+                                     f"(the controller would alarm; up to {HOLD_UM:g} um is held); use G73 or post the "
+                                     "passes as G1/G2/G3")
+                out[b, col] = out[a, col]
+                rows.append(b)
+                held.append(f"line {int(lines[b])}: {name} held at the previous point's ({back_um:.3g} um back-step "
+                            f"of the {code} contour of line {span[2]})")
+    return out, np.unique(np.array(rows, dtype=np.intp)), held
+
+
+def cycle_notes(events) -> list:
+    """The summary's line per contour cycle (roughing: the controller's passes from the compensated contour;
+    finishing: exactly the compensated contour)."""
     return [e[4] for e in events if e[2] == "lathe-cycle"]

@@ -294,6 +294,26 @@ def solve_with_turning(solve_rest, field, machine, targets, axes_d, turning, bal
     return make_result(method, targets, commands, axes, residual, converged, nfev, t0, ball_um, info=info)
 
 
+def hold_contours(res, tp, field, machine):
+    """``res`` with a lathe contour cycle's monotonic axes kept monotonic (:func:`compensation.nc_contour.
+    hold_back_steps`): the points held get their model residual and commands recomputed over the turn;
+    ``res.info["contour_held"]`` lists them."""
+    from .nc_contour import hold_back_steps
+    events = getattr(getattr(getattr(tp, "source", None), "program", None), "events", ()) or ()
+    if not any(e[2] == "lathe-contour" for e in events):
+        return res
+    xc, zc = machine.axis_words.index("X"), machine.axis_words.index("Z")
+    axes, rows, held = hold_back_steps(tp.path, events, tp.lines, tp.axes, res.axes, xc, zc)
+    if rows.size:
+        txz = None if tp.tool_xz is None else np.asarray(tp.tool_xz)[rows]
+        mean, _ = surface_residual_by_tool(field, machine, axes[rows], tp.axes[rows], txz)
+        res.axes = axes
+        res.residual_um[rows] = np.stack([mean[:, 0], np.zeros(len(rows)), mean[:, 1]], axis=1)
+        res.commands_mm[rows] = nominal_by_tool(machine, axes[rows], txz)
+        res.info["contour_held"] = held
+    return res
+
+
 NOSE_ARM = 1.0 + np.sqrt(2.0)
 """Under tool nose radius compensation (``G41``/``G42``) a lathe's axes carry the imaginary tool tip, which lies up to
 r·√2 from the nose centre (tip directions 1-4; r for 5-8, 0 for 0/9), the centre r from the contour: the axes move

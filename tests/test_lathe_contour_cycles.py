@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from compensation.app.cli import main
+from compensation.nc_contour import HOLD_UM
 from compensation.turning import parse_lathe_program, surface_residual_um
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import ChainField
@@ -184,11 +185,26 @@ MONO = FANUC.replace("N100 G00 X18.\nG01 X22. Z-2. F0.12\nX34. Z-20.\nX46. Z-32.
 may come out of compensation with a small step back along the other."""
 
 
+def test_a_small_back_step_is_held_and_the_points_still_reached(tmp_path):
+    """With this seed's truth the compensated Z of ``N200 G01 X52.`` (line 15) goes back 0.21 um against the
+    contour's Z direction: it is held at the previous point's Z (HOLD_UM), listed, and the point still checks."""
+    rc, src, written, truth = _compensate(tmp_path, MONO, "fanuc")
+    assert rc == 0
+    entry = json.loads((written.parent / "compensate_summary.json").read_text())["files"][0]
+    assert [h.split(":")[0] for h in entry["lathe_contour_held"]] == ["line 15"]
+    assert "Z held at the previous point's" in entry["lathe_contour_held"][0]
+    err, _, _ = _check(src, written, "fanuc", truth)
+    assert err <= HOLD_UM + 1e-3  # the held point's error, at most the hold (plus the solver's residual)
+
+
 def test_compensation_that_breaks_a_monotonic_contour_is_refused(tmp_path, capsys):
-    """With this seed's truth the compensated Z of ``N200 G01 X52.`` (line 15) goes back against the contour's Z
-    direction; the controller would alarm on that contour, so the program is refused naming the line."""
-    err = _refusal(tmp_path, MONO, capsys)
-    assert "line 15: compensation moves Z back by" in err and "G71 contour of line 9" in err
+    """A 60 mm Z-only block then an X-only last block: with this seed's truth the compensated Z of ``N200 X40.``
+    (line 9) goes back ~4 um against the contour's Z direction, more than HOLD_UM: the controller would alarm on
+    that contour, so the program is refused naming the line and the axis."""
+    text = ("G21 G18 G40 G99\nT0101\nG96 S180 M03\nG00 X110. Z3.\nG71 U1. R0.5\nG71 P100 Q200 U0.4 W0.1 F0.25\n"
+            "N100 G00 X20.\nG01 Z-60. F0.15\nN200 X40.\nG70 P100 Q200\nG00 X150. Z50.\nM05\nM30\n")
+    err = _refusal(tmp_path, text, capsys)
+    assert "line 9: compensation moves Z back by" in err and "G71 contour of line 6" in err and "use G73" in err
 
 
 def test_the_contour_end_past_the_file_is_refused(tmp_path, capsys):
