@@ -279,7 +279,11 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     """One line: ``(class, GMove or None)``; a lathe's contour cycle lines kept as written and their contour
     blocks read as moves (:mod:`compensation.nc_contour`)."""
     cs = st.contours
-    words = tokenize(body)[1] if "G7" in body or "g7" in body or cs.pending or cs.active else ()
+    try:
+        words = tokenize(body)[1] if any(c in body for c in ("G7", "g7", "G3", "g3", "G9", "g9")) or cs.pending or \
+            cs.active else ()
+    except _Refuse:
+        words = ()  # the line's own reading names what it holds
     if words and cycle_line(words, idx, st, ax) == "state":
         return "state", None
     out = _classify_words(body, idx, st, rapids, block_delete, ax)

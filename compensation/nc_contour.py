@@ -74,6 +74,13 @@ class ContourState:
         self.done = {}
 
 
+THREADING = {"G32": "thread cutting", "G92": "thread cutting cycle", "G76": "multiple threading cycle"}
+"""Fanuc/Haas lathe threading (Fanuc 0i-TF G-code system A, Haas lathe manual): refused (:func:`cycle_line`). Each
+pass is synchronised with the spindle's index and its lead F is the travel per revolution the control commands:
+compensating a pass's ends without its lead (or a G76's passes, which the control computes) is not exact."""
+THREAD_WHY = "spindle-synchronised, compensated ends would change its lead F: not read (compensate without it)"
+
+
 def applies(st, ax) -> bool:
     """Contour cycles are read on a Fanuc or Haas lathe (X and Z words, no Y)."""
     from .nc_state import lathe_words
@@ -88,6 +95,10 @@ def cycle_line(words, idx: int, st, ax) -> str | None:
     """``"state"`` for a contour cycle line (kept as written; the state records the cycle), None for any other
     line (read as usual; its N word checked against an open cycle's contour)."""
     cs = st.contours
+    thread = next((w for w in words if w.letter == "G" and w.code in THREADING), None)
+    if thread is not None and applies(st, ax):
+        raise _Refuse(thread.start + 1, f"'{thread.code}' on a {st.dialect.name} lathe: {THREADING[thread.code]}: "
+                                        f"{THREAD_WHY}")
     g = [w for w in words if w.letter == "G" and w.code in CYCLE_CODES]
     if not g or not applies(st, ax):
         if cs.pending is not None or cs.active is not None:

@@ -228,3 +228,12 @@ def test_a_cycle_without_p_q_is_refused_naming_the_word(tmp_path, capsys, dialec
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert rc != 0 and f"line 9, column 1: 'G71' on a {dialect} lathe: a contour cycle needs P(ns) and Q(nf)" in err
     assert (hint in err) if hint else ("system C" not in err)
+
+
+@pytest.mark.parametrize("line,code", [("G32 Z-20. F1.5", "G32"), ("G92 X29.2 Z-20. F1.5", "G92"),
+                                       ("G76 P021060 Q100 R0.05", "G76")])
+def test_threading_is_refused_saying_why(tmp_path, capsys, line, code):
+    """On a Fanuc lathe G92 is the thread cutting cycle (not a coordinate offset): refused as threading."""
+    text = FANUC.replace("G70 P100 Q200\n", f"G70 P100 Q200\nG00 X30. Z5.\n{line}\n")
+    err = _refusal(tmp_path, text, capsys)
+    assert f"line 17, column 1: '{code}' on a fanuc lathe:" in err and "would change its lead F" in err
