@@ -11,7 +11,8 @@ lathe operator's manual, G70-G73):
 - the cycle's start point (the tool's position on the cycle line) is known;
 - ``N(ns)`` is the block right after a ``G71``/``G72``/``G73`` line (blank and comment lines between are read over);
   ``N(nf)`` follows it; after ``N(nf)`` the tool is back at the start point (both manuals: the cycle returns there),
-  and so after ``G70``;
+  and so after ``G70``; the G0-G3 in force after either is not read from the contour (the manuals do not say it):
+  the next move must name its own;
 - contour blocks hold motion (``G0``-``G3``, ``G40``-``G42``), axis, arc, ``F``, ``S`` and ``N`` words only (no
   ``T``, ``M``, other G codes or a nested cycle);
 - ``G70 P Q`` names a contour a roughing cycle before it read (a G70 whose contour is written elsewhere is refused);
@@ -136,6 +137,7 @@ def cycle_line(words, idx: int, st, ax) -> str | None:
         st.events.append((idx, w.start + 1, "lathe-cycle", "G70",
                           f"line {idx + 1}: G70 P{ns} Q{nf}: finishing pass: exactly the compensated contour "
                           f"(lines {c.first + 1}-{c.last + 1})"))
+        st.mode = None  # as after N(nf): the next move names its G0-G3
         return "state"
     start = _xz(st, ax)
     if not np.isfinite(start).all():
@@ -193,6 +195,7 @@ def after_line(words, idx: int, st, ax, move=None) -> None:
         move.block_end = True
     cs.done[(c.ns, c.nf)] = c
     cs.active = None
+    st.mode = None  # which G0-G3 the control keeps after the cycle the manuals leave open: the next move names it
     st.pos = np.array(st.pos, dtype=float)  # a new array: the moves read hold the old one as their end
     for j, a in enumerate(("X", "Z")):
         st.pos[ax.words.index(a)] = c.start[j]

@@ -237,3 +237,10 @@ def test_threading_is_refused_saying_why(tmp_path, capsys, line, code):
     text = FANUC.replace("G70 P100 Q200\n", f"G70 P100 Q200\nG00 X30. Z5.\n{line}\n")
     err = _refusal(tmp_path, text, capsys)
     assert f"line 17, column 1: '{code}' on a fanuc lathe:" in err and "would change its lead F" in err
+
+
+def test_after_a_cycle_the_next_move_names_its_motion_code(tmp_path, capsys):
+    """Which G0-G3 the control keeps after a contour cycle the manuals leave open: a move with axis words alone
+    right after G70 is refused naming the word, not read with the contour's last G code."""
+    err = _refusal(tmp_path, FANUC.replace("G01 Z-50. F0.2", "Z-50. F0.2"), capsys)
+    assert "line 16, column 1: axis word 'Z-50.' but no motion mode" in err
