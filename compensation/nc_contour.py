@@ -42,6 +42,8 @@ FIRST_BLOCK = {"G71": frozenset("NGUR"), "G72": frozenset("NGWR"), "G73": frozen
 """The first block of the two-block format (no P Q): depth of cut and retract, or G73's relief and count."""
 CONTOUR_LETTERS = frozenset("NGXZUWIKRFS")
 CONTOUR_G = ("G0", "G1", "G2", "G3", "G40", "G41", "G42")
+MAIN_AXIS = {"G71": "Z", "G72": "X"}
+"""The axis a type II contour must keep monotonic (it may have pockets across it: Fanuc 0i-TF, Haas lathe manual)."""
 MONOTONIC_TOL_MM = 1e-6
 """A compensated step against the contour's direction smaller than this (1 nm: the written resolution) is none."""
 HOLD_UM = 0.5
@@ -204,7 +206,7 @@ def after_line(words, idx: int, st, ax, move=None) -> None:
                       f"line {c.line + 1}: {c.code} P{c.ns} Q{c.nf} ({what}): roughing passes computed by the "
                       f"controller from the compensated contour (lines {c.first + 1}-{c.last + 1}) plus its U/W "
                       "allowance"))
-    st.events.append((idx, c.col, "lathe-contour", (c.first + 1, c.last + 1, c.line + 1), c.code))
+    st.events.append((idx, c.col, "lathe-contour", (c.first + 1, c.last + 1, c.line + 1, c.kind), c.code))
 
 
 def refuse_open(path, events) -> None:
@@ -226,8 +228,8 @@ def _direction(steps: np.ndarray) -> int:
 
 
 def hold_back_steps(path, events, lines, axes_d, axes, x_col: int, z_col: int) -> tuple:
-    """A ``G71``/``G72`` contour monotonic along an axis as programmed (:func:`_direction`) kept monotonic after
-    compensation: a compensated step back along it of at most :data:`HOLD_UM` is written as no step (the point takes
+    """A ``G71``/``G72`` contour monotonic along an axis the control checks (type I: X and Z; type II:
+    :data:`MAIN_AXIS`) as programmed (:func:`_direction`) kept monotonic after compensation: a compensated step back along it of at most :data:`HOLD_UM` is written as no step (the point takes
     the previous point's value on that axis); a larger one is refused (InputError, the line and axis: the controller
     would alarm). ``lines`` (n,) 1-based source line of each compensated point, ``axes_d``/``axes`` (n, k)
     programmed / compensated machine axes. Returns ``(axes (n, k), rows changed, [summary line per hold])``."""
@@ -237,7 +239,8 @@ def hold_back_steps(path, events, lines, axes_d, axes, x_col: int, z_col: int) -
         if kind != "lathe-contour" or code not in ("G71", "G72"):
             continue
         sel = np.flatnonzero((lines >= span[0]) & (lines <= span[1]))
-        for name, col in (("X", x_col), ("Z", z_col)):
+        checked = ("X", "Z") if span[3] == "type I" else (MAIN_AXIS[code],)  # type II: pockets across
+        for name, col in ((a, x_col if a == "X" else z_col) for a in checked):
             d = _direction(np.diff(axes_d[sel, col]))
             for a, b in zip(sel[:-1], sel[1:]) if d else ():
                 back_um = -(out[b, col] - out[a, col]) * d * 1e3

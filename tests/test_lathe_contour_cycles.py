@@ -244,3 +244,29 @@ def test_after_a_cycle_the_next_move_names_its_motion_code(tmp_path, capsys):
     right after G70 is refused naming the word, not read with the contour's last G code."""
     err = _refusal(tmp_path, FANUC.replace("G01 Z-50. F0.2", "Z-50. F0.2"), capsys)
     assert "line 16, column 1: axis word 'Z-50.' but no motion mode" in err
+
+
+def _contour_event(kind, code="G71"):
+    return [(4, 1, "lathe-contour", (2, 5, 1, kind), code)]
+
+
+@pytest.mark.parametrize("kind,axis,back_um,outcome", [
+    ("type I", 0, 0.3, "held"), ("type I", 0, 2.0, "refused"), ("type I", 1, 2.0, "refused"),
+    ("type II", 0, 2.0, "kept"), ("type II", 1, 2.0, "refused"), ("type II", 1, 0.3, "held")])
+def test_which_axes_a_contour_keeps_monotonic(kind, axis, back_um, outcome):
+    """G71 type I: X and Z monotonic; type II: Z only (X may have pockets). A contour of 4 points (lines 2-5) rising
+    in X and falling in Z as programmed; the compensated third point steps back by ``back_um`` on ``axis``."""
+    from compensation.nc_contour import hold_back_steps
+    from errormap.io import InputError
+    axes_d = np.array([[10.0, 0.0, 0.0], [12.0, -5.0, 0.0], [14.0, -10.0, 0.0], [16.0, -15.0, 0.0]])
+    axes = axes_d.copy()
+    axes[2, axis] = axes[1, axis] - (1 if axis == 0 else -1) * back_um * 1e-3  # against the contour's direction
+    if outcome == "refused":
+        with pytest.raises(InputError, match=f"line 4: compensation moves {'XZ'[axis]} back by"):
+            hold_back_steps("p.nc", _contour_event(kind), [2, 3, 4, 5], axes_d, axes, 0, 1)
+        return
+    out, rows, held = hold_back_steps("p.nc", _contour_event(kind), [2, 3, 4, 5], axes_d, axes, 0, 1)
+    if outcome == "held":
+        assert rows.tolist() == [2] and out[2, axis] == axes[1, axis] and held[0].startswith("line 4: ")
+    else:
+        assert rows.size == 0 and np.array_equal(out, axes)
