@@ -18,7 +18,10 @@ from errormap.chain_field import ChainField
 from errormap.machine import load_machine
 
 LATHE = "lathe-xzc"
-SEED = 11
+SEED = 101
+N_STATIONS = 11
+SCALE_UM = 10.0
+"""The truth: a seeded element set (errormap.chain_elements.ChainElementSet.random), σ 10 um / urad at 11 stations."""
 TOL_POINT_UM = 1.0
 """A programmed point is reached when the true tip is this close (the corpus check's tolerance; the model is the
 truth here, so what is left is the solver's residual, ~1e-4 um)."""
@@ -74,7 +77,7 @@ M30
 
 def _setup(tmp_path):
     truth = tmp_path / "truth.json"
-    ChainElementSet.random(load_machine(LATHE), 101, 10.0, SEED).save(truth)
+    ChainElementSet.random(load_machine(LATHE), SEED, SCALE_UM, N_STATIONS).save(truth)
     (tmp_path / "off.csv").write_text(f"system,x_mm,y_mm,z_mm\nG54,0,0,{PART_Z_MM}\n")
     (tmp_path / "tools.csv").write_text("tool,length_mm,radius_mm\n1,0,0.8\n")
     return truth
