@@ -283,10 +283,10 @@ def detect_dialect(text: str) -> tuple:
     return name, what
 
 
-ROUGHING = ("a lathe roughing cycle whose passes the control computes: not interpretable exactly; --expand-cycles "
-            "does not apply; post the passes as G1/G2/G3")
-FINISHING = ("a lathe finishing cycle that runs the contour's blocks again: not read; --expand-cycles does not apply; "
-             "post the contour as G1/G2/G3")
+ROUGHING = ("a lathe roughing cycle (contour in an o-subroutine named by Q; P, D, J, L words of remapped configurations): "
+            "not read here (a Fanuc or Haas lathe's is); post the passes as G1/G2/G3")
+FINISHING = ("a lathe finishing cycle (contour in an o-subroutine named by Q): not read here; post the contour as "
+             "G1/G2/G3")
 BOLT_HOLES = ("a hole pattern whose positions the control computes, each drilled by the canned cycle in force: not "
               "read; --expand-cycles does not apply; post each hole's X Y")
 LATHE_G7X = {"G70": f"finishing cycle: {FINISHING}", "G71": f"stock removal along Z: {ROUGHING}",
