@@ -136,6 +136,7 @@ def cycle_line(words, idx: int, st, ax) -> str | None:
             raise _Refuse(by["P"].start + 1, f"'G70 P{ns} Q{nf}': no G71/G72/G73 before it read the contour "
                                              f"N{ns}-N{nf}; a G70 is read only after the roughing cycle whose contour "
                                              "blocks follow it")
+        st.events.append((idx, w.start + 1, "lathe-finish", (c.first + 1, c.last + 1, idx + 1), "G70"))
         st.events.append((idx, w.start + 1, "lathe-cycle", "G70",
                           f"line {idx + 1}: G70 P{ns} Q{nf}: finishing pass: exactly the compensated contour "
                           f"(lines {c.first + 1}-{c.last + 1})"))
@@ -256,6 +257,26 @@ def hold_back_steps(path, events, lines, axes_d, axes, x_col: int, z_col: int) -
                 held.append(f"line {int(lines[b])}: {name} held at the previous point's ({back_um:.3g} um back-step "
                             f"of the {code} contour of line {span[2]})")
     return out, np.unique(np.array(rows, dtype=np.intp)), held
+
+
+def refuse_other_tool(path, events, lines, contour_tool, finish_tool) -> None:
+    """Refuse (InputError) a ``G70`` whose tool offsets (X, Z mm) differ from those its contour was compensated at
+    (the roughing cycle's tool): its points would be the other tool's. ``lines`` (n,) 1-based source line of each
+    compensated point, ``contour_tool`` (n, 2) their tool offsets (NaN: none), ``finish_tool(line)`` (2,) the
+    offsets in force on a 1-based line."""
+    from errormap.io import InputError
+    lines = np.asarray(lines)
+    for _, col, kind, span, _ in events:
+        if kind != "lathe-finish":
+            continue
+        sel = np.flatnonzero((lines >= span[0]) & (lines <= span[1]))
+        at = np.asarray(finish_tool(span[2]), dtype=float)
+        for t in np.asarray(contour_tool, dtype=float)[sel]:
+            if not np.allclose(np.nan_to_num(t, nan=np.inf), np.nan_to_num(at, nan=np.inf), rtol=0, atol=1e-9):
+                raise InputError(f"{path}: line {span[2]}, column {col}: 'G70': its tool's offsets (X, Z) "
+                                 f"{np.round(at, 6).tolist()} mm differ from the contour's (lines {span[0]}-{span[1]}: "
+                                 f"{np.round(t, 6).tolist()} mm), compensated for the roughing tool; give both the "
+                                 "same offsets or write the contour again for the finishing tool")
 
 
 def cycle_notes(events) -> list:

@@ -297,11 +297,15 @@ def solve_with_turning(solve_rest, field, machine, targets, axes_d, turning, bal
 def hold_contours(res, tp, field, machine):
     """``res`` with a lathe contour cycle's monotonic axes kept monotonic (:func:`compensation.nc_contour.
     hold_back_steps`): the points held get their model residual and commands recomputed over the turn;
-    ``res.info["contour_held"]`` lists them."""
-    from .nc_contour import hold_back_steps
+    ``res.info["contour_held"]`` lists them. A ``G70`` run with other tool offsets than its contour was compensated
+    for is refused (:func:`compensation.nc_contour.refuse_other_tool`)."""
+    from .nc_contour import hold_back_steps, refuse_other_tool
     events = getattr(getattr(getattr(tp, "source", None), "program", None), "events", ()) or ()
     if not any(e[2] == "lathe-contour" for e in events):
         return res
+    if tp.tool_xz is not None:  # G70 with another tool than its contour was compensated for
+        refuse_other_tool(tp.path, events, tp.lines, tp.tool_xz,
+                          lambda line: tp.source.frames.lathe_tool(np.array([line - 1]))[0])
     xc, zc = machine.axis_words.index("X"), machine.axis_words.index("Z")
     axes, rows, held = hold_back_steps(tp.path, events, tp.lines, tp.axes, res.axes, xc, zc)
     if rows.size:

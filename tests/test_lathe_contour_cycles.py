@@ -273,3 +273,20 @@ def test_which_axes_a_contour_keeps_monotonic(kind, axis, back_um, outcome):
         assert rows.tolist() == [2] and out[2, axis] == axes[1, axis] and held[0].startswith("line 4: ")
     else:
         assert rows.size == 0 and np.array_equal(out, axes)
+
+
+@pytest.mark.parametrize("length2,refused", [(5.0, True), (0.0, False)])
+def test_g70_with_another_tools_offsets_is_refused(tmp_path, capsys, length2, refused):
+    """The contour is compensated at the roughing tool's offsets; a G70 run by a tool with other offsets would cut
+    the other tool's points: refused naming the line; with the same offsets it is read."""
+    text = FANUC.replace("G70 P100 Q200\n", "T0202\nG70 P100 Q200\n")
+    _setup(tmp_path)
+    (tmp_path / "tools.csv").write_text(f"tool,length_mm,radius_mm\n1,0,0.8\n2,{length2},0.4\n")
+    src = tmp_path / "p.nc"
+    src.write_text(text)
+    rc = main(["compensate", str(src), "--machine", LATHE, "--model", str(tmp_path / "truth.json"), "--method",
+               "exact", "--dialect", "fanuc", "--lathe-x", "diameter", "--out", str(tmp_path / "out"),
+               "--work-offsets", str(tmp_path / "off.csv"), "--tool-table", str(tmp_path / "tools.csv")])
+    err = capsys.readouterr().err
+    assert (rc != 0) == refused
+    assert ("line 16, column 1: 'G70': its tool's offsets (X, Z) [0.0, 5.0] mm differ" in err) == refused
