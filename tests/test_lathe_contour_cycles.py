@@ -279,7 +279,7 @@ def test_which_axes_a_contour_keeps_monotonic(kind, axis, back_um, outcome):
 def test_g70_with_another_tools_offsets_is_refused(tmp_path, capsys, length2, refused):
     """The contour is compensated at the roughing tool's offsets; a G70 run by a tool with other offsets would cut
     the other tool's points: refused naming the line; with the same offsets it is read."""
-    text = FANUC.replace("G70 P100 Q200\n", "T0202\nG70 P100 Q200\n")
+    text = FANUC.replace("G70 P100 Q200\nG01 Z-50. F0.2\n", "T0202\nG70 P100 Q200\n")  # T: the position unknown
     _setup(tmp_path)
     (tmp_path / "tools.csv").write_text(f"tool,length_mm,radius_mm\n1,0,0.8\n2,{length2},0.4\n")
     src = tmp_path / "p.nc"
