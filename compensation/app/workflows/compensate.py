@@ -627,6 +627,11 @@ def print_gcode_notes(entry) -> None:
                                                            else "")
           + (f" (lathe tools' X offsets {entry['tool_x_used']})" if entry.get("tool_x_used") else "")
           + (f"; X words: {entry['lathe_x']} ({entry['lathe_x_source']})" if "lathe_x" in entry else ""))
+    for note in entry.get("lathe_cycles", ())[:10]:  # a lathe's contour cycles (compensation.nc_contour)
+        print(f"  {note}")
+    if entry.get("lathe_contour_held"):
+        print(f"  {len(entry['lathe_contour_held'])} contour point(s) held monotonic: "
+              + "; ".join(entry["lathe_contour_held"][:3]))
     if entry["g53_lines"]:
         print(f"  G53 (machine coordinates) on line(s) {', '.join(map(str, entry['g53_lines'][:10]))}: passed "
               "through unchanged, not compensated")
