@@ -55,7 +55,9 @@ point's error that leaves is in the TRUE and model residuals (the points are che
 @dataclasses.dataclass
 class Contour:
     """One contour cycle: its line (0-based), code, blocks ``N(ns)``…``N(nf)``, start point (X, Z mm) and the
-    lines its blocks span (0-based, ``first``…``last``); ``kind``: ``type I``/``type II`` (G71/G72), ``""`` (G73)."""
+    lines its blocks span (0-based, ``first``…``last``); ``kind``: ``type I``/``type II`` (G71/G72), ``""`` (G73):
+    type II where ``N(ns)`` gives both axes (Fanuc 0i-TF) and, on Haas, the cycle line has ``R1`` (its type II
+    selection; without it the contour is checked as type I, the stricter reading)."""
     code: str
     line: int
     col: int
@@ -66,6 +68,7 @@ class Contour:
     last: int = -1
     kind: str = ""
     points: list = dataclasses.field(default_factory=list)
+    type2_ok: bool = True
 
 
 class ContourState:
@@ -147,6 +150,7 @@ def cycle_line(words, idx: int, st, ax) -> str | None:
         raise _Refuse(w.start + 1, f"'{w.code}': the cycle's start point (the tool's X and Z on this line) is not "
                                    "known: give X and Z on a line before the cycle")
     cs.pending = Contour(w.code, idx, w.start + 1, ns, nf, start)
+    cs.pending.type2_ok = st.dialect.name != "haas" or ("R" in by and by["R"].value == 1)  # Haas: R1 selects type II
     st.events.append((idx, w.start + 1, "contour-open", (ns, nf), w.code))
     return "state"
 
@@ -167,7 +171,7 @@ def _contour_block(words, cs: ContourState) -> None:
                                               "nor Z")
         if c.code in ("G71", "G72"):
             across = {"G71": set("XU"), "G72": set("ZW")}[c.code]
-            c.kind = "type II" if (given - across) else "type I"
+            c.kind = "type II" if (given - across) and c.type2_ok else "type I"  # else checked as type I (stricter)
             if not given & across:
                 raise _Refuse(words[0].start + 1, f"N{c.ns}, the first block of a {c.code} contour, gives no "
                                                   f"{'X' if c.code == 'G71' else 'Z'} (the manuals' rule)")

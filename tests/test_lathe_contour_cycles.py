@@ -290,3 +290,13 @@ def test_g70_with_another_tools_offsets_is_refused(tmp_path, capsys, length2, re
     err = capsys.readouterr().err
     assert (rc != 0) == refused
     assert ("line 16, column 1: 'G70': its tool's offsets (X, Z) [0.0, 5.0] mm differ" in err) == refused
+
+
+@pytest.mark.parametrize("dialect,r1,kind", [("fanuc", "", "type II"), ("haas", "", "type I"),
+                                             ("haas", " R1", "type II")])
+def test_type_ii_by_the_first_block_and_on_haas_r1(tmp_path, dialect, r1, kind):
+    """N(ns) with X and Z: type II on Fanuc; on Haas only with R1 on the cycle line (else checked as type I)."""
+    p = tmp_path / "p.nc"
+    p.write_text(FANUC.replace("N100 G00 X18.", "N100 G00 X18. Z3.").replace("W0.1 F0.25", f"W0.1 F0.25{r1}"))
+    prog, _ = parse_lathe_program(p, load_machine(LATHE), "keep", None, dialect, "diameter")
+    assert [e[3][3] for e in prog.events if e[2] == "lathe-contour"] == [kind]
