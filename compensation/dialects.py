@@ -283,26 +283,21 @@ def detect_dialect(text: str) -> tuple:
     return name, what
 
 
-ROUGHING = ("a lathe roughing cycle whose passes the control computes: not interpretable exactly; --expand-cycles "
-            "does not apply; post the passes as G1/G2/G3")
-FINISHING = ("a lathe finishing cycle that runs the contour's blocks again: not read; --expand-cycles does not apply; "
-             "post the contour as G1/G2/G3")
+ROUGHING = ("a lathe roughing cycle (contour in an o-subroutine named by Q; P, D, J, L words of remapped configurations): "
+            "not read here (a Fanuc or Haas lathe's is); post the passes as G1/G2/G3")
+FINISHING = ("a lathe finishing cycle (contour in an o-subroutine named by Q): not read here; post the contour as "
+             "G1/G2/G3")
 BOLT_HOLES = ("a hole pattern whose positions the control computes, each drilled by the canned cycle in force: not "
               "read; --expand-cycles does not apply; post each hole's X Y")
 LATHE_G7X = {"G70": f"finishing cycle: {FINISHING}", "G71": f"stock removal along Z: {ROUGHING}",
              "G72": f"facing stock removal: {ROUGHING}"}
-G7X = {("haas", True): {**LATHE_G7X, "G71": f"O.D./I.D. stock removal: {ROUGHING}",
-                         "G72": f"end face stock removal: {ROUGHING}"}, ("linuxcnc", None): LATHE_G7X,
-       ("fanuc", True): {c: f"{m.split(':')[0]} in G-code system A/B (in system C, a parameter, {c} is {sys_c}); "
-                            f"{m.split(': ', 1)[1]}" for (c, m), sys_c in zip(LATHE_G7X.items(),
-                                                                           ("inch input", "mm input", "finishing"))},
+G7X = {("linuxcnc", None): LATHE_G7X,
        ("haas", False): {"G70": f"bolt hole circle: {BOLT_HOLES}", "G71": f"bolt hole arc: {BOLT_HOLES}",
                          "G72": f"bolt holes along an angle: {BOLT_HOLES}"}}
-"""``G70``-``G72`` by dialect and machine (lathe: True): Haas lathe manual (G70 finishing, G71 O.D./I.D. stock removal,
-G72 end face stock removal), Haas mill manual (G70 bolt hole circle, G71 bolt hole arc, G72 bolt holes along an
-angle), Fanuc 0i-TF (G-code system A/B: G70 finishing, G71 stock removal in turning, G72 in facing; system C, set by
-parameter, makes G70/G71 inch/mm input), LinuxCNC 2.9 (G70 finishing, G71 roughing, G72 facing, on any machine).
-Every one refused, the message saying why (:func:`g7x_refusal`); elsewhere the generic two-reading message."""
+"""``G70``-``G72`` by dialect and machine (lathe: True) where they are refused: Haas mill manual (G70 bolt hole
+circle, G71 bolt hole arc, G72 bolt holes along an angle), LinuxCNC 2.9 (G70 finishing, G71 roughing, G72 facing, on
+any machine; the contour is a subroutine). A Fanuc or Haas lathe's G70-G73 with their contour blocks in the program
+are read by :mod:`compensation.nc_contour`. Elsewhere the generic two-reading message."""
 
 
 def g7x_refusal(code: str, current: str, lathe: bool) -> str | None:

@@ -10,6 +10,7 @@ import numpy as np
 
 from .gcode_state import (LOCAL_SHIFT_DIALECTS, lathe_t_offset, ttoo_lathe, MODE_E, bare_d, bare_g43_rule, bare_g43_tool, d_modal, _dialect_mode, _forget, _g10, _g92, probe_move, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
+from .nc_contour import ContourState, after_line, cycle_line
 from .nc_flow import TRACKED_NAMES
 from .nc_state import lathe_words
 from .gcode_spline import nurbs_end, nurbs_line, spline_move, spline_points, spline_segments
@@ -48,6 +49,7 @@ class _State:
         self.g92_stored = np.zeros(k)  # the G92 offset stored (LinuxCNC parameters 5211-5219; G92.3 restores it)
         self.last_given = {}       # axis letter -> index of the last move line that gave it (the refusals say why)
         self.replay = None         # nc_state.FrameReplay: a G53 move's end in the program's frame (None: no tables)
+        self.contours = ContourState()  # a Fanuc/Haas lathe's G70-G73 contour cycles (compensation.nc_contour)
 
 
 def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=None,
@@ -274,6 +276,23 @@ def _grbl_system(body: str, st: _State, ax: AxisWords) -> str:
 
 
 def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
+    """One line: ``(class, GMove or None)``; a lathe's contour cycle lines kept as written and their contour
+    blocks read as moves (:mod:`compensation.nc_contour`)."""
+    cs = st.contours
+    try:
+        words = tokenize(body)[1] if any(c in body for c in ("G7", "g7", "G3", "g3", "G9", "g9")) or cs.pending or \
+            cs.active else ()
+    except _Refuse:
+        words = ()  # the line's own reading names what it holds
+    if words and cycle_line(words, idx, st, ax) == "state":
+        return "state", None
+    out = _classify_words(body, idx, st, rapids, block_delete, ax)
+    if cs.active is not None:
+        after_line(words or tokenize(body)[1], idx, st, ax, out[1])
+    return out
+
+
+def _classify_words(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     dia = st.dialect
     if dia is not None and ":" in dia.program_number and _COLON_NUMBER.fullmatch(body):
         return "pass", None  # ':1234' program number (ISO code)

@@ -289,6 +289,9 @@ class GMove:
     synced: str | None = None
     """``"G33"``/``"G33.1"``: a spindle-synchronised line (LinuxCNC), written as one line, never split (each
     synchronised move waits for the spindle index); None otherwise."""
+    block_end: bool = False
+    """The last block ``N(nf)`` of a lathe contour cycle (:mod:`compensation.nc_contour`): when split, its N word is
+    written on the last piece (the contour ends where the block's programmed end is)."""
 
     @property
     def start_known(self) -> bool:

@@ -76,7 +76,17 @@ def _render_move(line: str, m: GMove, q, ctrl, ax: AxisWords, skip=()):
     else:  # every word on every added line
         extra = [slash + " ".join(f"{a}{v}" for a, v in zip(ax.words, vals) if a not in skip) + ending
                  for vals in written[1:]]
+    if m.block_end and extra:  # a contour's last block N(nf): its number goes with its end (the last piece)
+        first, extra[-1] = _n_to_last(first, extra[-1], m)
     return _pieces(line, body, first, extra), ctrl
+
+
+def _n_to_last(first: str, last: str, m: GMove) -> tuple:
+    """``(first, last)`` with the block number moved from the first piece's front to the last piece's."""
+    n = re.match(r"([ \t]*/?[ \t]*)([Nn][ \t]*\d+)[ \t]*", first)
+    if n is None:
+        raise ValueError(f"line {m.index + 1}: a contour's last block whose N word is not its first word")
+    return n.group(1) + first[n.end():], n.group(1) + n.group(2) + " " + last.lstrip(" \t/")
 
 
 def _pieces(line: str, body: str, first: str, extra: list) -> list:

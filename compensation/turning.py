@@ -19,6 +19,7 @@ import numpy as np
 from errormap.io import InputError
 
 from .gcode import AxisWords, GProgram, parse_program, tokenize
+from .nc_contour import refuse_open
 
 TURN_SAMPLES = 24
 """Spindle angles (every 15°) at which the error is averaged over one turn: the chain's errors are smooth
@@ -100,6 +101,7 @@ def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe
         prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=xz, dialect=dialect,
                              lathe_x=lathe_x, subprograms=subprograms)
         _refuse_lathe_x(prog, option)
+        refuse_open(path, prog.events)
         return prog, np.ones(len(prog.moves), dtype=bool)
     except InputError as exc:
         if f"no {c} axis" not in str(exc):
@@ -121,6 +123,7 @@ def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe
     kept = dataclasses.replace(full, kept=(c,))  # C written only where C-axis mode moves it
     prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=kept, dialect=dialect,
                          lathe_x=lathe_x, subprograms=subprograms)
+    refuse_open(path, prog.events)
     return prog, np.array([flags[m.index] for m in prog.moves], dtype=bool)
 
 
@@ -289,6 +292,30 @@ def solve_with_turning(solve_rest, field, machine, targets, axes_d, turning, bal
             f"turning mode: {len(turn)} point(s) compensated with {', '.join(names[j] for j in lin)} against the "
             f"surface of revolution, {names[c]} untouched (the spindle)")
     return make_result(method, targets, commands, axes, residual, converged, nfev, t0, ball_um, info=info)
+
+
+def hold_contours(res, tp, field, machine):
+    """``res`` with a lathe contour cycle's monotonic axes kept monotonic (:func:`compensation.nc_contour.
+    hold_back_steps`): the points held get their model residual and commands recomputed over the turn;
+    ``res.info["contour_held"]`` lists them. A ``G70`` run with other tool offsets than its contour was compensated
+    for is refused (:func:`compensation.nc_contour.refuse_other_tool`)."""
+    from .nc_contour import hold_back_steps, refuse_other_tool
+    events = getattr(getattr(getattr(tp, "source", None), "program", None), "events", ()) or ()
+    if not any(e[2] == "lathe-contour" for e in events):
+        return res
+    if tp.tool_xz is not None:  # G70 with another tool than its contour was compensated for
+        refuse_other_tool(tp.path, events, tp.lines, tp.tool_xz,
+                          lambda line: tp.source.frames.lathe_tool(np.array([line - 1]))[0])
+    xc, zc = machine.axis_words.index("X"), machine.axis_words.index("Z")
+    axes, rows, held = hold_back_steps(tp.path, events, tp.lines, tp.axes, res.axes, xc, zc)
+    if rows.size:
+        txz = None if tp.tool_xz is None else np.asarray(tp.tool_xz)[rows]
+        mean, _ = surface_residual_by_tool(field, machine, axes[rows], tp.axes[rows], txz)
+        res.axes = axes
+        res.residual_um[rows] = np.stack([mean[:, 0], np.zeros(len(rows)), mean[:, 1]], axis=1)
+        res.commands_mm[rows] = nominal_by_tool(machine, axes[rows], txz)
+        res.info["contour_held"] = held
+    return res
 
 
 NOSE_ARM = 1.0 + np.sqrt(2.0)

@@ -127,10 +127,9 @@ def test_the_same_register_again_and_a_change_after_g40_are_read(tmp_path):
 
 
 @pytest.mark.parametrize("dialect, lathe, what", [
-    ("haas", True, "'G71' on a haas lathe: O.D./I.D. stock removal: a lathe roughing cycle whose passes the control "
-                   "computes: not interpretable exactly; --expand-cycles does not apply"),
-    ("fanuc", True, "'G71' on a fanuc lathe: stock removal along Z in G-code system A/B (in system C, a parameter, "
-                    "G71 is mm input); a lathe roughing cycle"),
+    ("haas", True, "line 4, column 1: the G71 on line 3 names its contour's first block N10: that block must "
+                   "follow the cycle line"),  # read by compensation.nc_contour: tests/test_lathe_contour_cycles.py
+    ("fanuc", True, "line 4, column 1: the G71 on line 3 names its contour's first block N10"),
     ("linuxcnc", True, "'G71' on linuxcnc: stock removal along Z: a lathe roughing cycle"),
     ("haas", False, "'G71' on a haas mill: bolt hole arc: a hole pattern whose positions the control computes"),
 ])

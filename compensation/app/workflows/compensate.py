@@ -401,6 +401,9 @@ def compensate_one(p, dst, tp: ToolPath, res, targets, true_r, true_base, field_
                    s: CompensateSettings, verdict) -> FileOutcome:
     """Guard and render one solved file (in memory; nothing is written): its summary entry and text."""
     turning = tp.turning if tp.turning is not None and tp.turning.any() else None
+    if turning is not None and tp.kind == "gcode":  # a lathe contour cycle stays monotonic (compensation.nc_contour)
+        from ...turning import hold_contours
+        res = hold_contours(res, tp, field_, machine)
     if turning is None and s.orientation:
         res, true_r = orientation_pass(field_, truth, machine, tp, res, targets, true_r)
     report = guards_report(res, machine, field_, s, tp)
@@ -523,6 +526,10 @@ def gcode_entry(entry, tp: ToolPath, res, true_r, true_base, field_, truth, mach
     if tp.turning is not None:  # a lathe: what its X words are and who said it (option or machine file)
         from ...turning import lathe_x_entry
         entry.update(lathe_x_entry(machine, getattr(s, "lathe_x", None), job.program.dialect))
+        from ...nc_contour import cycle_notes  # G70-G73: the contour's points compensated, the cycles kept
+        if cycle_notes(job.program.events):
+            entry["lathe_cycles"] = cycle_notes(job.program.events)
+            entry["lathe_contour_held"] = res.info.get("contour_held", [])
     files = getattr(job.program.expanded, "files", ())
     if files:  # subprograms read from --subprograms folders (compensation.nc_subfiles)
         entry["subprogram_files"] = [{"path": p, "sha256": h} for _, p, h in files]
@@ -620,6 +627,11 @@ def print_gcode_notes(entry) -> None:
                                                            else "")
           + (f" (lathe tools' X offsets {entry['tool_x_used']})" if entry.get("tool_x_used") else "")
           + (f"; X words: {entry['lathe_x']} ({entry['lathe_x_source']})" if "lathe_x" in entry else ""))
+    for note in entry.get("lathe_cycles", ())[:10]:  # a lathe's contour cycles (compensation.nc_contour)
+        print(f"  {note}")
+    if entry.get("lathe_contour_held"):
+        print(f"  {len(entry['lathe_contour_held'])} contour point(s) held monotonic: "
+              + "; ".join(entry["lathe_contour_held"][:3]))
     if entry["g53_lines"]:
         print(f"  G53 (machine coordinates) on line(s) {', '.join(map(str, entry['g53_lines'][:10]))}: passed "
               "through unchanged, not compensated")
