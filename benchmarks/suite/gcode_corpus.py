@@ -582,8 +582,8 @@ def report(out: dict) -> str:
 TITLE = "G-code programs as shops write them: how many `volcomp compensate` reads, and how fast"
 DATA = ("`benchmarks/nc_styles/` (31 programs in CAM posts' and shops' styles, `FAMILIES.csv`, with their offset and "
         "tool tables) and, where fetched "
-        "(`$VOLCOMP_PROGRAM_CORPUS`), the 168 public programs of `benchmarks/program_corpus/MANIFEST.csv` (two "
-        "blind samples of 40 and 27 among them, counted apart too); a "
+        "(`$VOLCOMP_PROGRAM_CORPUS`), the 169 public programs of `benchmarks/program_corpus/MANIFEST.csv` (blind "
+        "samples of 40 and 27 3-axis mill programs and 1 4/5-axis program among them, counted apart too); a "
         "1,000,000-line 3-axis program (quick: 20,000 lines)")
 
 
