@@ -30,7 +30,8 @@ import dataclasses
 
 import numpy as np
 
-from .gcode_state import _Refuse
+from .gcode_state import MM_PER_INCH, _Refuse
+from .nc_expand import Expanded
 
 CONTOUR_DIALECTS = ("fanuc", "haas")
 ROUGHING = {"G71": "stock removal in turning", "G72": "stock removal in facing", "G73": "pattern repeating"}
@@ -139,7 +140,8 @@ def cycle_line(words, idx: int, st, ax) -> str | None:
             raise _Refuse(by["P"].start + 1, f"'G70 P{ns} Q{nf}': no G71/G72/G73 before it read the contour "
                                              f"N{ns}-N{nf}; a G70 is read only after the roughing cycle whose contour "
                                              "blocks follow it")
-        st.events.append((idx, w.start + 1, "lathe-finish", (c.first + 1, c.last + 1, idx + 1), "G70"))
+        st.events.append((idx, w.start + 1, "lathe-finish", (c.first + 1, c.last + 1, idx + 1, _xz(st, ax),
+                                                             st.inch, st.diameter, st.incremental, ns, nf), "G70"))
         st.events.append((idx, w.start + 1, "lathe-cycle", "G70",
                           f"line {idx + 1}: G70 P{ns} Q{nf}: finishing pass: exactly the compensated contour "
                           f"(lines {c.first + 1}-{c.last + 1})"))
@@ -211,7 +213,7 @@ def after_line(words, idx: int, st, ax, move=None) -> None:
                       f"line {c.line + 1}: {c.code} P{c.ns} Q{c.nf} ({what}): roughing passes computed by the "
                       f"controller from the compensated contour (lines {c.first + 1}-{c.last + 1}) plus its U/W "
                       "allowance"))
-    st.events.append((idx, c.col, "lathe-contour", (c.first + 1, c.last + 1, c.line + 1, c.kind), c.code))
+    st.events.append((idx, c.col, "lathe-contour", (c.first + 1, c.last + 1, c.line + 1, c.kind, c.ns, c.nf), c.code))
 
 
 def refuse_open(path, events) -> None:
@@ -254,8 +256,8 @@ def hold_back_steps(path, events, lines, axes_d, axes, x_col: int, z_col: int) -
                 if back_um > HOLD_UM:
                     raise InputError(f"{path}: line {int(lines[b])}: compensation moves {name} back by {back_um:.3g} "
                                      f"um in the {code} contour of line {span[2]}, monotonic in {name} as programmed "
-                                     f"(the controller would alarm; up to {HOLD_UM:g} um is held); use G73 or post the "
-                                     "passes as G1/G2/G3")
+                                     f"(the controller would alarm; up to {HOLD_UM:g} um is held); use --expand-cycles (G70 "
+                                     "written as its moves), G73, or post the passes as G1/G2/G3")
                 out[b, col] = out[a, col]
                 rows.append(b)
                 held.append(f"line {int(lines[b])}: {name} held at the previous point's ({back_um:.3g} um back-step "
@@ -287,3 +289,133 @@ def cycle_notes(events) -> list:
     """The summary's line per contour cycle (roughing: the controller's passes from the compensated contour;
     finishing: exactly the compensated contour)."""
     return [e[4] for e in events if e[2] == "lathe-cycle"]
+
+
+FEED_WORDS = ("F", "S")
+"""Fanuc 0i-TF (G70): the F, S (and T) of the blocks N(ns)-N(nf) are the ones in effect during G70; which F and S
+the control has before the contour's first and after its finishing pass the manual does not say: the expansion
+refuses a feed move that would run on them (:func:`_feed_refusals`)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class FinishExpansion(Expanded):
+    """:class:`compensation.nc_expand.Expanded` of ``G70`` lines written as the controller's moves
+    (:func:`expand_finishing`): ``finishes`` the number of G70 lines expanded, ``inner`` the expansion before it."""
+
+    finishes: int = 0
+    inner: object = None
+
+    def note(self) -> str:
+        head = self.inner.note() + "; " if self.inner is not None else "volcomp: "
+        return head + (f"lathe G70 finishing cycles written as the controller's moves ({self.finishes}: the "
+                       "contour's blocks, then G0 back to the start point); G71/G72/G73 and their contours kept")
+
+
+def _word_text(v: float) -> str:
+    s = f"{v:.7f}".rstrip("0")
+    return "0." if s in ("-0.", "0.") else s
+
+
+def _feed_refusals(path, lines, first: int, last: int, g70: int) -> None:
+    """Refuse (InputError) a G70 expansion whose feed moves would run at an F or S the manual leaves open
+    (:data:`FEED_WORDS`): a G1-G3 block of the contour before its first F, or, where the contour gives F (S), a
+    G1-G3 block after the G70 before the program's next F (S). ``first``/``last``/``g70`` 0-based lines."""
+    from errormap.io import InputError
+    from .gcode_words import tokenize
+
+    def words(i):
+        try:
+            return tokenize(lines[i].rstrip("\r\n"))[1]
+        except _Refuse:
+            return ()
+
+    given, mode = set(), None
+    for i in range(first, last + 1):
+        ws = words(i)
+        mode = next((w.code for w in ws if w.letter == "G" and w.code in ("G0", "G1", "G2", "G3")), mode)
+        given |= {w.letter for w in ws if w.letter in FEED_WORDS}
+        if mode in ("G1", "G2", "G3") and "F" not in given and any(w.letter in "XZUW" for w in ws):
+            raise InputError(f"{path}: line {i + 1}: a feed block of the G70 on line {g70 + 1} before any F of its "
+                             "contour: its feed in G70 the manual does not say; give F on N(ns) or leave "
+                             "--expand-cycles out")
+    for i in range(g70 + 1, len(lines)):
+        ws = words(i)
+        open_ = given - {w.letter for w in ws}
+        if any(w.letter == "G" and w.code in ("G1", "G2", "G3") for w in ws) and open_:
+            raise InputError(f"{path}: line {i + 1}: a feed block after the expanded G70 of line {g70 + 1} before "
+                             f"the program gives {' and '.join(sorted(open_))} again: which the control has after "
+                             f"G70 the manual does not say; give {' '.join(sorted(open_))} here or leave "
+                             "--expand-cycles out")
+        given -= {w.letter for w in ws}
+        if not given:
+            return
+
+
+def expand_finishing(prog, path, reparse):
+    """``prog`` (a lathe program read with its contour cycles, :func:`cycle_line`) with every ``G70 P Q`` that a
+    roughing cycle's contour precedes written as the moves G70 makes (``--expand-cycles``): a copy of the contour's
+    lines (their leading ``N`` word dropped), then ``G0`` to the G70's start point in absolute X Z words; the
+    roughing cycles and their contour blocks kept as written (their moves not compensated: the controller roughs
+    from the programmed contour). ``reparse(text)`` reads the expanded text (a GProgram); returns ``prog`` where
+    there is no G70 to expand. Refusals: a G70 under incremental distance (``G91``), an F/S the manual leaves open
+    (:func:`_feed_refusals`)."""
+    import re
+    from errormap.io import InputError
+    finishes = [e for e in prog.events if e[2] == "lathe-finish"]
+    if not finishes:
+        return prog
+    inner, lines = prog.expanded, prog.lines
+    src = (lambda i: inner.origin[i]) if inner is not None else (lambda i: (i + 1, True, ()))
+    by_line = {e[0]: e for e in finishes}
+    text, origin, notes = [], [], []
+    for i, line in enumerate(lines):
+        e = by_line.get(i)
+        if e is None:
+            text.append(line)
+            origin.append(src(i))
+            continue
+        first, last, _, start, inch, diameter, incremental, ns, nf = e[3]
+        where = inner.where(i + 1, e[1]) if inner is not None else f"{path}: line {i + 1}, column {e[1]}"
+        if incremental or not np.isfinite(start).all():
+            raise InputError(f"{where}: 'G70': its start point is not known in absolute X Z (incremental distance "
+                             "mode or an unknown position): leave --expand-cycles out")
+        _feed_refusals(path if inner is None else inner.path, lines, first - 1, last - 1, i)
+        s = src(i)
+        for j in range(first - 1, last):
+            text.append(re.sub(r"^([ \t/]*)[nN]\s*\d+\s*", r"\1", lines[j]))
+            origin.append((s[0], False, s[2]))
+        scale = (2.0 if diameter else 1.0) / (MM_PER_INCH if inch else 1.0)
+        ending = line[len(line.rstrip("\r\n")):] or "\n"
+        text.append(f"G00 X{_word_text(start[0] * scale)} Z{_word_text(start[1] / (MM_PER_INCH if inch else 1.0))}"
+                    + ending)
+        origin.append((s[0], False, s[2]))
+        notes.append((s[0], f"line {s[0]}: G70 P{ns} Q{nf} expanded: the contour's blocks (lines "
+                            f"{src(first - 1)[0]}-{src(last - 1)[0]}) "
+                     f"written as their {last - first + 1} line(s) of moves, compensated point by point, then G0 back to "
+                     "its start point"))
+    exp = FinishExpansion("".join(text), tuple(origin), prog.dialect, str(path),
+                          getattr(inner, "files", ()), finishes=len(finishes), inner=inner)
+    try:
+        out = reparse(exp.text)
+    except InputError as exc:
+        raise exp.relocate(exc) from None
+    out.expanded = exp
+    return _keep_roughing(out, notes)
+
+
+def _keep_roughing(prog, finish_notes):
+    """``prog`` (expanded) with its roughing contours' moves kept as written and its cycle notes saying so."""
+    spans = [e for e in prog.events if e[2] == "lathe-contour"]
+    for m in prog.moves:
+        if any(e[3][0] - 1 <= m.index <= e[3][1] - 1 for e in spans):
+            m.compensate = False
+    src = (lambda line: prog.expanded.origin[line - 1][0])
+    notes = [(src(e[3][2]), e[1], "lathe-cycle", e[4],
+              f"line {src(e[3][2])}: {e[4]} P{e[3][4]} Q{e[3][5]} ({ROUGHING[e[4]]}"
+              f"{', ' + e[3][3] if e[3][3] else ''}): kept "
+              f"as written with its contour (lines {src(e[3][0])}-{src(e[3][1])}) uncompensated: the controller "
+              "roughs from the programmed contour, leaving its U/W allowance (roughing accuracy is not the part's)")
+             for e in spans]
+    notes = sorted(notes + [(line, 1, "lathe-cycle", "G70", n) for line, n in finish_notes], key=lambda e: e[0])
+    prog.events = tuple(e for e in prog.events if e[2] != "lathe-cycle") + tuple(notes)
+    return prog

@@ -83,14 +83,14 @@ def _setup(tmp_path):
     return truth
 
 
-def _compensate(tmp_path, text, dialect, name="p.nc"):
+def _compensate(tmp_path, text, dialect, name="p.nc", extra=()):
     truth = _setup(tmp_path)
     src = tmp_path / name
     src.write_text(text)
     out = tmp_path / "out"
     rc = main(["compensate", str(src), "--machine", LATHE, "--model", str(truth), "--truth", str(truth),
                "--method", "exact", "--dialect", dialect, "--lathe-x", "diameter", "--out", str(out),
-               "--work-offsets", str(tmp_path / "off.csv"), "--tool-table", str(tmp_path / "tools.csv")])
+               "--work-offsets", str(tmp_path / "off.csv"), "--tool-table", str(tmp_path / "tools.csv"), *extra])
     return rc, src, out / name, truth
 
 
@@ -106,6 +106,13 @@ def _check(src, written, dialect, truth):
     keep_out = [ln for i, ln in enumerate(p_out.lines) if i not in {m.index for m in m_out}]
     assert keep_src == keep_out  # cycle lines and every other line byte-identical
     assert not any("C" in ln.split("(")[0].upper() for ln in p_out.lines if ln not in p_src.lines)
+    return _reached(m_src, m_out, truth) + (len(keep_src),)
+
+
+def _reached(m_src, m_out, truth):
+    """``(max error um, points)``: each programmed point of ``m_src`` reached, in order, by a move of ``m_out``
+    whose TRUE tip (averaged over one turn) is within TOL_POINT_UM of it."""
+    lathe = load_machine(LATHE)
     field = ChainField(lathe, ChainElementSet.load(truth, lathe))
     place = lambda e: np.array([[e[0], e[1] + PART_Z_MM, 0.0]])  # noqa: E731 - X radius, Z, C
     errs, j = [], 0
@@ -118,7 +125,7 @@ def _check(src, written, dialect, truth):
                 break
         else:
             raise AssertionError(f"line {m.index + 1} reached by no written move")
-    return max(errs), len(errs), len(keep_src)
+    return max(errs), len(errs)
 
 
 @pytest.mark.parametrize("text,dialect,codes", [(FANUC, "fanuc", ("G71", "G70")), (HAAS, "haas", ("G72", "G70"))])
@@ -207,7 +214,7 @@ def test_compensation_that_breaks_a_monotonic_contour_is_refused(tmp_path, capsy
     text = ("G21 G18 G40 G99\nT0101\nG96 S180 M03\nG00 X110. Z3.\nG71 U1. R0.5\nG71 P100 Q200 U0.4 W0.1 F0.25\n"
             "N100 G00 X20.\nG01 Z-60. F0.15\nN200 X40.\nG70 P100 Q200\nG00 X150. Z50.\nM05\nM30\n")
     err = _refusal(tmp_path, text, capsys)
-    assert "line 9: compensation moves Z back by" in err and "G71 contour of line 6" in err and "use G73" in err
+    assert "line 9: compensation moves Z back by" in err and "G71 contour of line 6" in err and "use --expand-cycles" in err
 
 
 def test_the_contour_end_past_the_file_is_refused(tmp_path, capsys):
@@ -300,3 +307,43 @@ def test_type_ii_by_the_first_block_and_on_haas_r1(tmp_path, dialect, r1, kind):
     p.write_text(FANUC.replace("N100 G00 X18.", "N100 G00 X18. Z3.").replace("W0.1 F0.25", f"W0.1 F0.25{r1}"))
     prog, _ = parse_lathe_program(p, load_machine(LATHE), "keep", None, dialect, "diameter")
     assert [e[3][3] for e in prog.events if e[2] == "lathe-contour"] == [kind]
+
+
+STEPS = ("G21 G18 G40 G99\nT0101\nG96 S180 M03\nG00 X110. Z3.\nG71 U1. R0.5\nG71 P100 Q200 U0.4 W0.1 F0.25\n"
+         "N100 G00 X20.\nG01 Z-30. F0.15\nX40.\nZ-60.\nX60.\nZ-80.\nN200 X80.\nG70 P100 Q200\nG00 X150. Z50.\n"
+         "M05\nM30\n")
+"""A stepped shaft (three cylinders, three faces): type I, monotonic in X and Z as programmed."""
+G70_LINE = STEPS.splitlines().index("G70 P100 Q200")
+
+
+def test_expand_cycles_writes_g70_as_its_moves_where_in_place_is_refused(tmp_path, capsys):
+    """In place, compensation breaks the contour's monotonic Z (refused naming --expand-cycles); with
+    --expand-cycles the G71 and its contour are kept as written, G70 becomes the contour's moves compensated point
+    by point (each programmed point reached by the TRUE machine within TOL_POINT_UM) and a G0 back to the start."""
+    rc, *_ = _compensate(tmp_path, STEPS, "fanuc")
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert rc != 0 and "compensation moves" in err and "use --expand-cycles" in err
+    rc, src, written, truth = _compensate(tmp_path, STEPS, "fanuc", extra=("--expand-cycles",))
+    assert rc == 0
+    out = [ln for ln in written.read_text().splitlines() if not ln.startswith("(volcomp:")]
+    lines = STEPS.splitlines()
+    tail = len(lines) - G70_LINE - 1
+    assert out[:G70_LINE] == lines[:G70_LINE] and out[-tail:] == lines[G70_LINE + 1:]  # G71, contour: as written
+    inserted = out[G70_LINE:-tail]
+    assert inserted[-1] == "G00 X110. Z3." and not any("C" in ln or "N" in ln for ln in inserted)
+    lathe = load_machine(LATHE)
+    p_src, _ = parse_lathe_program(src, lathe, "keep", None, "fanuc", "diameter")
+    bare = written.with_suffix(".bare")
+    bare.write_text("\n".join(out) + "\n")
+    p_out, _ = parse_lathe_program(bare, lathe, "keep", None, "fanuc", "diameter")
+    first, last = G70_LINE, len(out) - tail - 1
+    contour = [m for m in p_src.moves if m.compensate and 6 <= m.index <= 12]
+    finish = [m for m in p_out.moves if first <= m.index <= last]
+    err_um, n = _reached(contour, [m for m in finish if m.compensate], truth)
+    assert err_um <= TOL_POINT_UM and n == len(contour) == 6
+    assert finish[-1].index == last and finish[-1].end[:2] == pytest.approx([55.0, 3.0], abs=1e-9)  # radius, Z
+    summary = json.loads((written.parent / "compensate_summary.json").read_text())["files"][0]
+    assert summary["lathe_cycles"][0].startswith("line 6: G71 P100 Q200") and "uncompensated" in \
+        summary["lathe_cycles"][0] and "roughing accuracy is not the part's" in summary["lathe_cycles"][0]
+    assert summary["lathe_cycles"][1].startswith("line 14: G70 P100 Q200 expanded")
+    assert summary["true"]["max_um"] <= TOL_POINT_UM < summary["true_uncompensated"]["max_um"]

@@ -85,7 +85,8 @@ def read_tool_path(path, machine, s, field_=None) -> ToolPath:
     if getattr(machine, "spindle", None) is not None:  # a lathe: turning mode where the spindle turns
         from ...turning import ColumnsField, parse_lathe_program
         prog, turning = parse_lathe_program(path, machine, s.rapids, s.block_delete, dialect=s.dialect,
-                                            lathe_x=getattr(s, "lathe_x", None), subprograms=s.subprograms)
+                                            lathe_x=getattr(s, "lathe_x", None), subprograms=s.subprograms,
+                                            cycles=s.cycles)
     elif getattr(s, "lathe_x", None) is not None:
         raise UsageError(f"--lathe-x: the machine {machine.name!r} is not a lathe (no [spindle]); leave it out")
     else:
