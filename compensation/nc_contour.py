@@ -23,7 +23,11 @@ Compensation must not break what the controller checks: a ``G71``/``G72`` contou
 programmed (type I: both; type II: Z for G71, X for G72) must stay monotonic in the same direction after compensation
 (:func:`hold_back_steps`): where a compensated step goes back (a Z-only step whose X the compensation moves the other
 way) by at most :data:`HOLD_UM` the point keeps the previous value on that axis (listed in the summary); by more, the
-program is refused with the line, as the controller would alarm on it."""
+program is refused with the line, as the controller would alarm on it.
+
+With ``--expand-cycles`` (:func:`expand_finishing`) the roughing cycles and their contours are written as they are,
+uncompensated (the controller roughs from the programmed contour), and each ``G70`` becomes the moves it makes: its
+contour's lines, compensated point by point with no monotonic rule, then a ``G0`` back to its start point."""
 from __future__ import annotations
 
 import dataclasses
@@ -353,46 +357,27 @@ def _feed_refusals(path, lines, first: int, last: int, g70: int) -> None:
 
 def expand_finishing(prog, path, reparse):
     """``prog`` (a lathe program read with its contour cycles, :func:`cycle_line`) with every ``G70 P Q`` that a
-    roughing cycle's contour precedes written as the moves G70 makes (``--expand-cycles``): a copy of the contour's
-    lines (their leading ``N`` word dropped), then ``G0`` to the G70's start point in absolute X Z words; the
-    roughing cycles and their contour blocks kept as written (their moves not compensated: the controller roughs
+    roughing cycle's contour precedes written as the moves G70 makes (``--expand-cycles``, :func:`_finish_lines`);
+    the roughing cycles and their contour blocks kept as written (their moves not compensated: the controller roughs
     from the programmed contour). ``reparse(text)`` reads the expanded text (a GProgram); returns ``prog`` where
-    there is no G70 to expand. Refusals: a G70 under incremental distance (``G91``), an F/S the manual leaves open
-    (:func:`_feed_refusals`)."""
-    import re
+    there is no G70 to expand."""
     from errormap.io import InputError
     finishes = [e for e in prog.events if e[2] == "lathe-finish"]
     if not finishes:
         return prog
-    inner, lines = prog.expanded, prog.lines
+    inner = prog.expanded
     src = (lambda i: inner.origin[i]) if inner is not None else (lambda i: (i + 1, True, ()))
     by_line = {e[0]: e for e in finishes}
     text, origin, notes = [], [], []
-    for i, line in enumerate(lines):
-        e = by_line.get(i)
-        if e is None:
+    for i, line in enumerate(prog.lines):
+        if i not in by_line:
             text.append(line)
             origin.append(src(i))
             continue
-        first, last, _, start, inch, diameter, incremental, ns, nf = e[3]
-        where = inner.where(i + 1, e[1]) if inner is not None else f"{path}: line {i + 1}, column {e[1]}"
-        if incremental or not np.isfinite(start).all():
-            raise InputError(f"{where}: 'G70': its start point is not known in absolute X Z (incremental distance "
-                             "mode or an unknown position): leave --expand-cycles out")
-        _feed_refusals(path if inner is None else inner.path, lines, first - 1, last - 1, i)
-        s = src(i)
-        for j in range(first - 1, last):
-            text.append(re.sub(r"^([ \t/]*)[nN]\s*\d+\s*", r"\1", lines[j]))
-            origin.append((s[0], False, s[2]))
-        scale = (2.0 if diameter else 1.0) / (MM_PER_INCH if inch else 1.0)
-        ending = line[len(line.rstrip("\r\n")):] or "\n"
-        text.append(f"G00 X{_word_text(start[0] * scale)} Z{_word_text(start[1] / (MM_PER_INCH if inch else 1.0))}"
-                    + ending)
-        origin.append((s[0], False, s[2]))
-        notes.append((s[0], f"line {s[0]}: G70 P{ns} Q{nf} expanded: the contour's blocks (lines "
-                            f"{src(first - 1)[0]}-{src(last - 1)[0]}) "
-                     f"written as their {last - first + 1} line(s) of moves, compensated point by point, then G0 back to "
-                     "its start point"))
+        new, note = _finish_lines(prog, path, by_line[i], src)
+        text += new
+        origin += [(src(i)[0], False, src(i)[2])] * len(new)
+        notes.append((src(i)[0], note))
     exp = FinishExpansion("".join(text), tuple(origin), prog.dialect, str(path),
                           getattr(inner, "files", ()), finishes=len(finishes), inner=inner)
     try:
@@ -401,6 +386,40 @@ def expand_finishing(prog, path, reparse):
         raise exp.relocate(exc) from None
     out.expanded = exp
     return _keep_roughing(out, notes)
+
+
+def _finish_lines(prog, path, e, src) -> tuple:
+    """``(lines, summary note)`` of the G70 of event ``e`` as the controller runs it: a copy of its contour's lines
+    (their leading ``N`` word dropped; the G70 line's own on the first), then ``G0`` to the G70's start point in
+    absolute X Z words. Refused (InputError): a G70 under incremental distance (``G91``) or from an unknown position,
+    a G70 line with other words than ``N G P Q``, an F/S the manual leaves open (:func:`_feed_refusals`)."""
+    import re
+    from errormap.io import InputError
+    from .gcode_words import tokenize
+    i, lines, inner = e[0], prog.lines, prog.expanded
+    line = lines[i]
+    first, last, _, start, inch, diameter, incremental, ns, nf = e[3]
+
+    def where(col):
+        return inner.where(i + 1, col) if inner is not None else f"{path}: line {i + 1}, column {col}"
+    if incremental or not np.isfinite(start).all():
+        raise InputError(f"{where(e[1])}: 'G70': its start point is not known in absolute X Z (incremental "
+                         "distance mode or an unknown position): leave --expand-cycles out")
+    other = [w for w in tokenize(line.rstrip("\r\n"))[1] if w.letter not in "NGPQ"]
+    if other:
+        raise InputError(f"{where(other[0].start + 1)}: '{other[0].letter}{other[0].text}' on a G70 line: the "
+                         "manuals' G70 is 'G70 P(ns) Q(nf)' (F S T from its contour): leave --expand-cycles out")
+    _feed_refusals(path if inner is None else inner.path, lines, first - 1, last - 1, i)
+    n = re.match(r"[ \t/]*([nN]\s*\d+\s*)?", line).group(1) or ""
+    out = [re.sub(r"^([ \t/]*)([nN]\s*\d+\s*)?", lambda m, j=j: m.group(1) + (n if j == first - 1 else ""),
+                  lines[j], count=1) for j in range(first - 1, last)]
+    unit = MM_PER_INCH if inch else 1.0
+    ending = line[len(line.rstrip("\r\n")):] or "\n"
+    out.append(f"G00 X{_word_text(start[0] * (2.0 if diameter else 1.0) / unit)} Z{_word_text(start[1] / unit)}"
+               + ending)
+    return out, (f"line {src(i)[0]}: G70 P{ns} Q{nf} expanded: the contour's blocks (lines {src(first - 1)[0]}-"
+                 f"{src(last - 1)[0]}) written as their {last - first + 1} line(s) of moves, compensated point by "
+                 "point, then G0 back to its start point")
 
 
 def _keep_roughing(prog, finish_notes):

@@ -347,3 +347,33 @@ def test_expand_cycles_writes_g70_as_its_moves_where_in_place_is_refused(tmp_pat
         summary["lathe_cycles"][0] and "roughing accuracy is not the part's" in summary["lathe_cycles"][0]
     assert summary["lathe_cycles"][1].startswith("line 14: G70 P100 Q200 expanded")
     assert summary["true"]["max_um"] <= TOL_POINT_UM < summary["true_uncompensated"]["max_um"]
+
+
+@pytest.mark.parametrize("old,new,where", [
+    ("G01 Z-30. F0.15", "G01 Z-30.", "line 8: a feed block of the G70 on line 14 before any F of its contour"),
+    ("G00 X150. Z50.", "G01 X150. Z50.", "line 15: a feed block after the expanded G70 of line 14 before the "
+                                         "program gives F again"),
+    ("G70 P100 Q200", "G70 P100 Q200 F0.1", "line 14, column 15: 'F0.1' on a G70 line"),
+])
+def test_expand_cycles_refuses_a_feed_the_manual_leaves_open(tmp_path, capsys, old, new, where):
+    """Fanuc 0i-TF: in G70 the F S T of the contour's blocks are in effect; the F before the contour's first F,
+    after the finishing pass, or on the G70 line the manual does not give: refused naming the line and the option."""
+    rc, *_ = _compensate(tmp_path, STEPS.replace(old, new), "fanuc", extra=("--expand-cycles",))
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert rc != 0 and where in err and "leave --expand-cycles out" in err and "Traceback" not in err
+
+
+def test_expand_cycles_moves_the_g70_lines_number_to_its_first_move(tmp_path):
+    rc, _, written, _ = _compensate(tmp_path, STEPS.replace("G70 P100", "N300 G70 P100"), "fanuc",
+                                    extra=("--expand-cycles",))
+    out = [ln for ln in written.read_text().splitlines() if not ln.startswith("(volcomp:")]
+    assert rc == 0 and out[G70_LINE] == "N300 G00 X20." and sum(ln.startswith("N") for ln in out) == 3
+
+
+def test_expand_cycles_in_inch_returns_to_the_start_point_in_the_programs_words(tmp_path):
+    """Haas one-block G72 in inch, X in diameters: the return is written in the program's own words (X2.5 Z0.1)."""
+    rc, src, written, truth = _compensate(tmp_path, HAAS, "haas", extra=("--expand-cycles",))
+    out = [ln for ln in written.read_text().splitlines() if not ln.startswith("(volcomp:")]
+    g70 = HAAS.splitlines().index("G70 P10 Q20")
+    assert rc == 0 and "G70 P10 Q20" not in out and out[:g70] == HAAS.splitlines()[:g70]
+    assert out[out.index("G00 X3. Z1.") - 1] == "G00 X2.5 Z0.1"
