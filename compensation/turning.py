@@ -125,6 +125,7 @@ def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe
     prog = _read(path, cycles, rapids=rapids, block_delete=block_delete, axis_words=kept, dialect=dialect,
                  lathe_x=lathe_x, subprograms=subprograms)
     refuse_open(path, prog.events)
+    flags = spindle_turning(prog.lines, machine.spindle)  # the lines read (an expanded G70 moves those after it)
     return prog, np.array([flags[m.index] for m in prog.moves], dtype=bool)
 
 

@@ -390,3 +390,17 @@ def test_grooving_cycles_are_refused_saying_why(tmp_path, capsys, dialect, line,
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert rc != 0 and f"line 17, column 1: '{code}' on a {dialect} lathe:" in err and "post the groove as G1" in err
     assert "..." not in err and "Traceback" not in err
+
+
+def test_expand_cycles_with_a_c_axis_section_after_it(tmp_path):
+    """The G70's moves shift the lines after it: the spindle's state (turning or C-axis mode) is read on the lines
+    written, so the C-axis move after M05 is compensated with its C and the G70's moves, while turning, get no C."""
+    text = STEPS.replace("T0101\n", "T0101\nG00 C0.\n").replace("M05\nM30\n", "M05\nT0100\nG00 X150. Z50. C45.\n"
+                                                                   "G01 X120. F0.3\nM30\n")
+    rc, src, written, truth = _compensate(tmp_path, text, "fanuc", extra=("--expand-cycles",))
+    out = [ln for ln in written.read_text().splitlines() if not ln.startswith("(volcomp:")]
+    t = out.index("T0100")
+    assert rc == 0 and any(" C" in ln for ln in out[t + 1:])  # C-axis mode: C compensated with X and Z
+    assert not any("C" in ln for ln in out[G70_LINE + 1:t])  # the G70's moves, while turning: no C
+    summary = json.loads((written.parent / "compensate_summary.json").read_text())["files"][0]
+    assert summary["true"]["max_um"] <= TOL_POINT_UM

@@ -133,7 +133,8 @@ def read_tool_path(path, machine, s, field_=None) -> ToolPath:
         turning = np.repeat(comp, job.counts)
         off = np.flatnonzero(~turning & np.isfinite(tool_xz).all(axis=1))
         if off.size:
-            raise UsageError(f"{path}: line {int(job.lines[off[0]])}: a lathe tool offset in C-axis mode (the spindle "
+            from ...nc_expand import source_line
+            raise UsageError(f"{path}: line {source_line(prog, int(job.lines[off[0]]))}: a lathe tool offset in C-axis mode (the spindle "
                              "stopped): only turning moves are compensated at a tool's offsets; cancel the offset "
                              "(G49, T..00) for the C-axis moves")
     check_units(path, job.lines, machine=machine, axes=axes, axes_columns=machine.axis_columns, coverage="path",
