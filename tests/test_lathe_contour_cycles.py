@@ -75,16 +75,16 @@ M30
 """Haas one-block G72 (facing, type I: N10 gives Z only), inch, contour monotonic in both axes."""
 
 
-def _setup(tmp_path):
+def _setup(tmp_path, tools="tool,length_mm,radius_mm\n1,0,0.8\n"):
     truth = tmp_path / "truth.json"
     ChainElementSet.random(load_machine(LATHE), SEED, SCALE_UM, N_STATIONS).save(truth)
     (tmp_path / "off.csv").write_text(f"system,x_mm,y_mm,z_mm\nG54,0,0,{PART_Z_MM}\n")
-    (tmp_path / "tools.csv").write_text("tool,length_mm,radius_mm\n1,0,0.8\n")
+    (tmp_path / "tools.csv").write_text(tools)
     return truth
 
 
-def _compensate(tmp_path, text, dialect, name="p.nc", extra=()):
-    truth = _setup(tmp_path)
+def _compensate(tmp_path, text, dialect, name="p.nc", extra=(), **tools):
+    truth = _setup(tmp_path, **tools)
     src = tmp_path / name
     src.write_text(text)
     out = tmp_path / "out"
@@ -404,3 +404,13 @@ def test_expand_cycles_with_a_c_axis_section_after_it(tmp_path):
     assert not any("C" in ln for ln in out[G70_LINE + 1:t])  # the G70's moves, while turning: no C
     summary = json.loads((written.parent / "compensate_summary.json").read_text())["files"][0]
     assert summary["true"]["max_um"] <= TOL_POINT_UM
+
+
+def test_expand_cycles_finishes_with_another_tools_offsets(tmp_path):
+    """Written as moves, the G70's contour is compensated at the finishing tool's own offsets (in place it is
+    refused: the contour's points are the roughing tool's)."""
+    text = STEPS.replace("G70 P100 Q200\n", "T0202\nG00 X110. Z3.\nG70 P100 Q200\n")
+    rc, src, written, truth = _compensate(tmp_path, text, "fanuc", extra=("--expand-cycles",),
+                                          tools="tool,length_mm,radius_mm\n1,0,0.8\n2,5.0,0.4\n")
+    summary = json.loads((written.parent / "compensate_summary.json").read_text())["files"][0]
+    assert rc == 0 and summary["true"]["max_um"] <= TOL_POINT_UM < summary["true_uncompensated"]["max_um"]
