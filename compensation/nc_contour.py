@@ -298,8 +298,8 @@ def refuse_other_tool(path, events, lines, contour_tool, finish_tool) -> None:
             if not np.allclose(np.nan_to_num(t, nan=np.inf), np.nan_to_num(at, nan=np.inf), rtol=0, atol=1e-9):
                 raise InputError(f"{path}: line {span[2]}, column {col}: 'G70': its tool's offsets (X, Z) "
                                  f"{np.round(at, 6).tolist()} mm differ from the contour's (lines {span[0]}-{span[1]}: "
-                                 f"{np.round(t, 6).tolist()} mm), compensated for the roughing tool; give both the "
-                                 "same offsets or write the contour again for the finishing tool")
+                                 f"{np.round(t, 6).tolist()} mm), compensated for the roughing tool; use --expand-cycles "
+                                 "(G70 as its moves, at its tool's offsets) or give both the same offsets")
 
 
 def cycle_notes(events) -> list:
