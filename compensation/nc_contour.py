@@ -298,8 +298,9 @@ def refuse_other_tool(path, events, lines, contour_tool, finish_tool) -> None:
             if not np.allclose(np.nan_to_num(t, nan=np.inf), np.nan_to_num(at, nan=np.inf), rtol=0, atol=1e-9):
                 raise InputError(f"{path}: line {span[2]}, column {col}: 'G70': its tool's offsets (X, Z) "
                                  f"{np.round(at, 6).tolist()} mm differ from the contour's (lines {span[0]}-{span[1]}: "
-                                 f"{np.round(t, 6).tolist()} mm), compensated for the roughing tool; use --expand-cycles "
-                                 "(G70 as its moves, at its tool's offsets) or give both the same offsets")
+                                 f"{np.round(t, 6).tolist()} mm), compensated for the roughing tool; use "
+                                 "--expand-cycles (G70 as its moves, at its tool's offsets) or give both the same "
+                                 "offsets")
 
 
 def cycle_notes(events) -> list:
@@ -333,10 +334,11 @@ def _word_text(v: float) -> str:
     return "0." if s in ("-0.", "0.") else s
 
 
-def _feed_refusals(path, lines, first: int, last: int, g70: int) -> None:
+def _feed_refusals(path, lines, first: int, last: int, g70: int, g70_named: int) -> None:
     """Refuse (InputError) a G70 expansion whose feed moves would run at an F or S the manual leaves open
     (:data:`FEED_WORDS`): a G1-G3 block of the contour before its first F, or, where the contour gives F (S), a
-    G1-G3 block after the G70 before the program's next F (S). ``first``/``last``/``g70`` 0-based lines."""
+    G1-G3 block after the G70 before the program's next F (S). ``first``/``last``/``g70`` 0-based lines,
+    ``g70_named`` the G70's line as the messages name it (its source line)."""
     from errormap.io import InputError
     from .gcode_words import tokenize
 
@@ -352,14 +354,14 @@ def _feed_refusals(path, lines, first: int, last: int, g70: int) -> None:
         mode = next((w.code for w in ws if w.letter == "G" and w.code in ("G0", "G1", "G2", "G3")), mode)
         given |= {w.letter for w in ws if w.letter in FEED_WORDS}
         if mode in ("G1", "G2", "G3") and "F" not in given and any(w.letter in "XZUW" for w in ws):
-            raise InputError(f"{path}: line {i + 1}: a feed block of the G70 on line {g70 + 1} before any F of its "
+            raise InputError(f"{path}: line {i + 1}: a feed block of the G70 on line {g70_named} before any F of its "
                              "contour: its feed in G70 the manual does not say; give F on N(ns) or leave "
                              "--expand-cycles out")
     for i in range(g70 + 1, len(lines)):
         ws = words(i)
         open_ = given - {w.letter for w in ws}
         if any(w.letter == "G" and w.code in ("G1", "G2", "G3") for w in ws) and open_:
-            raise InputError(f"{path}: line {i + 1}: a feed block after the expanded G70 of line {g70 + 1} before "
+            raise InputError(f"{path}: line {i + 1}: a feed block after the expanded G70 of line {g70_named} before "
                              f"the program gives {' and '.join(sorted(open_))} again: which the control has after "
                              f"G70 the manual does not say; give {' '.join(sorted(open_))} here or leave "
                              "--expand-cycles out")
@@ -387,7 +389,10 @@ def expand_finishing(prog, path, reparse):
             text.append(line)
             origin.append(src(i))
             continue
-        new, note = _finish_lines(prog, path, by_line[i], src)
+        try:
+            new, note = _finish_lines(prog, path, by_line[i], src)
+        except InputError as exc:  # on the flat lines of a program whose calls were expanded: named at the source
+            raise (inner.relocate(exc) if inner is not None else exc) from None
         text += new
         origin += [(src(i)[0], False, src(i)[2])] * len(new)
         notes.append((src(i)[0], note))
@@ -422,7 +427,7 @@ def _finish_lines(prog, path, e, src) -> tuple:
     if other:
         raise InputError(f"{where(other[0].start + 1)}: '{other[0].letter}{other[0].text}' on a G70 line: the "
                          "manuals' G70 is 'G70 P(ns) Q(nf)' (F S T from its contour): leave --expand-cycles out")
-    _feed_refusals(path if inner is None else inner.path, lines, first - 1, last - 1, i)
+    _feed_refusals(path if inner is None else inner.path, lines, first - 1, last - 1, i, src(i)[0])
     n = re.match(r"[ \t/]*([nN]\s*\d+\s*)?", line).group(1) or ""
     out = [re.sub(r"^([ \t/]*)([nN]\s*\d+\s*)?", lambda m, j=j: m.group(1) + (n if j == first - 1 else ""),
                   lines[j], count=1) for j in range(first - 1, last)]
