@@ -23,14 +23,19 @@ Compensation must not break what the controller checks: a ``G71``/``G72`` contou
 programmed (type I: both; type II: Z for G71, X for G72) must stay monotonic in the same direction after compensation
 (:func:`hold_back_steps`): where a compensated step goes back (a Z-only step whose X the compensation moves the other
 way) by at most :data:`HOLD_UM` the point keeps the previous value on that axis (listed in the summary); by more, the
-program is refused with the line, as the controller would alarm on it."""
+program is refused with the line, as the controller would alarm on it.
+
+With ``--expand-cycles`` (:func:`expand_finishing`) the roughing cycles and their contours are written as they are,
+uncompensated (the controller roughs from the programmed contour), and each ``G70`` becomes the moves it makes: its
+contour's lines, compensated point by point with no monotonic rule, then a ``G0`` back to its start point."""
 from __future__ import annotations
 
 import dataclasses
 
 import numpy as np
 
-from .gcode_state import _Refuse
+from .gcode_state import MM_PER_INCH, _Refuse
+from .nc_expand import Expanded
 
 CONTOUR_DIALECTS = ("fanuc", "haas")
 ROUGHING = {"G71": "stock removal in turning", "G72": "stock removal in facing", "G73": "pattern repeating"}
@@ -85,6 +90,15 @@ THREADING = {"G32": "thread cutting", "G92": "thread cutting cycle", "G76": "mul
 pass is synchronised with the spindle's index and its lead F is the travel per revolution the control commands:
 compensating a pass's ends without its lead (or a G76's passes, which the control computes) is not exact."""
 THREAD_WHY = "spindle-synchronised, compensated ends would change its lead F: not read (compensate without it)"
+GROOVING = {"G74": "face peck drilling / grooving cycle", "G75": "diameter grooving cycle"}
+"""Fanuc/Haas lathe grooving cycles (Fanuc 0i-TF ``G74``/``G75 X(U) Z(W) P Q R F``, Haas ``G74``/``G75 X Z I K D
+F``): refused (:func:`cycle_line`). The control cuts from the start point along one axis (Z for G74, X for G75) in
+pecks of the programmed increments and shifts across by P/Q (I/K) to the end point: a compensated end point moves
+the cycle's bottom along that axis only (its error across, the machine's straightness between start and bottom,
+stays), a compensated end across the start point's turns one groove into a series, and the pecks' return amount is
+a control parameter (Fanuc 5139 without the first block ``G74 R(e)``; Haas setting): no exact reading, kept or
+written as moves."""
+GROOVE_WHY = "pecks along one axis from the start point: its bottom's error across stays; post the groove as G1 moves"
 
 
 def applies(st, ax) -> bool:
@@ -105,6 +119,10 @@ def cycle_line(words, idx: int, st, ax) -> str | None:
     if thread is not None and applies(st, ax):
         raise _Refuse(thread.start + 1, f"'{thread.code}' on a {st.dialect.name} lathe: {THREADING[thread.code]}: "
                                         f"{THREAD_WHY}")
+    groove = next((w for w in words if w.letter == "G" and w.code in GROOVING), None)
+    if groove is not None and applies(st, ax):
+        raise _Refuse(groove.start + 1, f"'{groove.code}' on a {st.dialect.name} lathe: {GROOVING[groove.code]}: "
+                                        f"{GROOVE_WHY}")
     g = [w for w in words if w.letter == "G" and w.code in CYCLE_CODES]
     if not g or not applies(st, ax):
         if cs.pending is not None or cs.active is not None:
@@ -139,7 +157,8 @@ def cycle_line(words, idx: int, st, ax) -> str | None:
             raise _Refuse(by["P"].start + 1, f"'G70 P{ns} Q{nf}': no G71/G72/G73 before it read the contour "
                                              f"N{ns}-N{nf}; a G70 is read only after the roughing cycle whose contour "
                                              "blocks follow it")
-        st.events.append((idx, w.start + 1, "lathe-finish", (c.first + 1, c.last + 1, idx + 1), "G70"))
+        st.events.append((idx, w.start + 1, "lathe-finish", (c.first + 1, c.last + 1, idx + 1, _xz(st, ax),
+                                                             st.inch, st.diameter, st.incremental, ns, nf), "G70"))
         st.events.append((idx, w.start + 1, "lathe-cycle", "G70",
                           f"line {idx + 1}: G70 P{ns} Q{nf}: finishing pass: exactly the compensated contour "
                           f"(lines {c.first + 1}-{c.last + 1})"))
@@ -211,7 +230,7 @@ def after_line(words, idx: int, st, ax, move=None) -> None:
                       f"line {c.line + 1}: {c.code} P{c.ns} Q{c.nf} ({what}): roughing passes computed by the "
                       f"controller from the compensated contour (lines {c.first + 1}-{c.last + 1}) plus its U/W "
                       "allowance"))
-    st.events.append((idx, c.col, "lathe-contour", (c.first + 1, c.last + 1, c.line + 1, c.kind), c.code))
+    st.events.append((idx, c.col, "lathe-contour", (c.first + 1, c.last + 1, c.line + 1, c.kind, c.ns, c.nf), c.code))
 
 
 def refuse_open(path, events) -> None:
@@ -254,8 +273,8 @@ def hold_back_steps(path, events, lines, axes_d, axes, x_col: int, z_col: int) -
                 if back_um > HOLD_UM:
                     raise InputError(f"{path}: line {int(lines[b])}: compensation moves {name} back by {back_um:.3g} "
                                      f"um in the {code} contour of line {span[2]}, monotonic in {name} as programmed "
-                                     f"(the controller would alarm; up to {HOLD_UM:g} um is held); use G73 or post the "
-                                     "passes as G1/G2/G3")
+                                     f"(the controller would alarm; up to {HOLD_UM:g} um is held); use --expand-cycles (G70 "
+                                     "written as its moves), G73, or post the passes as G1/G2/G3")
                 out[b, col] = out[a, col]
                 rows.append(b)
                 held.append(f"line {int(lines[b])}: {name} held at the previous point's ({back_um:.3g} um back-step "
@@ -279,11 +298,161 @@ def refuse_other_tool(path, events, lines, contour_tool, finish_tool) -> None:
             if not np.allclose(np.nan_to_num(t, nan=np.inf), np.nan_to_num(at, nan=np.inf), rtol=0, atol=1e-9):
                 raise InputError(f"{path}: line {span[2]}, column {col}: 'G70': its tool's offsets (X, Z) "
                                  f"{np.round(at, 6).tolist()} mm differ from the contour's (lines {span[0]}-{span[1]}: "
-                                 f"{np.round(t, 6).tolist()} mm), compensated for the roughing tool; give both the "
-                                 "same offsets or write the contour again for the finishing tool")
+                                 f"{np.round(t, 6).tolist()} mm), compensated for the roughing tool; use "
+                                 "--expand-cycles (G70 as its moves, at its tool's offsets) or give both the same "
+                                 "offsets")
 
 
 def cycle_notes(events) -> list:
     """The summary's line per contour cycle (roughing: the controller's passes from the compensated contour;
     finishing: exactly the compensated contour)."""
     return [e[4] for e in events if e[2] == "lathe-cycle"]
+
+
+FEED_WORDS = ("F", "S")
+"""Fanuc 0i-TF (G70): the F, S (and T) of the blocks N(ns)-N(nf) are the ones in effect during G70; which F and S
+the control has before the contour's first and after its finishing pass the manual does not say: the expansion
+refuses a feed move that would run on them (:func:`_feed_refusals`)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class FinishExpansion(Expanded):
+    """:class:`compensation.nc_expand.Expanded` of ``G70`` lines written as the controller's moves
+    (:func:`expand_finishing`): ``finishes`` the number of G70 lines expanded, ``inner`` the expansion before it."""
+
+    finishes: int = 0
+    inner: object = None
+
+    def note(self) -> str:
+        head = self.inner.note() + "; " if self.inner is not None else "volcomp: "
+        return head + (f"lathe G70 finishing cycles written as the controller's moves ({self.finishes}: the "
+                       "contour's blocks, then G0 back to the start point); G71/G72/G73 and their contours kept")
+
+
+def _word_text(v: float) -> str:
+    s = f"{v:.7f}".rstrip("0")
+    return "0." if s in ("-0.", "0.") else s
+
+
+def _feed_refusals(path, lines, first: int, last: int, g70: int, g70_named: int) -> None:
+    """Refuse (InputError) a G70 expansion whose feed moves would run at an F or S the manual leaves open
+    (:data:`FEED_WORDS`): a G1-G3 block of the contour before its first F, or, where the contour gives F (S), a
+    G1-G3 block after the G70 before the program's next F (S). ``first``/``last``/``g70`` 0-based lines,
+    ``g70_named`` the G70's line as the messages name it (its source line)."""
+    from errormap.io import InputError
+    from .gcode_words import tokenize
+
+    def words(i):
+        try:
+            return tokenize(lines[i].rstrip("\r\n"))[1]
+        except _Refuse:
+            return ()
+
+    given, mode = set(), None
+    for i in range(first, last + 1):
+        ws = words(i)
+        mode = next((w.code for w in ws if w.letter == "G" and w.code in ("G0", "G1", "G2", "G3")), mode)
+        given |= {w.letter for w in ws if w.letter in FEED_WORDS}
+        if mode in ("G1", "G2", "G3") and "F" not in given and any(w.letter in "XZUW" for w in ws):
+            raise InputError(f"{path}: line {i + 1}: a feed block of the G70 on line {g70_named} before any F of its "
+                             "contour: its feed in G70 the manual does not say; give F on N(ns) or leave "
+                             "--expand-cycles out")
+    for i in range(g70 + 1, len(lines)):
+        ws = words(i)
+        open_ = given - {w.letter for w in ws}
+        if any(w.letter == "G" and w.code in ("G1", "G2", "G3") for w in ws) and open_:
+            raise InputError(f"{path}: line {i + 1}: a feed block after the expanded G70 of line {g70_named} before "
+                             f"the program gives {' and '.join(sorted(open_))} again: which the control has after "
+                             f"G70 the manual does not say; give {' '.join(sorted(open_))} here or leave "
+                             "--expand-cycles out")
+        given -= {w.letter for w in ws}
+        if not given:
+            return
+
+
+def expand_finishing(prog, path, reparse):
+    """``prog`` (a lathe program read with its contour cycles, :func:`cycle_line`) with every ``G70 P Q`` that a
+    roughing cycle's contour precedes written as the moves G70 makes (``--expand-cycles``, :func:`_finish_lines`);
+    the roughing cycles and their contour blocks kept as written (their moves not compensated: the controller roughs
+    from the programmed contour). ``reparse(text)`` reads the expanded text (a GProgram); returns ``prog`` where
+    there is no G70 to expand."""
+    from errormap.io import InputError
+    finishes = [e for e in prog.events if e[2] == "lathe-finish"]
+    if not finishes:
+        return prog
+    inner = prog.expanded
+    src = (lambda i: inner.origin[i]) if inner is not None else (lambda i: (i + 1, True, ()))
+    by_line = {e[0]: e for e in finishes}
+    text, origin, notes = [], [], []
+    for i, line in enumerate(prog.lines):
+        if i not in by_line:
+            text.append(line)
+            origin.append(src(i))
+            continue
+        try:
+            new, note = _finish_lines(prog, path, by_line[i], src)
+        except InputError as exc:  # on the flat lines of a program whose calls were expanded: named at the source
+            raise (inner.relocate(exc) if inner is not None else exc) from None
+        text += new
+        origin += [(src(i)[0], False, src(i)[2])] * len(new)
+        notes.append((src(i)[0], note))
+    exp = FinishExpansion("".join(text), tuple(origin), prog.dialect, str(path),
+                          getattr(inner, "files", ()), finishes=len(finishes), inner=inner)
+    try:
+        out = reparse(exp.text)
+    except InputError as exc:
+        raise exp.relocate(exc) from None
+    out.expanded = exp
+    return _keep_roughing(out, notes)
+
+
+def _finish_lines(prog, path, e, src) -> tuple:
+    """``(lines, summary note)`` of the G70 of event ``e`` as the controller runs it: a copy of its contour's lines
+    (their leading ``N`` word dropped; the G70 line's own on the first), then ``G0`` to the G70's start point in
+    absolute X Z words. Refused (InputError): a G70 under incremental distance (``G91``) or from an unknown position,
+    a G70 line with other words than ``N G P Q``, an F/S the manual leaves open (:func:`_feed_refusals`)."""
+    import re
+    from errormap.io import InputError
+    from .gcode_words import tokenize
+    i, lines, inner = e[0], prog.lines, prog.expanded
+    line = lines[i]
+    first, last, _, start, inch, diameter, incremental, ns, nf = e[3]
+
+    def where(col):
+        return inner.where(i + 1, col) if inner is not None else f"{path}: line {i + 1}, column {col}"
+    if incremental or not np.isfinite(start).all():
+        raise InputError(f"{where(e[1])}: 'G70': its start point is not known in absolute X Z (incremental "
+                         "distance mode or an unknown position): leave --expand-cycles out")
+    other = [w for w in tokenize(line.rstrip("\r\n"))[1] if w.letter not in "NGPQ"]
+    if other:
+        raise InputError(f"{where(other[0].start + 1)}: '{other[0].letter}{other[0].text}' on a G70 line: the "
+                         "manuals' G70 is 'G70 P(ns) Q(nf)' (F S T from its contour): leave --expand-cycles out")
+    _feed_refusals(path if inner is None else inner.path, lines, first - 1, last - 1, i, src(i)[0])
+    n = re.match(r"[ \t/]*([nN]\s*\d+\s*)?", line).group(1) or ""
+    out = [re.sub(r"^([ \t/]*)([nN]\s*\d+\s*)?", lambda m, j=j: m.group(1) + (n if j == first - 1 else ""),
+                  lines[j], count=1) for j in range(first - 1, last)]
+    unit = MM_PER_INCH if inch else 1.0
+    ending = line[len(line.rstrip("\r\n")):] or "\n"
+    out.append(f"G00 X{_word_text(start[0] * (2.0 if diameter else 1.0) / unit)} Z{_word_text(start[1] / unit)}"
+               + ending)
+    return out, (f"line {src(i)[0]}: G70 P{ns} Q{nf} expanded: the contour's blocks (lines {src(first - 1)[0]}-"
+                 f"{src(last - 1)[0]}) written as their {last - first + 1} line(s) of moves, compensated point by "
+                 "point, then G0 back to its start point")
+
+
+def _keep_roughing(prog, finish_notes):
+    """``prog`` (expanded) with its roughing contours' moves kept as written and its cycle notes saying so."""
+    spans = [e for e in prog.events if e[2] == "lathe-contour"]
+    for m in prog.moves:
+        if any(e[3][0] - 1 <= m.index <= e[3][1] - 1 for e in spans):
+            m.compensate = False
+    src = (lambda line: prog.expanded.origin[line - 1][0])
+    notes = [(src(e[3][2]), e[1], "lathe-cycle", e[4],
+              f"line {src(e[3][2])}: {e[4]} P{e[3][4]} Q{e[3][5]} ({ROUGHING[e[4]]}"
+              f"{', ' + e[3][3] if e[3][3] else ''}): kept "
+              f"as written with its contour (lines {src(e[3][0])}-{src(e[3][1])}) uncompensated: the controller "
+              "roughs from the programmed contour, leaving its U/W allowance (roughing accuracy is not the part's)")
+             for e in spans]
+    notes = sorted(notes + [(line, 1, "lathe-cycle", "G70", n) for line, n in finish_notes], key=lambda e: e[0])
+    prog.events = tuple(e for e in prog.events if e[2] != "lathe-cycle") + tuple(notes)
+    return prog

@@ -19,7 +19,7 @@ import numpy as np
 from errormap.io import InputError
 
 from .gcode import AxisWords, GProgram, parse_program, tokenize
-from .nc_contour import refuse_open
+from .nc_contour import expand_finishing, refuse_open
 
 TURN_SAMPLES = 24
 """Spindle angles (every 15°) at which the error is averaged over one turn: the chain's errors are smooth
@@ -86,11 +86,12 @@ def lathe_x_entry(machine, option, dialect) -> dict:
 
 
 def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe_x=None,
-                        subprograms=None) -> tuple[GProgram, np.ndarray]:
+                        subprograms=None, cycles="keep") -> tuple[GProgram, np.ndarray]:
     """A program for a machine with a ``[spindle]``: ``(program, turning)`` with ``turning`` (n_moves,) per
     move of ``program.moves`` (module docstring). ``lathe_x``: ``"diameter"`` or ``"radius"``, what a Fanuc, Haas
     or Siemens ISO lathe's X words are (``--lathe-x``; None: the machine file's :data:`LATHE_X_KEY`, and without
-    it such a program's X is refused)."""
+    it such a program's X is refused). ``cycles``: ``"expand"`` writes a contour cycle's ``G70`` as its moves
+    (:func:`compensation.nc_contour.expand_finishing`); ``"keep"`` reads the contour in place."""
     option = lathe_x
     lathe_x = lathe_x_words(machine, lathe_x)[0]
     c = machine.spindle["axis"]
@@ -98,8 +99,8 @@ def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe
     xz = dataclasses.replace(full, words=tuple(w for w in full.words if w != c),  # the file's harmless M codes kept
                              rotary=tuple(r for r in full.rotary if r != c))
     try:
-        prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=xz, dialect=dialect,
-                             lathe_x=lathe_x, subprograms=subprograms)
+        prog = _read(path, cycles, rapids=rapids, block_delete=block_delete, axis_words=xz, dialect=dialect,
+                     lathe_x=lathe_x, subprograms=subprograms)
         _refuse_lathe_x(prog, option)
         refuse_open(path, prog.events)
         return prog, np.ones(len(prog.moves), dtype=bool)
@@ -121,10 +122,22 @@ def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe
                              f"{', '.join(f'M{k}' for k in machine.spindle['turning_off'])}) before positioning {c}")
             raise exc if prog.expanded is None else prog.expanded.relocate(exc)
     kept = dataclasses.replace(full, kept=(c,))  # C written only where C-axis mode moves it
-    prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=kept, dialect=dialect,
-                         lathe_x=lathe_x, subprograms=subprograms)
+    prog = _read(path, cycles, rapids=rapids, block_delete=block_delete, axis_words=kept, dialect=dialect,
+                 lathe_x=lathe_x, subprograms=subprograms)
     refuse_open(path, prog.events)
+    flags = spindle_turning(prog.lines, machine.spindle)  # the lines read (an expanded G70 moves those after it)
     return prog, np.array([flags[m.index] for m in prog.moves], dtype=bool)
+
+
+def _read(path, cycles, **kw) -> GProgram:
+    """:func:`compensation.gcode.parse_program` of a lathe program (``kw``), its G70 lines expanded where
+    ``cycles`` is ``"expand"`` (:func:`compensation.nc_contour.expand_finishing`)."""
+    prog = parse_program(path, **kw)
+    if cycles != "expand":
+        return prog
+    refuse_open(path, prog.events)
+    kw.pop("subprograms", None)  # the flat text: its calls are expanded already
+    return expand_finishing(prog, path, lambda text: parse_program(path, data=text.encode("latin-1"), **kw))
 
 
 class ColumnsField:

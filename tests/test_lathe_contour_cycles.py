@@ -75,22 +75,22 @@ M30
 """Haas one-block G72 (facing, type I: N10 gives Z only), inch, contour monotonic in both axes."""
 
 
-def _setup(tmp_path):
+def _setup(tmp_path, tools="tool,length_mm,radius_mm\n1,0,0.8\n"):
     truth = tmp_path / "truth.json"
     ChainElementSet.random(load_machine(LATHE), SEED, SCALE_UM, N_STATIONS).save(truth)
     (tmp_path / "off.csv").write_text(f"system,x_mm,y_mm,z_mm\nG54,0,0,{PART_Z_MM}\n")
-    (tmp_path / "tools.csv").write_text("tool,length_mm,radius_mm\n1,0,0.8\n")
+    (tmp_path / "tools.csv").write_text(tools)
     return truth
 
 
-def _compensate(tmp_path, text, dialect, name="p.nc"):
-    truth = _setup(tmp_path)
+def _compensate(tmp_path, text, dialect, name="p.nc", extra=(), **tools):
+    truth = _setup(tmp_path, **tools)
     src = tmp_path / name
     src.write_text(text)
     out = tmp_path / "out"
     rc = main(["compensate", str(src), "--machine", LATHE, "--model", str(truth), "--truth", str(truth),
                "--method", "exact", "--dialect", dialect, "--lathe-x", "diameter", "--out", str(out),
-               "--work-offsets", str(tmp_path / "off.csv"), "--tool-table", str(tmp_path / "tools.csv")])
+               "--work-offsets", str(tmp_path / "off.csv"), "--tool-table", str(tmp_path / "tools.csv"), *extra])
     return rc, src, out / name, truth
 
 
@@ -106,6 +106,13 @@ def _check(src, written, dialect, truth):
     keep_out = [ln for i, ln in enumerate(p_out.lines) if i not in {m.index for m in m_out}]
     assert keep_src == keep_out  # cycle lines and every other line byte-identical
     assert not any("C" in ln.split("(")[0].upper() for ln in p_out.lines if ln not in p_src.lines)
+    return _reached(m_src, m_out, truth) + (len(keep_src),)
+
+
+def _reached(m_src, m_out, truth):
+    """``(max error um, points)``: each programmed point of ``m_src`` reached, in order, by a move of ``m_out``
+    whose TRUE tip (averaged over one turn) is within TOL_POINT_UM of it."""
+    lathe = load_machine(LATHE)
     field = ChainField(lathe, ChainElementSet.load(truth, lathe))
     place = lambda e: np.array([[e[0], e[1] + PART_Z_MM, 0.0]])  # noqa: E731 - X radius, Z, C
     errs, j = [], 0
@@ -118,7 +125,7 @@ def _check(src, written, dialect, truth):
                 break
         else:
             raise AssertionError(f"line {m.index + 1} reached by no written move")
-    return max(errs), len(errs), len(keep_src)
+    return max(errs), len(errs)
 
 
 @pytest.mark.parametrize("text,dialect,codes", [(FANUC, "fanuc", ("G71", "G70")), (HAAS, "haas", ("G72", "G70"))])
@@ -207,7 +214,7 @@ def test_compensation_that_breaks_a_monotonic_contour_is_refused(tmp_path, capsy
     text = ("G21 G18 G40 G99\nT0101\nG96 S180 M03\nG00 X110. Z3.\nG71 U1. R0.5\nG71 P100 Q200 U0.4 W0.1 F0.25\n"
             "N100 G00 X20.\nG01 Z-60. F0.15\nN200 X40.\nG70 P100 Q200\nG00 X150. Z50.\nM05\nM30\n")
     err = _refusal(tmp_path, text, capsys)
-    assert "line 9: compensation moves Z back by" in err and "G71 contour of line 6" in err and "use G73" in err
+    assert "line 9: compensation moves Z back by" in err and "G71 contour of line 6" in err and "use --expand-cycles" in err
 
 
 def test_the_contour_end_past_the_file_is_refused(tmp_path, capsys):
@@ -300,3 +307,110 @@ def test_type_ii_by_the_first_block_and_on_haas_r1(tmp_path, dialect, r1, kind):
     p.write_text(FANUC.replace("N100 G00 X18.", "N100 G00 X18. Z3.").replace("W0.1 F0.25", f"W0.1 F0.25{r1}"))
     prog, _ = parse_lathe_program(p, load_machine(LATHE), "keep", None, dialect, "diameter")
     assert [e[3][3] for e in prog.events if e[2] == "lathe-contour"] == [kind]
+
+
+STEPS = ("G21 G18 G40 G99\nT0101\nG96 S180 M03\nG00 X110. Z3.\nG71 U1. R0.5\nG71 P100 Q200 U0.4 W0.1 F0.25\n"
+         "N100 G00 X20.\nG01 Z-30. F0.15\nX40.\nZ-60.\nX60.\nZ-80.\nN200 X80.\nG70 P100 Q200\nG00 X150. Z50.\n"
+         "M05\nM30\n")
+"""A stepped shaft (three cylinders, three faces): type I, monotonic in X and Z as programmed."""
+G70_LINE = STEPS.splitlines().index("G70 P100 Q200")
+
+
+def test_expand_cycles_writes_g70_as_its_moves_where_in_place_is_refused(tmp_path, capsys):
+    """In place, compensation breaks the contour's monotonic Z (refused naming --expand-cycles); with
+    --expand-cycles the G71 and its contour are kept as written, G70 becomes the contour's moves compensated point
+    by point (each programmed point reached by the TRUE machine within TOL_POINT_UM) and a G0 back to the start."""
+    rc, *_ = _compensate(tmp_path, STEPS, "fanuc")
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert rc != 0 and "compensation moves" in err and "use --expand-cycles" in err
+    rc, src, written, truth = _compensate(tmp_path, STEPS, "fanuc", extra=("--expand-cycles",))
+    assert rc == 0
+    out = [ln for ln in written.read_text().splitlines() if not ln.startswith("(volcomp:")]
+    lines = STEPS.splitlines()
+    tail = len(lines) - G70_LINE - 1
+    assert out[:G70_LINE] == lines[:G70_LINE] and out[-tail:] == lines[G70_LINE + 1:]  # G71, contour: as written
+    inserted = out[G70_LINE:-tail]
+    assert inserted[-1] == "G00 X110. Z3." and not any("C" in ln or "N" in ln for ln in inserted)
+    lathe = load_machine(LATHE)
+    p_src, _ = parse_lathe_program(src, lathe, "keep", None, "fanuc", "diameter")
+    bare = written.with_suffix(".bare")
+    bare.write_text("\n".join(out) + "\n")
+    p_out, _ = parse_lathe_program(bare, lathe, "keep", None, "fanuc", "diameter")
+    first, last = G70_LINE, len(out) - tail - 1
+    contour = [m for m in p_src.moves if m.compensate and 6 <= m.index <= 12]
+    finish = [m for m in p_out.moves if first <= m.index <= last]
+    err_um, n = _reached(contour, [m for m in finish if m.compensate], truth)
+    assert err_um <= TOL_POINT_UM and n == len(contour) == 6
+    assert finish[-1].index == last and finish[-1].end[:2] == pytest.approx([55.0, 3.0], abs=1e-9)  # radius, Z
+    summary = json.loads((written.parent / "compensate_summary.json").read_text())["files"][0]
+    assert summary["lathe_cycles"][0].startswith("line 6: G71 P100 Q200") and "uncompensated" in \
+        summary["lathe_cycles"][0] and "roughing accuracy is not the part's" in summary["lathe_cycles"][0]
+    assert summary["lathe_cycles"][1].startswith("line 14: G70 P100 Q200 expanded")
+    assert summary["true"]["max_um"] <= TOL_POINT_UM < summary["true_uncompensated"]["max_um"]
+
+
+@pytest.mark.parametrize("old,new,where", [
+    ("G01 Z-30. F0.15", "G01 Z-30.", "line 8: a feed block of the G70 on line 14 before any F of its contour"),
+    ("G00 X150. Z50.", "G01 X150. Z50.", "line 15: a feed block after the expanded G70 of line 14 before the "
+                                         "program gives F again"),
+    ("G70 P100 Q200", "G70 P100 Q200 F0.1", "line 14, column 15: 'F0.1' on a G70 line"),
+])
+def test_expand_cycles_refuses_a_feed_the_manual_leaves_open(tmp_path, capsys, old, new, where):
+    """Fanuc 0i-TF: in G70 the F S T of the contour's blocks are in effect; the F before the contour's first F,
+    after the finishing pass, or on the G70 line the manual does not give: refused naming the line and the option."""
+    rc, *_ = _compensate(tmp_path, STEPS.replace(old, new), "fanuc", extra=("--expand-cycles",))
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert rc != 0 and where in err and "leave --expand-cycles out" in err and "Traceback" not in err
+
+
+def test_expand_cycles_moves_the_g70_lines_number_to_its_first_move(tmp_path):
+    rc, _, written, _ = _compensate(tmp_path, STEPS.replace("G70 P100", "N300 G70 P100"), "fanuc",
+                                    extra=("--expand-cycles",))
+    out = [ln for ln in written.read_text().splitlines() if not ln.startswith("(volcomp:")]
+    assert rc == 0 and out[G70_LINE] == "N300 G00 X20." and sum(ln.startswith("N") for ln in out) == 3
+
+
+def test_expand_cycles_in_inch_returns_to_the_start_point_in_the_programs_words(tmp_path):
+    """Haas one-block G72 in inch, X in diameters: the return is written in the program's own words (X2.5 Z0.1)."""
+    rc, src, written, truth = _compensate(tmp_path, HAAS, "haas", extra=("--expand-cycles",))
+    out = [ln for ln in written.read_text().splitlines() if not ln.startswith("(volcomp:")]
+    g70 = HAAS.splitlines().index("G70 P10 Q20")
+    assert rc == 0 and "G70 P10 Q20" not in out and out[:g70] == HAAS.splitlines()[:g70]
+    assert out[out.index("G00 X3. Z1.") - 1] == "G00 X2.5 Z0.1"
+
+
+@pytest.mark.parametrize("dialect,line,code", [("fanuc", "G75 X30. Z-20. P1500 Q2000 F0.1", "G75"),
+                                               ("haas", "G75 X30. I0.5", "G75"), ("haas", "G74 Z-10. K2.", "G74"),
+                                               ("fanuc", "G74 R0.5", "G74")])
+def test_grooving_cycles_are_refused_saying_why(tmp_path, capsys, dialect, line, code):
+    """Fanuc/Haas lathe G74/G75 (compensation.nc_contour.GROOVING): the control pecks along one axis from the start
+    point, so a compensated end cannot hold the bottom's error across it: refused naming the word and the way out."""
+    text = FANUC.replace("G70 P100 Q200\n", f"G70 P100 Q200\nG00 X62. Z-10.\n{line}\n")
+    rc, *_ = _compensate(tmp_path, text, dialect)
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert rc != 0 and f"line 17, column 1: '{code}' on a {dialect} lathe:" in err and "post the groove as G1" in err
+    assert "..." not in err and "Traceback" not in err
+
+
+def test_expand_cycles_with_a_c_axis_section_after_it(tmp_path):
+    """The G70's moves shift the lines after it: the spindle's state (turning or C-axis mode) is read on the lines
+    written, so the C-axis move after M05 is compensated with its C and the G70's moves, while turning, get no C."""
+    text = STEPS.replace("T0101\n", "T0101\nG00 C0.\n").replace("M05\nM30\n", "M05\nT0100\nG00 X150. Z50. C45.\n"
+                                                                   "G01 X120. F0.3\nM30\n")
+    rc, src, written, truth = _compensate(tmp_path, text, "fanuc", extra=("--expand-cycles",))
+    out = [ln for ln in written.read_text().splitlines() if not ln.startswith("(volcomp:")]
+    t = out.index("T0100")
+    assert rc == 0 and any(" C" in ln for ln in out[t + 1:])  # C-axis mode: C compensated with X and Z
+    assert not any("C" in ln for ln in out[G70_LINE + 1:t])  # the G70's moves, while turning: no C
+    summary = json.loads((written.parent / "compensate_summary.json").read_text())["files"][0]
+    assert summary["true"]["max_um"] <= TOL_POINT_UM
+
+
+def test_expand_cycles_finishes_with_another_tools_offsets(tmp_path):
+    """Written as moves, the G70's contour is compensated at the finishing tool's own offsets (in place it is
+    refused: the contour's points are the roughing tool's)."""
+    text = STEPS.replace("G70 P100 Q200\n", "T0202\nG00 X110. Z3.\nG70 P100 Q200\n")
+    rc, src, written, truth = _compensate(tmp_path, text, "fanuc", extra=("--expand-cycles",),
+                                          tools="tool,length_mm,radius_mm\n1,0,0.8\n2,5.0,0.4\n")
+    summary = json.loads((written.parent / "compensate_summary.json").read_text())["files"][0]
+    assert rc == 0 and summary["true"]["max_um"] <= TOL_POINT_UM < summary["true_uncompensated"]["max_um"]

@@ -116,7 +116,8 @@ def register(sub):
     p.add_argument("--expand-cycles", action="store_true",
                    help="machine-tool chains: write drilling canned cycles (G73 G81-G89) as the controller's explicit "
                         "G0/G1/G4 moves, compensated point by point (default: kept as cycles, each hole's X Y Z and R "
-                        "compensated at its bottom and R plane and the tilt left along the hole reported)")
+                        "compensated at its bottom and R plane and the tilt left along the hole reported); a Fanuc/"
+                        "Haas lathe's G70 as its contour's moves, the roughing cycle and contour kept as written")
     add_condition_options(p)
     add_units_option(p, "CSV tool-path columns")
     add_cluster_options(p)

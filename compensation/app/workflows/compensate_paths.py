@@ -85,7 +85,8 @@ def read_tool_path(path, machine, s, field_=None) -> ToolPath:
     if getattr(machine, "spindle", None) is not None:  # a lathe: turning mode where the spindle turns
         from ...turning import ColumnsField, parse_lathe_program
         prog, turning = parse_lathe_program(path, machine, s.rapids, s.block_delete, dialect=s.dialect,
-                                            lathe_x=getattr(s, "lathe_x", None), subprograms=s.subprograms)
+                                            lathe_x=getattr(s, "lathe_x", None), subprograms=s.subprograms,
+                                            cycles=s.cycles)
     elif getattr(s, "lathe_x", None) is not None:
         raise UsageError(f"--lathe-x: the machine {machine.name!r} is not a lathe (no [spindle]); leave it out")
     else:
@@ -132,7 +133,8 @@ def read_tool_path(path, machine, s, field_=None) -> ToolPath:
         turning = np.repeat(comp, job.counts)
         off = np.flatnonzero(~turning & np.isfinite(tool_xz).all(axis=1))
         if off.size:
-            raise UsageError(f"{path}: line {int(job.lines[off[0]])}: a lathe tool offset in C-axis mode (the spindle "
+            from ...nc_expand import source_line
+            raise UsageError(f"{path}: line {source_line(prog, int(job.lines[off[0]]))}: a lathe tool offset in C-axis mode (the spindle "
                              "stopped): only turning moves are compensated at a tool's offsets; cancel the offset "
                              "(G49, T..00) for the C-axis moves")
     check_units(path, job.lines, machine=machine, axes=axes, axes_columns=machine.axis_columns, coverage="path",
