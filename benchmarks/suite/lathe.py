@@ -21,7 +21,16 @@ compensated at the machine file's own tool point (offsets ignored in the chain: 
 controller shifts them, the Abbe arm of the offset left out) and at each tool's offsets (``--tool-table``);
 the model the truth itself and a noisy model (the truth's values plus seeded 0.3 μm / μrad noise).
 
-    python -m benchmarks.run lathe           # seeds 0–2 (user path), 0–4 (tool offsets)
+Contour cycles (Fanuc G71/G70 whose contour blocks are in the program, compensation/nc_contour.py): the stepped
+shaft :data:`STEPS` on ``lathe-xzc``, per seed a truth ``ChainElementSet.random(lathe, seed, 10.0, 11)`` that is
+also the model (``--method exact``), compensated on the user's path twice: by default (the contour compensated in
+place: accepted while the type I contour stays monotonic, else refused naming ``--expand-cycles``) and with
+``--expand-cycles`` (the G71 and its contour written as they are, the G70 written as its compensated moves). TRUE
+residual judged here, not by the compensator: the true machine driven to the written axes of each G70 move, the tip
+(mean over one turn) beside the programmed contour point that move reaches (:func:`reached_um`); beside it the
+program as written (uncompensated) at the same points.
+
+    python -m benchmarks.run lathe           # seeds 0–2 (user path), 0–4 (tool offsets), 0–19 (contour cycles)
 """
 from __future__ import annotations
 
@@ -58,6 +67,112 @@ def user_path(machine: str, seed: int, d: Path) -> dict:
     return {"true_max": e["true"]["max_um"], "true_rms": e["true"]["rms_um"],
             "unc_max": e["true_uncompensated"]["max_um"], "unc_rms": e["true_uncompensated"]["rms_um"],
             "model_max": e["model_max_um"], "failures": e["failures"]}
+
+
+STEPS = ("G21 G18 G40 G99\nT0101\nG96 S180 M03\nG00 X110. Z3.\nG71 U1. R0.5\nG71 P100 Q200 U0.4 W0.1 F0.25\n"
+         "N100 G00 X20.\nG01 Z-30. F0.15\nX40.\nZ-60.\nX60.\nZ-80.\nN200 X80.\nG70 P100 Q200\nG00 X150. Z50.\n"
+         "M05\nM30\n")
+"""A stepped shaft (three cylinders, three faces; Fanuc two-block G71, type I: monotonic in X and Z as programmed)."""
+G70_LINE = STEPS.splitlines().index("G70 P100 Q200")
+CONTOUR_LINES = (STEPS.splitlines().index("N100 G00 X20."), STEPS.splitlines().index("N200 X80."))
+"""0-based first and last line of the contour blocks N100-N200."""
+PART_Z_MM = 200.0
+"""The G54 work offset's Z (the part's face 200 mm along the bed, inside Z's stroke)."""
+TOL_POINT_UM = 1.0
+"""A programmed contour point is reached by the first later written move whose TRUE tip is this close to it."""
+
+
+def _compensate_steps(d: Path, extra=()) -> tuple[int, str, Path]:
+    """``volcomp compensate`` of STEPS with the truth in ``d`` as model and truth: (rc, last stderr line, output)."""
+    from compensation.app.cli import main
+    err, out = io.StringIO(), "out-expand" if extra else "out"
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+        rc = main(["compensate", str(d / "p.nc"), "--machine", "lathe-xzc", "--model", str(d / "truth.json"),
+                   "--truth", str(d / "truth.json"), "--method", "exact", "--dialect", "fanuc", "--lathe-x",
+                   "diameter", "--out", str(d / out), "--work-offsets", str(d / "off.csv"), "--tool-table",
+                   str(d / "tools.csv"), *extra])
+    lines = err.getvalue().strip().splitlines()
+    return rc, lines[-1] if lines else "", d / out / "p.nc"
+
+
+def _tip_um(field, lathe, written_end, programmed_end) -> float:
+    """TRUE deviation (μm) of the tip, mean over one turn, driven to ``written_end`` from the surface of revolution of
+    ``programmed_end`` (each (radius, Z, …) of a move's end in the work frame)."""
+    from compensation.turning import surface_residual_um
+    place = lambda e: np.array([[e[0], e[1] + PART_Z_MM, 0.0]])  # noqa: E731 - X radius, Z in the machine, C
+    return float(np.linalg.norm(surface_residual_um(field, lathe, place(written_end), place(programmed_end))[0][0]))
+
+
+def reached_um(field, lathe, m_src, m_out) -> list:
+    """Per programmed move of ``m_src`` (in order) the TRUE error (μm) of the first later move of ``m_out`` that
+    reaches it within TOL_POINT_UM; a point no written move reaches is an error naming its line."""
+    errs, j = [], 0
+    for m in m_src:
+        while j < len(m_out):
+            e = _tip_um(field, lathe, m_out[j].end, m.end)
+            j += 1
+            if e <= TOL_POINT_UM:
+                errs.append(e)
+                break
+        else:
+            raise AssertionError(f"STEPS line {m.index + 1}: reached by no written move of the expanded G70")
+    return errs
+
+
+def contour_cycle(seed: int, d: Path) -> dict:
+    """One truth seed: the default's outcome, and with ``--expand-cycles`` the TRUE max (μm) at the contour points of
+    the G70's written moves beside the program as written at the same points."""
+    from compensation.turning import parse_lathe_program
+    from errormap.chain_elements import ChainElementSet
+    from errormap.chain_field import ChainField
+    from errormap.machine import load_machine
+    lathe = load_machine("lathe-xzc")
+    els = ChainElementSet.random(lathe, seed, 10.0, 11)
+    els.save(d / "truth.json")
+    (d / "off.csv").write_text(f"system,x_mm,y_mm,z_mm\nG54,0,0,{PART_Z_MM}\n")
+    (d / "tools.csv").write_text("tool,length_mm,radius_mm\n1,0,0.8\n")
+    (d / "p.nc").write_text(STEPS)
+    rc, err, _ = _compensate_steps(d)
+    row = {"default": "accepted" if rc == 0 else "expand" if "use --expand-cycles" in err else err}
+    rc, err, written = _compensate_steps(d, ("--expand-cycles",))
+    row["expanded"] = rc == 0
+    if rc != 0:
+        return row | {"expand_error": err}
+    out = [ln for ln in written.read_text().splitlines() if not ln.startswith("(volcomp:")]
+    src = STEPS.splitlines()
+    tail = len(src) - G70_LINE - 1
+    assert out[:G70_LINE] == src[:G70_LINE] and out[-tail:] == src[-tail:], f"seed {seed}: lines besides G70 changed"
+    (d / "bare.nc").write_text("\n".join(out) + "\n")
+    read = lambda f: parse_lathe_program(f, lathe, "keep", None, "fanuc", "diameter")[0].moves  # noqa: E731
+    contour = [m for m in read(d / "p.nc") if m.compensate and CONTOUR_LINES[0] <= m.index <= CONTOUR_LINES[1]]
+    finish = [m for m in read(d / "bare.nc") if m.compensate and G70_LINE <= m.index < len(out) - tail]
+    field = ChainField(lathe, els)
+    errs = reached_um(field, lathe, contour, finish)
+    return row | {"true_max": max(errs), "unc_max": max(_tip_um(field, lathe, m.end, m.end) for m in contour)}
+
+
+def contour_cycle_figures(seeds) -> tuple[list, list]:
+    """The contour-cycle figures (module docstring) over ``seeds``, and notes on any other outcome."""
+    rows = []
+    for s in seeds:
+        with tempfile.TemporaryDirectory() as td:
+            rows.append(contour_cycle(s, Path(td)))
+    n, ok = len(rows), [r for r in rows if r["expanded"]]
+    k_in = sum(r["default"] == "accepted" for r in rows)
+    what = "stepped-shaft G71/G70 (type I), truth as the model"
+    figs = [{"what": f"{what}: programs accepted with the contour compensated in place (default)",
+             "value": f"{k_in}/{n}", "unit": "", "residual": "none", "anchor": "refused naming `--expand-cycles`",
+             "anchor_value": f"{sum(r['default'] == 'expand' for r in rows)}/{n}"},
+            {"what": f"{what}: programs accepted with `--expand-cycles`", "value": f"{len(ok)}/{n}", "unit": "",
+             "residual": "none", "anchor": "in place (default)", "anchor_value": f"{k_in}/{n}"},
+            {"what": f"{what}, `--expand-cycles`: TRUE max at the contour points of the G70's moves (max over seeds)",
+             "value": max((r["true_max"] for r in ok), default=None), "unit": "μm", "residual": "true",
+             "anchor": "uncompensated (median over seeds)",
+             "anchor_value": float(np.median([r["unc_max"] for r in ok])) if ok else None}]
+    notes = [f"Contour cycles, seed {s}: " + (r["default"] if r["default"] not in ("accepted", "expand") else
+                                              r.get("expand_error", ""))
+             for s, r in zip(seeds, rows) if r["default"] not in ("accepted", "expand") or not r["expanded"]]
+    return figs, notes
 
 
 def grid_figure(machine_name, seeds):
@@ -121,7 +236,8 @@ def tool_offsets(seed, d: Path) -> dict:
 TITLE = "Lathe (`lathe-xzc`): identification from sweeps and a turning program compensated"
 DATA = ("simulated `lathe-xzc` (`volcomp simulate --seed S`), sweeps at 2 μm, a G18 turning program with C moves; "
         "seeds 0–2 (quick: seed 0, no volume-grid figure); tool offsets: LinuxCNC two-tool program, ±10 μm/μrad "
-        "truths, seeds 0–4 (quick: seed 0)")
+        "truths, seeds 0–4 (quick: seed 0); contour cycles: Fanuc G71/G70 stepped shaft, ±10 μm/μrad truths as "
+        "the model, seeds 0–19 (quick: 0–2)")
 
 
 def run(quick: bool, seed: int) -> dict:
@@ -143,7 +259,8 @@ def run(quick: bool, seed: int) -> dict:
                      "anchor": "mill-xyz's identified model, the same figure",
                      "anchor_value": float(np.median([x.grid_rms_um for x in grid_figure("mill-xyz", seeds)]))})
     figs += tool_offset_figures([seed] if quick else [seed + k for k in range(5)])
-    return {"figures": figs, "notes": []}
+    cfigs, notes = contour_cycle_figures([seed + k for k in range(3 if quick else 20)])
+    return {"figures": figs + cfigs, "notes": notes}
 
 
 def tool_offset_figures(seeds) -> list:
