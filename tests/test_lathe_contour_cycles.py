@@ -10,9 +10,10 @@ import json
 import numpy as np
 import pytest
 
+from benchmarks.suite.gcode_corpus import lathe_points_reached
 from compensation.app.cli import main
 from compensation.nc_contour import HOLD_UM
-from compensation.turning import parse_lathe_program, surface_residual_um
+from compensation.turning import parse_lathe_program
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import ChainField
 from errormap.machine import load_machine
@@ -111,20 +112,11 @@ def _check(src, written, dialect, truth):
 
 def _reached(m_src, m_out, truth):
     """``(max error um, points)``: each programmed point of ``m_src`` reached, in order, by a move of ``m_out``
-    whose TRUE tip (averaged over one turn) is within TOL_POINT_UM of it."""
+    whose TRUE tip (averaged over one turn) is within TOL_POINT_UM of it (the corpus count's lathe check)."""
     lathe = load_machine(LATHE)
-    field = ChainField(lathe, ChainElementSet.load(truth, lathe))
-    place = lambda e: np.array([[e[0], e[1] + PART_Z_MM, 0.0]])  # noqa: E731 - X radius, Z, C
-    errs, j = [], 0
-    for m in m_src:
-        while j < len(m_out):
-            mean, _ = surface_residual_um(field, lathe, place(m_out[j].end), place(m.end))
-            j += 1
-            if np.linalg.norm(mean[0]) <= TOL_POINT_UM:
-                errs.append(float(np.linalg.norm(mean[0])))
-                break
-        else:
-            raise AssertionError(f"line {m.index + 1} reached by no written move")
+    errs, missed = lathe_points_reached(ChainField(lathe, ChainElementSet.load(truth, lathe)), lathe, m_src, m_out,
+                                        (0.0, PART_Z_MM), TOL_POINT_UM)
+    assert missed is None, f"line {missed} reached by no written move"
     return max(errs), len(errs)
 
 

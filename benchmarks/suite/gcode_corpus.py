@@ -476,7 +476,7 @@ def lathe_check(src: Path, written: Path, dialect: str, truth_file: Path) -> str
     (``compensation.turning.surface_residual_um``). A program with C words is not checked here."""
     sys.path.insert(0, str(HERE.parent / "tests"))
     from program_checks import TOL_POINT_UM
-    from compensation.turning import parse_lathe_program, surface_residual_um
+    from compensation.turning import parse_lathe_program
     from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
     from errormap.machine import load_machine
@@ -497,18 +497,31 @@ def lathe_check(src: Path, written: Path, dialect: str, truth_file: Path) -> str
     if keep_src != keep_out:
         return "WRONG: a line that is not a compensated move changed"
     field = ChainField(lathe, ChainElementSet.load(truth_file, lathe))
-    place = lambda e: np.array([[e[0] + zero[0], e[1] + zero[2], 0.0]])  # noqa: E731 - X radius, Z, C
+    errs, missed = lathe_points_reached(field, lathe, m_src, m_out, (zero[0], zero[2]), TOL_POINT_UM)
+    if missed is not None:
+        return f"WRONG: line {missed} reached by no written move"
+    return f"ok: max {max(errs):.3g} um at {len(errs)} points" if errs else "not checkable: no compensated move"
+
+
+def lathe_points_reached(field, lathe, m_src, m_out, zero_xz_mm, tol_um: float) -> tuple:
+    """``(errors um, missed line)``: per programmed move of ``m_src``, in order, the TRUE error of the first later move
+    of ``m_out`` that reaches it within ``tol_um`` — the tool tip driven to the written (radius, Z), averaged over one
+    turn of the spindle, against the programmed surface of revolution (``compensation.turning.surface_residual_um``);
+    the moves' ends are in the work frame, ``zero_xz_mm`` the part zero's (X, Z) in the machine. ``missed``: the
+    1-based line of the first programmed point no written move reaches (its errors so far), else None."""
+    from compensation.turning import surface_residual_um
+    place = lambda e: np.array([[e[0] + zero_xz_mm[0], e[1] + zero_xz_mm[1], 0.0]])  # noqa: E731 - X radius, Z, C
     errs, j = [], 0
     for m in m_src:
         while j < len(m_out):
-            mean, _ = surface_residual_um(field, lathe, place(m_out[j].end), place(m.end))
+            e = float(np.linalg.norm(surface_residual_um(field, lathe, place(m_out[j].end), place(m.end))[0][0]))
             j += 1
-            if np.linalg.norm(mean[0]) <= TOL_POINT_UM:
-                errs.append(float(np.linalg.norm(mean[0])))
+            if e <= tol_um:
+                errs.append(e)
                 break
         else:
-            return f"WRONG: line {m.index + 1} reached by no written move"
-    return f"ok: max {max(errs):.3g} um at {len(errs)} points" if errs else "not checkable: no compensated move"
+            return errs, m.index + 1
+    return errs, None
 
 
 def count(root: Path, corpus: Path, compensate: bool = False, check: bool = False, manifest: Path = MANIFEST) -> dict:

@@ -27,8 +27,8 @@ also the model (``--method exact``), compensated on the user's path twice: by de
 place: accepted while the type I contour stays monotonic, else refused naming ``--expand-cycles``) and with
 ``--expand-cycles`` (the G71 and its contour written as they are, the G70 written as its compensated moves). TRUE
 residual judged here, not by the compensator: the true machine driven to the written axes of each G70 move, the tip
-(mean over one turn) beside the programmed contour point that move reaches (:func:`reached_um`); beside it the
-program as written (uncompensated) at the same points.
+(mean over one turn) beside the programmed contour point that move reaches (``gcode_corpus.lathe_points_reached``,
+the corpus count's lathe check); beside it the program as written (uncompensated) at the same points.
 
     python -m benchmarks.run lathe           # seeds 0–2 (user path), 0–4 (tool offsets), 0–19 (contour cycles)
 """
@@ -42,6 +42,8 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from .gcode_corpus import lathe_points_reached
 
 HERE = Path(__file__).resolve().parent
 NOISE = 0.3
@@ -95,30 +97,6 @@ def _compensate_steps(d: Path, extra=()) -> tuple[int, str, Path]:
     return rc, lines[-1] if lines else "", d / out / "p.nc"
 
 
-def _tip_um(field, lathe, written_end, programmed_end) -> float:
-    """TRUE deviation (μm) of the tip, mean over one turn, driven to ``written_end`` from the surface of revolution of
-    ``programmed_end`` (each (radius, Z, …) of a move's end in the work frame)."""
-    from compensation.turning import surface_residual_um
-    place = lambda e: np.array([[e[0], e[1] + PART_Z_MM, 0.0]])  # noqa: E731 - X radius, Z in the machine, C
-    return float(np.linalg.norm(surface_residual_um(field, lathe, place(written_end), place(programmed_end))[0][0]))
-
-
-def reached_um(field, lathe, m_src, m_out) -> list:
-    """Per programmed move of ``m_src`` (in order) the TRUE error (μm) of the first later move of ``m_out`` that
-    reaches it within TOL_POINT_UM; a point no written move reaches is an error naming its line."""
-    errs, j = [], 0
-    for m in m_src:
-        while j < len(m_out):
-            e = _tip_um(field, lathe, m_out[j].end, m.end)
-            j += 1
-            if e <= TOL_POINT_UM:
-                errs.append(e)
-                break
-        else:
-            raise AssertionError(f"STEPS line {m.index + 1}: reached by no written move of the expanded G70")
-    return errs
-
-
 def contour_cycle(seed: int, d: Path) -> dict:
     """One truth seed: the default's outcome, and with ``--expand-cycles`` the TRUE max (μm) at the contour points of
     the G70's written moves beside the program as written at the same points."""
@@ -147,8 +125,10 @@ def contour_cycle(seed: int, d: Path) -> dict:
     contour = [m for m in read(d / "p.nc") if m.compensate and CONTOUR_LINES[0] <= m.index <= CONTOUR_LINES[1]]
     finish = [m for m in read(d / "bare.nc") if m.compensate and G70_LINE <= m.index < len(out) - tail]
     field = ChainField(lathe, els)
-    errs = reached_um(field, lathe, contour, finish)
-    return row | {"true_max": max(errs), "unc_max": max(_tip_um(field, lathe, m.end, m.end) for m in contour)}
+    errs, missed = lathe_points_reached(field, lathe, contour, finish, (0.0, PART_Z_MM), TOL_POINT_UM)
+    assert missed is None, f"seed {seed}: STEPS line {missed} reached by no written move of the expanded G70"
+    as_written, _ = lathe_points_reached(field, lathe, contour, contour, (0.0, PART_Z_MM), np.inf)  # each its own
+    return row | {"true_max": max(errs), "unc_max": max(as_written)}
 
 
 def contour_cycle_figures(seeds) -> tuple[list, list]:
