@@ -211,8 +211,10 @@ def _diagnose_five_axis_harmonic_c(tmp_path, seed, learned=True):
 def test_cli_term_the_joint_fit_does_not_support_is_dropped(tmp_path):
     """User's path on the five-axis machine, development seed 107 with a worm-gear harmonic on C: the held-out
     search also admitted a 2.3 mm periodic term on X (z just above 3); the joint fit with the update gives it a
-    χ² far below its threshold, so it is dropped and reported so; the harmonic stays, named with its order band."""
-    s = _diagnose_five_axis_harmonic_c(tmp_path, 107)
+    χ² far below its threshold, so it is dropped and reported so; the harmonic stays, named with its order band.
+    Without the learned stage: it comes after the loop, and every field asserted here is the same with it (measured:
+    effects, the dropped terms and held-out/floor identical; 110 CPU s with it, 11 without)."""
+    s = _diagnose_five_axis_harmonic_c(tmp_path, 107, learned=False)
     assert [(e["kind"], e["axis"]) for e in s["effects"]] == [("harmonic", "C")]
     assert s["effects"][0]["shape"]["order"] >= shape_band(ChainElementSet.load(tmp_path / "E.json",
                                                                                 load_machine("five-axis-ac")))["C"]["min_order"]
