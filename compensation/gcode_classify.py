@@ -11,6 +11,7 @@ import numpy as np
 from .gcode_state import (LOCAL_SHIFT_DIALECTS, lathe_t_offset, ttoo_lathe, MODE_E, bare_d, bare_g43_rule, bare_g43_tool, d_modal, _dialect_mode, _forget, _g10, _g92, probe_move, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
 from .nc_contour import ContourState, after_line, cycle_line
+from .nc_contour import applies as contour_reading
 from .nc_flow import TRACKED_NAMES
 from .nc_state import lathe_words
 from .gcode_spline import nurbs_end, nurbs_line, spline_move, spline_points, spline_segments
@@ -279,6 +280,8 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     """One line: ``(class, GMove or None)``; a lathe's contour cycle lines kept as written and their contour
     blocks read as moves (:mod:`compensation.nc_contour`)."""
     cs = st.contours
+    if cs.pending is None and cs.active is None and not contour_reading(st, ax):
+        return _classify_words(body, idx, st, rapids, block_delete, ax)  # not a Fanuc/Haas lathe: no cycle to read
     try:
         words = tokenize(body)[1] if any(c in body for c in ("G7", "g7", "G3", "g3", "G9", "g9")) or cs.pending or \
             cs.active else ()
