@@ -16,8 +16,8 @@ lathe operator's manual, G70-G73):
 - contour blocks hold motion (``G0``-``G3``, ``G40``-``G42``), axis, arc, ``F``, ``S`` and ``N`` words only (no
   ``T``, ``M``, other G codes or a nested cycle);
 - ``G70 P Q`` names a contour a roughing cycle before it read (a G70 whose contour is written elsewhere is refused);
-- two-block format ``G71 U(Δd) R(e)`` / ``G72 W(Δd) R(e)`` / ``G73 U(Δi) W(Δk) R(d)`` first blocks, and Haas' one-block
-  ``D`` depth of cut, are kept as written (they set the controller's pass depths, not geometry).
+- two-block format ``G71 U(Δd) R(e)`` / ``G72 W(Δd) R(e)`` / ``G73 U(Δi) W(Δk) R(d)`` first blocks, and Haas'
+  one-block ``D`` depth of cut, are kept as written (they set the controller's pass depths, not geometry).
 
 Compensation must not break what the controller checks: a ``G71``/``G72`` contour monotonic along an axis as
 programmed (type I: both; type II: Z for G71, X for G72) must stay monotonic in the same direction after compensation
@@ -253,7 +253,8 @@ def _direction(steps: np.ndarray) -> int:
 
 def hold_back_steps(path, events, lines, axes_d, axes, x_col: int, z_col: int) -> tuple:
     """A ``G71``/``G72`` contour monotonic along an axis the control checks (type I: X and Z; type II:
-    :data:`MAIN_AXIS`) as programmed (:func:`_direction`) kept monotonic after compensation: a compensated step back along it of at most :data:`HOLD_UM` is written as no step (the point takes
+    :data:`MAIN_AXIS`) as programmed (:func:`_direction`) kept monotonic after compensation: a compensated step
+    back along it of at most :data:`HOLD_UM` is written as no step (the point takes
     the previous point's value on that axis); a larger one is refused (InputError, the line and axis: the controller
     would alarm). ``lines`` (n,) 1-based source line of each compensated point, ``axes_d``/``axes`` (n, k)
     programmed / compensated machine axes. Returns ``(axes (n, k), rows changed, [summary line per hold])``."""
@@ -273,8 +274,8 @@ def hold_back_steps(path, events, lines, axes_d, axes, x_col: int, z_col: int) -
                 if back_um > HOLD_UM:
                     raise InputError(f"{path}: line {int(lines[b])}: compensation moves {name} back by {back_um:.3g} "
                                      f"um in the {code} contour of line {span[2]}, monotonic in {name} as programmed "
-                                     f"(the controller would alarm; up to {HOLD_UM:g} um is held); use --expand-cycles (G70 "
-                                     "written as its moves), G73, or post the passes as G1/G2/G3")
+                                     f"(the controller would alarm; up to {HOLD_UM:g} um is held); use --expand-cycles "
+                                     "(G70 written as its moves), G73, or post the passes as G1/G2/G3")
                 out[b, col] = out[a, col]
                 rows.append(b)
                 held.append(f"line {int(lines[b])}: {name} held at the previous point's ({back_um:.3g} um back-step "
