@@ -119,3 +119,21 @@ def method_metrics(result, truth=None, true_residual=None) -> dict:
         tr = true_residual if true_residual is not None else true_residual_um(truth, result.axes, result.targets_mm)
         m.update(residual_metrics(tr, "true"))
     return m
+
+
+GRADIENT_STEP_MM = 0.5
+"""Step of the central differences of a field's gradient (its elements vary over tens of mm)."""
+
+
+def gradient_norm(field, axes, lin) -> np.ndarray:
+    """Per row of ``axes`` (n, k), the spectral norm of the field's gradient along the linear axes ``lin`` (indices
+    into k; μm per mm): central differences of :data:`GRADIENT_STEP_MM`. Shape (n,). What the error may differ by
+    per mm of distance from the point (the bound a cutter's or a nose's radius leaves, the radius times this)."""
+    axes = np.asarray(axes, dtype=float)
+    G = np.empty((len(axes), 3, len(lin)))
+    for c, j in enumerate(lin):
+        d = np.zeros(axes.shape[1])
+        d[j] = GRADIENT_STEP_MM
+        ahead, behind = np.asarray(field.predict(axes + d)), np.asarray(field.predict(axes - d))
+        G[:, :, c] = (ahead - behind) / (2 * GRADIENT_STEP_MM)
+    return np.linalg.norm(G, ord=2, axis=(1, 2))

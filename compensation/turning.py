@@ -18,6 +18,7 @@ import numpy as np
 
 from errormap.io import InputError
 
+from .evaluate import gradient_norm
 from .gcode import AxisWords, GProgram, parse_program, tokenize
 from .nc_contour import expand_finishing, refuse_open
 
@@ -335,13 +336,11 @@ NOSE_ARM = 1.0 + np.sqrt(2.0)
 """Under tool nose radius compensation (``G41``/``G42``) a lathe's axes carry the imaginary tool tip, which lies up to
 r·√2 from the nose centre (tip directions 1-4; r for 5-8, 0 for 0/9), the centre r from the contour: the axes move
 up to (1 + √2)·r from the programmed point, whatever the tip number (a tool table here holds none)."""
-NOSE_STEP_MM = 0.5
-"""Step of the central differences of the field's gradient (its elements vary over tens of mm)."""
 
 
 def nose_radius_bound_um(field, machine, axes, radius_mm, tool_xz, turning) -> float:
     """The error a lathe's ``G41``/``G42`` leaves, at most (μm): the spectral norm of the field's gradient along the
-    linear axes (central differences of :data:`NOSE_STEP_MM`, at each point's tool offsets, over one turn of the
+    linear axes (:func:`compensation.evaluate.gradient_norm`, at each point's tool offsets, over one turn of the
     spindle for ``turning`` points) × :data:`NOSE_ARM` × the nose radius. ``axes`` (n, k), ``radius_mm`` (n,) (NaN:
     compensation off), ``tool_xz`` (n, 2) or None, ``turning`` (n,) bool."""
     _, lin = _indices(machine)
@@ -353,11 +352,6 @@ def nose_radius_bound_um(field, machine, axes, radius_mm, tool_xz, turning) -> f
             if not sel.size:
                 continue
             q = _over_turn(machine, axes[sel]) if spun else axes[sel]
-            G = np.empty((len(q), 3, len(lin)))
-            for c, j in enumerate(lin):
-                d = np.zeros(q.shape[1])
-                d[j] = NOSE_STEP_MM
-                G[:, :, c] = (np.asarray(f.predict(q + d)) - np.asarray(f.predict(q - d))) / (2 * NOSE_STEP_MM)
-            norm = np.linalg.norm(G, ord=2, axis=(1, 2)).reshape(len(sel), -1).max(axis=1)
+            norm = gradient_norm(f, q, lin).reshape(len(sel), -1).max(axis=1)
             out = max(out, float((norm * NOSE_ARM * radius_mm[sel]).max()))
     return out

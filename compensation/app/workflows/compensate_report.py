@@ -14,6 +14,7 @@ import numpy as np
 
 from compensation.app.validate import UsageError
 
+from ...evaluate import gradient_norm
 from ...nc_state import field_with_tool, machine_with_tool
 from ...solvers.chain_exact import nominal_and_jacobian
 
@@ -77,16 +78,12 @@ def true_path_residual_um(tp: ToolPath, comp_axes, truth, machine):
     return np.concatenate(after), np.concatenate(before)
 
 
-CUTTER_STEP_MM = 0.5
-"""Step of the central differences of the field's gradient (its elements vary over tens of mm)."""
-
-
 def cutter_radius_bound_um(field_, machine, tp: ToolPath):
     """Under cutter radius compensation (G41/G42 D) the controller cuts up to the tool radius r away from
     the compensated point, where the error differs by at most |dE/dp|·r (a lathe's nose radius:
     :func:`compensation.turning.nose_radius_bound_um`): that bound (μm, the largest over
-    the points under G41/G42; the spectral norm of the field's gradient along the linear axes, central
-    differences of :data:`CUTTER_STEP_MM`, at the tool each point runs with). None: no G41/G42 in the program."""
+    the points under G41/G42; the spectral norm of the field's gradient along the linear axes,
+    :func:`compensation.evaluate.gradient_norm`, at the tool each point runs with). None: no G41/G42 in the program."""
     job = tp.source
     if job.frames is None or job.frames.radius_mm is None:
         return None
@@ -104,13 +101,7 @@ def cutter_radius_bound_um(field_, machine, tp: ToolPath):
     for key in np.unique(keys):
         idx = on[keys == key]
         f = field_ if not np.isfinite(key) else field_with_tool(field_, machine_with_tool(machine, float(key)))
-        q = tp.axes[idx]
-        G = np.empty((len(idx), 3, len(lin)))
-        for c, j in enumerate(lin):
-            d = np.zeros(q.shape[1])
-            d[j] = CUTTER_STEP_MM
-            G[:, :, c] = (f.predict(q + d) - f.predict(q - d)) / (2 * CUTTER_STEP_MM)
-        out = max(out, float((np.linalg.norm(G, ord=2, axis=(1, 2)) * r[idx]).max()))
+        out = max(out, float((gradient_norm(f, tp.axes[idx], lin) * r[idx]).max()))
     return out
 
 
