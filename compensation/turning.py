@@ -314,7 +314,7 @@ def hold_contours(res, tp, field, machine):
     ``res.info["contour_held"]`` lists them. A ``G70`` run with other tool offsets than its contour was compensated
     for is refused (:func:`compensation.nc_contour.refuse_other_tool`)."""
     from .nc_contour import hold_back_steps, refuse_other_tool
-    events = getattr(getattr(getattr(tp, "source", None), "program", None), "events", ()) or ()
+    events = tp.source.program.events  # a G-code program's (the caller's test)
     if not any(e[2] == "lathe-contour" for e in events):
         return res
     if tp.tool_xz is not None:  # G70 with another tool than its contour was compensated for

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from benchmarks.suite.gcode_corpus import lathe_points_reached
+from benchmarks.suite.lathe import G70_LINE, STEPS  # the stepped shaft the lathe benchmark counts
 from compensation.app.cli import main
 from compensation.nc_contour import HOLD_UM
 from compensation.turning import parse_lathe_program
@@ -301,11 +302,6 @@ def test_type_ii_by_the_first_block_and_on_haas_r1(tmp_path, dialect, r1, kind):
     assert [e[3][3] for e in prog.events if e[2] == "lathe-contour"] == [kind]
 
 
-STEPS = ("G21 G18 G40 G99\nT0101\nG96 S180 M03\nG00 X110. Z3.\nG71 U1. R0.5\nG71 P100 Q200 U0.4 W0.1 F0.25\n"
-         "N100 G00 X20.\nG01 Z-30. F0.15\nX40.\nZ-60.\nX60.\nZ-80.\nN200 X80.\nG70 P100 Q200\nG00 X150. Z50.\n"
-         "M05\nM30\n")
-"""A stepped shaft (three cylinders, three faces): type I, monotonic in X and Z as programmed."""
-G70_LINE = STEPS.splitlines().index("G70 P100 Q200")
 
 
 def test_expand_cycles_writes_g70_as_its_moves_where_in_place_is_refused(tmp_path, capsys):

@@ -527,8 +527,9 @@ def gcode_entry(entry, tp: ToolPath, res, true_r, true_base, field_, truth, mach
         from ...turning import lathe_x_entry
         entry.update(lathe_x_entry(machine, getattr(s, "lathe_x", None), job.program.dialect))
         from ...nc_contour import cycle_notes  # G70-G73: the contour's points compensated, the cycles kept
-        if cycle_notes(job.program.events):
-            entry["lathe_cycles"] = cycle_notes(job.program.events)
+        notes = cycle_notes(job.program.events)
+        if notes:
+            entry["lathe_cycles"] = notes
             entry["lathe_contour_held"] = res.info.get("contour_held", [])
     files = getattr(job.program.expanded, "files", ())
     if files:  # subprograms read from --subprograms folders (compensation.nc_subfiles)
