@@ -16,6 +16,10 @@ from training.model import CHAIN_FORMAT, FORMAT, MLPField
 DATA = Path(__file__).parent / "data" / "networks"
 JAC_TOL = 1e-15
 """Absolute (μm per mm / deg, on Jacobians of order 1): the chain's Jacobian was summed in another order before."""
+VALUE_ULPS = 8
+"""Values are compared to this many units in the last place of the largest value: the saved values were computed by
+one numpy/OpenBLAS build, and a matrix product sums in the order the BLAS kernel picks for the CPU and the build
+(numpy 2.4.6's OpenBLAS 0.3.31 differs from the saved values by 2 ulp, 3.6e-15 μm on these ~8 μm values)."""
 F32_TOL_UM = 1e-5
 """float32 against float64 on these ~5 μm fields (the float32 path's documented few-nm error, with margin)."""
 
@@ -26,11 +30,9 @@ def test_a_network_saved_by_either_old_class_loads_and_predicts_as_then(name, fm
     f = MLPField.load(DATA / name)
     ref = np.load(DATA / f"{name}.npz")
     e, J = f.predict_and_jacobian(ref["axes"])
-    np.testing.assert_array_equal(e, ref["e_um"])                       # values bit for bit
-    if fmt == FORMAT:
-        np.testing.assert_array_equal(J, ref["jac"])                    # the grinder's layout: the same code path
-    else:
-        assert np.abs(J - ref["jac"]).max() <= JAC_TOL
+    value_tol_um = VALUE_ULPS * np.spacing(np.abs(ref["e_um"]).max())
+    assert np.abs(e - ref["e_um"]).max() <= value_tol_um                # values to a few ulp
+    assert np.abs(J - ref["jac"]).max() <= JAC_TOL
     cols = f.predict_columns(np.ascontiguousarray(ref["axes"].T)).T
     assert np.abs(cols - e).max() <= 1e-12 * np.abs(e).max()
     assert np.abs(f.predict(ref["axes"], dtype=np.float32) - e).max() <= F32_TOL_UM
