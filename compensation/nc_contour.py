@@ -36,6 +36,7 @@ import numpy as np
 
 from .gcode_state import MM_PER_INCH, _Refuse
 from .nc_expand import Expanded
+from .nc_thread import thread_line
 
 CONTOUR_DIALECTS = ("fanuc", "haas")
 ROUGHING = {"G71": "stock removal in turning", "G72": "stock removal in facing", "G73": "pattern repeating"}
@@ -85,11 +86,6 @@ class ContourState:
         self.done = {}
 
 
-THREADING = {"G32": "thread cutting", "G92": "thread cutting cycle", "G76": "multiple threading cycle"}
-"""Fanuc/Haas lathe threading (Fanuc 0i-TF G-code system A, Haas lathe manual): refused (:func:`cycle_line`). Each
-pass is synchronised with the spindle's index and its lead F is the travel per revolution the control commands:
-compensating a pass's ends without its lead (or a G76's passes, which the control computes) is not exact."""
-THREAD_WHY = "spindle-synchronised, compensated ends would change its lead F: not read (compensate without it)"
 GROOVING = {"G74": "face peck drilling / grooving cycle", "G75": "diameter grooving cycle"}
 """Fanuc/Haas lathe grooving cycles (Fanuc 0i-TF ``G74``/``G75 X(U) Z(W) P Q R F``, Haas ``G74``/``G75 X Z I K D
 F``): refused (:func:`cycle_line`). The control cuts from the start point along one axis (Z for G74, X for G75) in
@@ -115,10 +111,8 @@ def cycle_line(words, idx: int, st, ax) -> str | None:
     """``"state"`` for a contour cycle line (kept as written; the state records the cycle), None for any other
     line (read as usual; its N word checked against an open cycle's contour)."""
     cs = st.contours
-    thread = next((w for w in words if w.letter == "G" and w.code in THREADING), None)
-    if thread is not None and applies(st, ax):
-        raise _Refuse(thread.start + 1, f"'{thread.code}' on a {st.dialect.name} lathe: {THREADING[thread.code]}: "
-                                        f"{THREAD_WHY}")
+    if applies(st, ax) and thread_line(words, idx, st, ax) == "state":  # G92 / G76 (compensation.nc_thread)
+        return "state"
     groove = next((w for w in words if w.letter == "G" and w.code in GROOVING), None)
     if groove is not None and applies(st, ax):
         raise _Refuse(groove.start + 1, f"'{groove.code}' on a {st.dialect.name} lathe: {GROOVING[groove.code]}: "
