@@ -60,10 +60,6 @@ def g32_move(st, by, ax, move) -> None:
     col = (move.motion_word or next(iter(move.words.values()))).start + 1
     if not lathe_words(ax.words):
         raise _Refuse(col, "'G32' (thread cutting) is read on a lathe only")
-    for a in ("Q", "E"):
-        if a in by:
-            raise _Refuse(by[a].start + 1, f"'{a}{by[a].text}' on a G32 line (the thread's start angle or an inch "
-                                           "lead) is not read: write the thread with F alone")
     if "F" in by:
         if not by["F"].value > 0:
             raise _Refuse(by["F"].start + 1, f"'F{by['F'].text}': a thread's lead must be positive")
@@ -182,6 +178,10 @@ def thread_line(words, idx: int, st, ax) -> str | None:
         return _g92_pass(words, idx, st, ax, None)
     if code.code == "G32":
         st.thread = None
+        bad = next((w for w in words if w.letter in "QE"), None)
+        if bad is not None:
+            raise _Refuse(bad.start + 1, f"'{bad.letter}{bad.text}' on a G32 line (the thread's start angle or an inch "
+                                         "lead) is not read: write the thread with F alone")
         return None
     if code.code == "G76":
         raise _Refuse(code.start + 1, f"'G76' on a {st.dialect.name} lathe: {THREADING['G76']}: its passes (depths "
