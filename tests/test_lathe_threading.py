@@ -13,9 +13,10 @@ import numpy as np
 import pytest
 
 from benchmarks.suite.gcode_corpus import lathe_points_reached
+from benchmarks.suite.lathe import THREAD, THREAD_LEAD_MM, true_leads
 from compensation.app.cli import main
 from compensation.nc_thread import LEAD_TOL_REL
-from compensation.turning import parse_lathe_program, surface_residual_um
+from compensation.turning import parse_lathe_program
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import ChainField
 from errormap.machine import load_machine
@@ -29,34 +30,9 @@ TOL_POINT_UM = 1.0
 PART_Z_MM = 200.0
 """The G54 work offset's Z."""
 
-G32_PASSES = """%
-O0100
-G21 G18 G40 G99
-T0101
-G97 S800 M03
-G00 X40. Z5.
-X29.4
-G32 Z-30. F1.5
-G00 X40.
-Z5.
-X28.8
-G32 Z-30.
-G00 X40.
-Z5.
-X28.4
-G32 Z-10. F1.5
-Z-30.
-G00 X40.
-Z5.
-G01 X38. F0.2
-X37.
-G00 X100. Z50.
-M05
-M30
-%
-"""
+G32_PASSES = THREAD
 """An M30x1.5 thread in three G32 passes (the second's lead modal, the third two consecutive G32 blocks), then a
-feed move with its own F and one without (the program's modal F0.2 there)."""
+feed move with its own F and one without (the lathe benchmark's program: benchmarks/suite/lathe.py THREAD)."""
 
 G92_PASSES = G32_PASSES.split("G00 X40. Z5.\n")[0] + "G00 X40. Z5.\nG92 X29.4 Z-30. F1.5\nX28.8\nX28.4\n" \
     "G00 X100. Z50.\nM05\nM30\n%\n"
@@ -84,38 +60,23 @@ def _read(path, dialect="fanuc"):
     return parse_lathe_program(path, load_machine(LATHE), "keep", None, dialect, "diameter")[0]
 
 
-def _true_tip(field, lathe, xz):
-    """The TRUE tip (radius, z) mm, mean over one turn, of the machine driven to program axes ``xz`` (n, 2)."""
-    q = np.column_stack([xz[:, 0], xz[:, 1] + PART_Z_MM, np.zeros(len(xz))])
-    mean, _ = surface_residual_um(field, lathe, q, q)
-    return xz + mean * 1e-3  # the nominal tip moves with X (radius) and Z one for one
-
-
-def _true_leads(written, truth):
-    """``(relative lead errors, TRUE start Z of each pass mm)`` of every written G32 piece (module docstring)."""
+def _true_leads(written, truth, dialect="fanuc"):
+    """``(relative TRUE lead errors, TRUE start Z of each pass mm)`` of every written G32 piece (the benchmark's
+    check, benchmarks.suite.lathe.true_leads: written F' × true travel / commanded travel along the lead axis)."""
     lathe = load_machine(LATHE)
     field = ChainField(lathe, ChainElementSet.load(truth, lathe))
-    prog = _read(written)
-    pieces = [m for m in prog.moves if m.lead is not None]
-    ends = _true_tip(field, lathe, np.array([m.end for m in pieces]))
-    starts = _true_tip(field, lathe, np.array([m.start for m in pieces]))
-    errs = []
-    for m, a, b in zip(pieces, starts, ends):
-        j = m.lead[2]
-        revs = (m.end[j] - m.start[j]) / m.lead[0]  # commanded travel / written F'
-        errs.append((b[j] - a[j]) / revs / 1.5 - 1.0)  # programmed lead F1.5
-    first = [s for k, (m, s) in enumerate(zip(pieces, starts)) if k == 0 or pieces[k - 1].index != m.index - 1]
-    return np.array(errs), np.array([s[1] for s in first])
+    return true_leads(field, lathe, _read(written, dialect).moves, (0.0, PART_Z_MM), THREAD_LEAD_MM)
 
 
 def _non_moves(prog):
     return [ln for ln, c in zip(prog.lines, prog.classes) if c != "move"]
 
 
-def test_g32_passes_exact_position_and_lead(tmp_path):
-    rc, src, written, truth = _compensate(tmp_path, G32_PASSES)
+@pytest.mark.parametrize("dialect", ["fanuc", "haas"])
+def test_g32_passes_exact_position_and_lead(tmp_path, dialect):
+    rc, src, written, truth = _compensate(tmp_path, G32_PASSES, dialect)
     assert rc == 0
-    p_src, p_out = _read(src), _read(written)
+    p_src, p_out = _read(src, dialect), _read(written, dialect)
     bare = [ln for ln in p_out.lines if not ln.startswith("(volcomp:")]
     assert _non_moves(p_src) == [ln for ln, c in zip(p_out.lines, p_out.classes) if c != "move" and ln in bare]
     assert not any("C" in ln.split("(")[0].upper() for ln in bare)  # turning: the spindle is not an axis
@@ -126,7 +87,7 @@ def test_g32_passes_exact_position_and_lead(tmp_path):
                                         (0.0, PART_Z_MM), TOL_POINT_UM)
     assert missed is None and max(errs) <= TOL_POINT_UM
     assert sum(m.lead is not None for m in m_src) == 4 and len(errs) == len(m_src)
-    lead_err, starts = _true_leads(written, truth)
+    lead_err, starts = _true_leads(written, truth, dialect)
     assert len(lead_err) > 4  # split in pieces (the error is not linear along 35 mm)
     assert np.abs(lead_err).max() <= LEAD_TOL_REL
     assert len(starts) == 3 and np.ptp(starts) * 1e3 <= TOL_POINT_UM  # every pass starts at one true Z: one phase
@@ -177,6 +138,7 @@ def test_g92_expanded_exact_and_refused_kept(tmp_path, capsys):
      "line 8, column 1: 'G76' on a fanuc lathe: multiple threading cycle: its passes"),
     ("X29.4\nG32 Z-30. F1.5", "G92 X29.4 Z-30. F1.5", "haas", "line 7, column 1: 'G92' on a haas lathe"),
     ("X29.4\nG32 Z-30. F1.5", "G92 X29.4 Z-30. R-1. F1.5", "fanuc", "line 7, column 17: 'R-1.' on a G92"),
+    ("M03\nG00 X40. Z5.", "\nG00 X40. Z5. C0.", "fanuc", "line 8: 'G32' while the spindle is stopped"),
 ])
 def test_threading_refusals_name_line_column_word(tmp_path, capsys, old, new, dialect, where):
     rc, *_ = _compensate(tmp_path, G32_PASSES.replace(old, new, 1), dialect, extra=("--expand-cycles",))
