@@ -223,15 +223,16 @@ def _g92_pass(words, idx, st, ax, code) -> str:
 
 
 def refuse_kept(path, events) -> None:
-    """Refuse (InputError) a G92 pass left as a cycle (no ``--expand-cycles``): one F for the whole pass cannot give
-    the true lead F where the error is not linear along the thread, and its start point is the rapid's the cycle
-    makes from the line before it."""
+    """Refuse (InputError) a G92 pass left as a cycle (no ``--expand-cycles``): every pass starts from the one point A
+    the cycle rapids from along X, whose compensation cannot be each pass's start's (the error there differs with the
+    pass's depth X: the passes' phases would differ), and one F for the whole pass cannot give the true lead F where
+    the error is not linear along the thread."""
     from errormap.io import InputError
     for line, col, _, _, code in (e for e in events if e[2] == "lathe-thread"):
-        raise InputError(f"{path}: line {line + 1}, column {col}: '{code}' ({THREADING[code]}) kept as a cycle: one "
-                         "F for the whole pass cannot make its true lead the programmed one where the error varies "
-                         "along the thread; use --expand-cycles (each pass written as G0 and compensated G32 pieces, "
-                         "each with its own F)")
+        raise InputError(f"{path}: line {line + 1}, column {col}: '{code}' ({THREADING[code]}) kept as a cycle: its "
+                         "passes start from one point whose compensation cannot be each pass's, and one F cannot give "
+                         "the true lead along the thread; use --expand-cycles (each pass written as G0 and compensated "
+                         "G32 pieces, each with its own F)")
 
 
 def expand_threading(prog, path, reparse):
@@ -260,8 +261,9 @@ def expand_threading(prog, path, reparse):
         text += [t + ending for t in new]
         origin += [(src(i)[0], False, src(i)[2])] * len(new)
         notes.append(f"line {src(i)[0]}: G92 pass expanded: G0 X{xw(x)}, G32 Z{_word_text(z / unit)} F{f} in "
-                     "compensated pieces (each its own F; the G0 to its start compensated), G0 back to the start point; written without a chamfer out "
-                     "of the thread (the Fanuc G92's chamfering, signal CDZ with parameter 5130, must be off)")
+                     "compensated pieces (each its own F; the G0 to its start compensated), G0 back to the start "
+                     "point; written without a chamfer out of the thread (the Fanuc G92's chamfering, signal CDZ with "
+                     "parameter 5130, must be off)")
     exp = ThreadExpansion("".join(text), tuple(origin), prog.dialect, str(path), getattr(inner, "files", ()),
                           passes=len(passes), inner=inner)
     try:

@@ -308,8 +308,8 @@ TITLE = "Lathe (`lathe-xzc`): identification from sweeps and a turning program c
 DATA = ("simulated `lathe-xzc` (`volcomp simulate --seed S`), sweeps at 2 μm, a G18 turning program with C moves; "
         "seeds 0–2 (quick: seed 0, no volume-grid figure); tool offsets: LinuxCNC two-tool program, ±10 μm/μrad "
         "truths, seeds 0–4 (quick: seed 0); contour cycles: Fanuc G71/G70 stepped shaft, ±10 μm/μrad truths as "
-        "the model, seeds 0–19 (quick: 0–2); threading: Fanuc G32 M30x1.5 in 3 passes, ±10 μm/μrad truths as the model, "
-        "seeds 0–19 (quick: 0–2)")
+        "the model, seeds 0–19 (quick: 0–2); threading: Fanuc G32 M30x1.5 in 3 passes, ±10 μm/μrad truths as the "
+        "model, seeds 0–19 (quick: 0–2)")
 
 
 def run(quick: bool, seed: int) -> dict:
