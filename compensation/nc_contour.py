@@ -36,7 +36,6 @@ import numpy as np
 
 from .gcode_state import MM_PER_INCH, _Refuse
 from .nc_expand import Expanded
-from .nc_thread import thread_line
 
 CONTOUR_DIALECTS = ("fanuc", "haas")
 ROUGHING = {"G71": "stock removal in turning", "G72": "stock removal in facing", "G73": "pattern repeating"}
@@ -110,6 +109,7 @@ def _xz(st, ax) -> np.ndarray:
 def cycle_line(words, idx: int, st, ax) -> str | None:
     """``"state"`` for a contour cycle line (kept as written; the state records the cycle), None for any other
     line (read as usual; its N word checked against an open cycle's contour)."""
+    from .nc_thread import thread_line
     cs = st.contours
     if applies(st, ax) and thread_line(words, idx, st, ax) == "state":  # G92 / G76 (compensation.nc_thread)
         return "state"
@@ -317,11 +317,12 @@ class FinishExpansion(Expanded):
 
     finishes: int = 0
     inner: object = None
+    WHAT = ("lathe G70 finishing cycles written as the controller's moves ({n}: the contour's blocks, then G0 back to "
+            "the start point); G71/G72/G73 and their contours kept")
 
     def note(self) -> str:
         head = self.inner.note() + "; " if self.inner is not None else "volcomp: "
-        return head + (f"lathe G70 finishing cycles written as the controller's moves ({self.finishes}: the "
-                       "contour's blocks, then G0 back to the start point); G71/G72/G73 and their contours kept")
+        return head + self.WHAT.format(n=self.finishes)
 
 
 def _word_text(v: float) -> str:
@@ -371,13 +372,23 @@ def expand_finishing(prog, path, reparse):
     the roughing cycles and their contour blocks kept as written (their moves not compensated: the controller roughs
     from the programmed contour). ``reparse(text)`` reads the expanded text (a GProgram); returns ``prog`` where
     there is no G70 to expand."""
-    from errormap.io import InputError
     finishes = [e for e in prog.events if e[2] == "lathe-finish"]
     if not finishes:
         return prog
+    by_line = {e[0]: e for e in finishes}
+    out, notes = expand_lines(prog, path, reparse, by_line, lambda i, src: _finish_lines(prog, path, by_line[i], src),
+                              FinishExpansion)
+    return _keep_roughing(out, notes)
+
+
+def expand_lines(prog, path, reparse, by_line, lines_of, cls) -> tuple:
+    """``(program, [(source line, note)])``: ``prog``'s text with each line ``i`` of ``by_line`` replaced by the lines
+    ``lines_of(i, src) -> (lines, note)`` give (``src(i)``: the source line of line i, its ``origin`` entry), read
+    again by ``reparse(text)`` with its expansion (a ``cls``, :class:`FinishExpansion`'s fields) attached; an
+    InputError named at the source line."""
+    from errormap.io import InputError
     inner = prog.expanded
     src = (lambda i: inner.origin[i]) if inner is not None else (lambda i: (i + 1, True, ()))
-    by_line = {e[0]: e for e in finishes}
     text, origin, notes = [], [], []
     for i, line in enumerate(prog.lines):
         if i not in by_line:
@@ -385,20 +396,20 @@ def expand_finishing(prog, path, reparse):
             origin.append(src(i))
             continue
         try:
-            new, note = _finish_lines(prog, path, by_line[i], src)
+            new, note = lines_of(i, src)
         except InputError as exc:  # on the flat lines of a program whose calls were expanded: named at the source
             raise (inner.relocate(exc) if inner is not None else exc) from None
         text += new
         origin += [(src(i)[0], False, src(i)[2])] * len(new)
         notes.append((src(i)[0], note))
-    exp = FinishExpansion("".join(text), tuple(origin), prog.dialect, str(path),
-                          getattr(inner, "files", ()), finishes=len(finishes), inner=inner)
+    exp = cls("".join(text), tuple(origin), prog.dialect, str(path), getattr(inner, "files", ()),
+              finishes=len(by_line), inner=inner)
     try:
         out = reparse(exp.text)
     except InputError as exc:
         raise exp.relocate(exc) from None
     out.expanded = exp
-    return _keep_roughing(out, notes)
+    return out, notes
 
 
 def _finish_lines(prog, path, e, src) -> tuple:

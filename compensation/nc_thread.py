@@ -35,7 +35,7 @@ import dataclasses
 import numpy as np
 
 from .gcode_state import MM_PER_INCH, _Refuse
-from .nc_expand import Expanded
+from .nc_contour import FinishExpansion, _word_text, expand_lines
 
 THREADING = {"G32": "thread cutting", "G92": "thread cutting cycle", "G76": "multiple threading cycle"}
 """Fanuc/Haas lathe threading codes (Fanuc 0i-TF G-code system A, Haas lathe manual)."""
@@ -136,17 +136,12 @@ def restore_feed(lines: list, text: str) -> list:
 
 
 @dataclasses.dataclass(frozen=True)
-class ThreadExpansion(Expanded):
-    """:class:`compensation.nc_expand.Expanded` of G92 passes written as the control's moves
-    (:func:`expand_threading`): ``passes`` the number expanded, ``inner`` the expansion before it."""
+class ThreadExpansion(FinishExpansion):
+    """G92 passes written as the control's moves (:func:`expand_threading`): ``finishes`` the number of passes
+    (:class:`compensation.nc_contour.FinishExpansion`'s fields, its own note)."""
 
-    passes: int = 0
-    inner: object = None
-
-    def note(self) -> str:
-        head = self.inner.note() + "; " if self.inner is not None else "volcomp: "
-        return head + (f"lathe G92 thread cutting passes written as the controller's moves ({self.passes}: G0 X, "
-                       "G32 Z in compensated pieces each with its own F, G0 X and G0 Z back to the start point)")
+    WHAT = ("lathe G92 thread cutting passes written as the controller's moves ({n}: G0 X, G32 Z in compensated "
+            "pieces each with its own F, G0 X and G0 Z back to the start point)")
 
 
 # ---------------------------------------------------------------------------- G92 / G76 on the reader's lines
@@ -240,37 +235,12 @@ def expand_threading(prog, path, reparse):
     pass's X, ``G32 Z F`` to its end, ``G0 X`` back to the start point's X, ``G0 Z`` back to its Z, absolute, in the
     program's units (X as the program writes it: diameter or radius). ``reparse(text)`` reads the expanded text;
     ``prog`` itself where there is no G92."""
-    from errormap.io import InputError
-    from .nc_contour import _word_text
     passes = {e[0]: e for e in prog.events if e[2] == "lathe-thread"}
     if not passes:
         return prog
-    inner = prog.expanded
-    src = (lambda i: inner.origin[i]) if inner is not None else (lambda i: (i + 1, True, ()))
-    text, origin, notes = [], [], []
-    for i, line in enumerate(prog.lines):
-        if i not in passes:
-            text.append(line)
-            origin.append(src(i))
-            continue
-        sx, sz, x, z, f, inch, diameter = passes[i][3]
-        unit = MM_PER_INCH if inch else 1.0
-        xw = lambda v: _word_text(v * (2.0 if diameter else 1.0) / unit)  # noqa: E731
-        ending = line[len(line.rstrip("\r\n")):] or "\n"
-        new = [f"G00 X{xw(x)}", f"G32 Z{_word_text(z / unit)} F{f}", f"G00 X{xw(sx)}", f"G00 Z{_word_text(sz / unit)}"]
-        text += [t + ending for t in new]
-        origin += [(src(i)[0], False, src(i)[2])] * len(new)
-        notes.append(f"line {src(i)[0]}: G92 pass expanded: G0 X{xw(x)}, G32 Z{_word_text(z / unit)} F{f} in "
-                     "compensated pieces (each its own F; the G0 to its start compensated), G0 back to the start "
-                     "point; written without a chamfer out of the thread (the Fanuc G92's chamfering, signal CDZ with "
-                     "parameter 5130, must be off)")
-    exp = ThreadExpansion("".join(text), tuple(origin), prog.dialect, str(path), getattr(inner, "files", ()),
-                          passes=len(passes), inner=inner)
-    try:
-        out = reparse(exp.text)
-    except InputError as exc:
-        raise exp.relocate(exc) from None
-    out.expanded = exp
+    out, notes = expand_lines(prog, path, reparse, passes, lambda i, src: _pass_lines(prog.lines[i], passes[i], src(i)),
+                              ThreadExpansion)
+    exp = out.expanded
     kept = []
     for e in out.events:  # a rapid note names its source line; the passes' own G0 are in the G92 notes
         if e[2] == "lathe-cycle" and e[3] == "G32":
@@ -278,5 +248,19 @@ def expand_threading(prog, path, reparse):
                 continue
             e = (e[0], e[1], e[2], e[3], f"line {exp.origin[e[0]][0]}: rapid {RAPID_NOTE}")
         kept.append(e)
-    out.events = tuple(kept) + tuple((0, 1, "lathe-cycle", "G92", n) for n in notes)
+    out.events = tuple(kept) + tuple((0, 1, "lathe-cycle", "G92", n) for _, n in notes)
     return out
+
+
+def _pass_lines(line, e, src) -> tuple:
+    """``(lines, note)`` of the G92 pass of event ``e`` on ``line`` (:func:`expand_threading`); ``src`` the line's
+    origin entry (its source line first)."""
+    sx, sz, x, z, f, inch, diameter = e[3]
+    unit = MM_PER_INCH if inch else 1.0
+    xw = lambda v: _word_text(v * (2.0 if diameter else 1.0) / unit)  # noqa: E731
+    ending = line[len(line.rstrip("\r\n")):] or "\n"
+    new = [f"G00 X{xw(x)}", f"G32 Z{_word_text(z / unit)} F{f}", f"G00 X{xw(sx)}", f"G00 Z{_word_text(sz / unit)}"]
+    return [t + ending for t in new], (f"line {src[0]}: G92 pass expanded: G0 X{xw(x)}, G32 Z{_word_text(z / unit)} "
+                                       f"F{f} in compensated pieces (each its own F; the G0 to its start compensated), "
+                                       "G0 back to the start point; written without a chamfer out of the thread (the "
+                                       "Fanuc G92's chamfering, signal CDZ with parameter 5130, must be off)")

@@ -93,7 +93,7 @@ TOL_POINT_UM = 1.0
 
 
 def _compensate_steps(d: Path, extra=()) -> tuple[int, str, Path]:
-    """``volcomp compensate`` of STEPS with the truth in ``d`` as model and truth: (rc, last stderr line, output)."""
+    """``volcomp compensate`` of ``d/p.nc`` (STEPS, THREAD) with the truth in ``d`` as model and truth: (rc, last stderr line, output)."""
     from compensation.app.cli import main
     err, out = io.StringIO(), "out-expand" if extra else "out"
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
@@ -105,19 +105,26 @@ def _compensate_steps(d: Path, extra=()) -> tuple[int, str, Path]:
     return rc, lines[-1] if lines else "", d / out / "p.nc"
 
 
-def contour_cycle(seed: int, d: Path) -> dict:
-    """One truth seed: the default's outcome, and with ``--expand-cycles`` the TRUE max (μm) at the contour points of
-    the G70's written moves beside the program as written at the same points."""
-    from compensation.turning import parse_lathe_program
+def _seeded(seed: int, d: Path, program: str) -> tuple:
+    """``(lathe, truth)``: ``lathe-xzc`` and its truth ``ChainElementSet.random(lathe, seed, 10.0, 11)`` written to
+    ``d/truth.json`` with the G54 offset (Z :data:`PART_Z_MM`), the tool table and ``program`` as ``d/p.nc``."""
     from errormap.chain_elements import ChainElementSet
-    from errormap.chain_field import ChainField
     from errormap.machine import load_machine
     lathe = load_machine("lathe-xzc")
     els = ChainElementSet.random(lathe, seed, 10.0, 11)
     els.save(d / "truth.json")
     (d / "off.csv").write_text(f"system,x_mm,y_mm,z_mm\nG54,0,0,{PART_Z_MM}\n")
     (d / "tools.csv").write_text("tool,length_mm,radius_mm\n1,0,0.8\n")
-    (d / "p.nc").write_text(STEPS)
+    (d / "p.nc").write_text(program)
+    return lathe, els
+
+
+def contour_cycle(seed: int, d: Path) -> dict:
+    """One truth seed: the default's outcome, and with ``--expand-cycles`` the TRUE max (μm) at the contour points of
+    the G70's written moves beside the program as written at the same points."""
+    from compensation.turning import parse_lathe_program
+    from errormap.chain_field import ChainField
+    lathe, els = _seeded(seed, d, STEPS)
     rc, err, _ = _compensate_steps(d)
     row = {"default": "accepted" if rc == 0 else "expand" if "use --expand-cycles" in err else err}
     rc, err, written = _compensate_steps(d, ("--expand-cycles",))
@@ -139,12 +146,18 @@ def contour_cycle(seed: int, d: Path) -> dict:
     return row | {"true_max": max(errs), "unc_max": max(as_written)}
 
 
-def contour_cycle_figures(seeds) -> tuple[list, list]:
-    """The contour-cycle figures (module docstring) over ``seeds``, and notes on any other outcome."""
+def over_seeds(one, seeds) -> list:
+    """``one(seed, directory)`` per seed, each in a temporary directory of its own."""
     rows = []
     for s in seeds:
         with tempfile.TemporaryDirectory() as td:
-            rows.append(contour_cycle(s, Path(td)))
+            rows.append(one(s, Path(td)))
+    return rows
+
+
+def contour_cycle_figures(seeds) -> tuple[list, list]:
+    """The contour-cycle figures (module docstring) over ``seeds``, and notes on any other outcome."""
+    rows = over_seeds(contour_cycle, seeds)
     n, ok = len(rows), [r for r in rows if r["expanded"]]
     k_in = sum(r["default"] == "accepted" for r in rows)
     what = "stepped-shaft G71/G70 (type I), truth as the model"
@@ -194,25 +207,13 @@ def true_leads(field, lathe, moves, zero_xz_mm, lead_mm: float) -> tuple:
 def threading(seed: int, d: Path) -> dict:
     """One truth seed: THREAD compensated (default) with the truth as the model; TRUE lead error (relative, max over the
     pieces) and TRUE position error at the programmed points (μm, max), beside the program as written."""
-    from compensation.app.cli import main
     from compensation.turning import parse_lathe_program
-    from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
-    from errormap.machine import load_machine
-    lathe = load_machine("lathe-xzc")
-    els = ChainElementSet.random(lathe, seed, 10.0, 11)
-    els.save(d / "truth.json")
-    (d / "off.csv").write_text(f"system,x_mm,y_mm,z_mm\nG54,0,0,{PART_Z_MM}\n")
-    (d / "tools.csv").write_text("tool,length_mm,radius_mm\n1,0,0.8\n")
-    (d / "t.nc").write_text(THREAD)
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-        rc = main(["compensate", str(d / "t.nc"), "--machine", "lathe-xzc", "--model", str(d / "truth.json"),
-                   "--truth", str(d / "truth.json"), "--method", "exact", "--dialect", "fanuc", "--lathe-x",
-                   "diameter", "--out", str(d / "o"), "--work-offsets", str(d / "off.csv"), "--tool-table",
-                   str(d / "tools.csv")])
-    assert rc == 0, f"seed {seed}: the thread was refused"
+    lathe, els = _seeded(seed, d, THREAD)
+    rc, err, written = _compensate_steps(d)
+    assert rc == 0, f"seed {seed}: the thread was refused: {err}"
     read = lambda f: parse_lathe_program(f, lathe, "keep", None, "fanuc", "diameter")[0].moves  # noqa: E731
-    src, out = read(d / "t.nc"), read(d / "o" / "t.nc")
+    src, out = read(d / "p.nc"), read(written)
     field, zero = ChainField(lathe, els), (0.0, PART_Z_MM)
     m_src = [m for m in src if m.compensate]
     errs, missed = lathe_points_reached(field, lathe, m_src, [m for m in out if m.compensate], zero, TOL_POINT_UM)
@@ -227,10 +228,7 @@ def threading(seed: int, d: Path) -> dict:
 
 def threading_figures(seeds) -> list:
     """The threading figures (module docstring) over ``seeds``: maxima over the seeds."""
-    rows = []
-    for s in seeds:
-        with tempfile.TemporaryDirectory() as td:
-            rows.append(threading(s, Path(td)))
+    rows = over_seeds(threading, seeds)
     mx = lambda k: float(max(r[k] for r in rows))  # noqa: E731
     what = "Fanuc G32 thread M30x1.5, 3 passes, truth as the model"
     return [{"what": f"{what}: TRUE lead error of every written G32 piece (max over pieces and seeds)",
@@ -339,10 +337,7 @@ def run(quick: bool, seed: int) -> dict:
 def tool_offset_figures(seeds) -> list:
     """The tool-offset figures: offsets used in the chain beside ignored, ignored beside uncompensated."""
     import numpy as np
-    rows = []
-    for s in seeds:
-        with tempfile.TemporaryDirectory() as td:
-            rows.append(tool_offsets(s, Path(td)))
+    rows = over_seeds(tool_offsets, seeds)
     mx = lambda k: float(max(r[k] for r in rows))  # noqa: E731
     figs = []
     for model, label in (("truth", "truth as the model"), ("noisy", "model 0.3 μm/μrad off the truth")):
