@@ -54,8 +54,9 @@ def render_program(program: GProgram, vertices: list, header=(), track: dict | N
                 raise InputError(f"{program.path}: {exc}") from None
             if m.lead is not None or (feed is not None and m.kind != "rapid"):
                 from .nc_thread import restore_feed
-                groups[m.index] = restore_feed(groups[m.index], feed) if m.lead is None else groups[m.index]
-                feed = m.lead[1] if m.lead is not None else None
+                if m.lead is None:
+                    groups[m.index] = restore_feed(groups[m.index], feed[0], program.lines[feed[1] + 1:m.index])
+                feed = (m.lead[1], m.index) if m.lead is not None else None
             for j, g in nurbs_block_lines(m, program.lines).items():
                 groups[j] = g
         if track is not None:

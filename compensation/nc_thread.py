@@ -126,11 +126,18 @@ def with_lead(line: str, text: str, add: bool = True) -> str:
     return body[:last] + f" F{text}" + body[last:] + end
 
 
-def restore_feed(lines: list, text: str) -> list:
+def restore_feed(lines: list, text: str, between) -> list:
     """The output lines of the first feed move after a thread with the programmed F (``text``) on the first, where
-    its line gives none (the modal F is the last piece's F' there)."""
+    neither its line nor one of the source lines ``between`` (the thread's last line to it) gives an F: the modal F is
+    the last piece's F' there."""
     from .gcode_words import tokenize
-    if any(w.letter == "F" for w in tokenize(lines[0].rstrip("\r\n"))[1]):
+
+    def has_f(line):
+        try:
+            return any(w.letter == "F" for w in tokenize(line.rstrip("\r\n"))[1])
+        except _Refuse:
+            return True  # a line the reader would refuse: not read here (it keeps the program from being written)
+    if any(has_f(ln) for ln in list(between) + lines[:1]):
         return lines
     return [with_lead(lines[0], text)] + lines[1:]
 

@@ -98,13 +98,14 @@ def test_g32_passes_exact_position_and_lead(tmp_path, dialect):
     assert sum("thread's start" in c for c in summary["lathe_cycles"]) == 3
 
 
-def test_g32_feed_after_thread_gets_programmed_f(tmp_path):
-    """After a thread the modal F is the last piece's F': a feed move without F gets the programmed F back."""
-    text = G32_PASSES.replace("G01 X38. F0.2\n", "G01 X38.\n")
-    rc, _, written, _ = _compensate(tmp_path, text)
+@pytest.mark.parametrize("new,restored", [("G01 X38.\n", True), ("F0.3\nG01 X38.\n", False)])
+def test_g32_feed_after_thread_gets_programmed_f(tmp_path, new, restored):
+    """After a thread the modal F is the last piece's F': a feed move without F gets the programmed F back, unless a
+    line between gave an F (the control's modal F is that one)."""
+    rc, _, written, _ = _compensate(tmp_path, G32_PASSES.replace("G01 X38. F0.2\n", new))
     assert rc == 0
     line = next(ln for ln in written.read_text().splitlines() if ln.startswith("G01 "))
-    assert line.endswith(" F1.5")
+    assert line.endswith(" F1.5") == restored and line.count("F") == restored
 
 
 def test_g92_expanded_exact_and_refused_kept(tmp_path, capsys):
