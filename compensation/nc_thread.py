@@ -11,8 +11,10 @@ Cycle, Multiple Pass"):
   spindle's index synchronises the first, the others follow without re-synchronising (Haas: "this synchronization
   remains in effect for each line in a G32 sequence"; Fanuc: continuous thread cutting). Chamfering (M23/M24) does
   not act on G32. ``Q`` (the start angle of a multi-start thread) and ``E`` are not read (refused).
-- ``G92 X Z F`` (Fanuc): rapid along X from the start point A to X, thread (as G32) to Z, rapid along X back to A's
-  X, rapid along Z back to A's Z; modal: a following line with X alone is one more pass (Z and F kept). ``R``
+- ``G92 X Z F`` (Fanuc; 30i-A user's manual B-63944EN-1, 4.1.2 "Threading cycle (G92)", operations 1-4): rapid
+  along X from the start point A to X, thread (as G32) to Z, rapid along X back to A's X, rapid along Z back to A's
+  Z; the thread chamfer at the end of operation 2 has the control's amount (parameter 5130), written here as none;
+  modal: a following line with X alone is one more pass (Z and F kept). ``R``
   (taper), ``U``/``W`` and Haas' G92 (its ``I`` taper and M23 chamfer-out) are not read here (refused).
 - ``G76``: the passes (depths Δd·√n, the infeed along the flank, the chamfer r) are the control's: refused in
   both modes (post the passes as G32 or G92 lines).
@@ -211,7 +213,8 @@ def _g92_pass(words, idx, st, ax, code) -> str:
     col = (code or words[0]).start + 1
     if "X" not in by or z is None or f is None or not f[0] > 0:
         raise _Refuse(col, "a G92 pass needs X, Z and a positive F (the lead; Z and F kept from the G92 line before "
-                           "it)")
+                           "it); G92 is read as Fanuc G-code system A's threading cycle (in systems B and C, a "
+                           "parameter, it sets the coordinate system: not read)")
     if st.incremental:
         raise _Refuse(col, "a G92 pass under G91: not read; write it under G90")
     start = np.array([st.pos[ax.words.index("X")], st.pos[ax.words.index("Z")]], dtype=float)
@@ -270,4 +273,4 @@ def _pass_lines(line, e, src) -> tuple:
     return [t + ending for t in new], (f"line {src[0]}: G92 pass expanded: G0 X{xw(x)}, G32 Z{_word_text(z / unit)} "
                                        f"F{f} in compensated pieces (each its own F; the G0 to its start compensated), "
                                        "G0 back to the start point; written without a chamfer out of the thread (the "
-                                       "Fanuc G92's chamfering, signal CDZ with parameter 5130, must be off)")
+                                       "control's G92 chamfer, its amount Fanuc parameter 5130, must be 0)")
