@@ -112,6 +112,25 @@ def lead_texts(m, before, after, units: str) -> list:
     return [f"{v:.{LEAD_DECIMALS[units]}f}" for v in f * cmd / prog]
 
 
+def lead_notes(program, counts, axes) -> list:
+    """The summary's line per compensated ``G32`` block of ``program`` (its source line): its pieces and the range of
+    their F' (:func:`lead_texts` of the compensated program axes ``axes`` (n, k) mm, ``counts`` (c,) vertices per
+    compensated move, before the written rounding; a G32 whose start is a kept move's end is left out)."""
+    from .nc_expand import source_line
+    order = {id(m): k for k, m in enumerate(program.moves)}
+    comp = [m for m in program.moves if m.compensate]
+    ends = np.cumsum(counts)
+    out = []
+    for i, m in enumerate(comp):
+        if m.lead is None or i == 0 or order[id(comp[i - 1])] != order[id(m)] - 1:
+            continue
+        rows = np.asarray(axes)[ends[i - 1] - 1:ends[i]]
+        f = lead_texts(m, rows[:-1], rows[1:], m.units)
+        out.append(f"line {source_line(program, m.index + 1)}: G32 F{m.lead[1]} written as {len(f)} piece(s), F' "
+                   f"{min(f, key=float)} to {max(f, key=float)} (each piece's true lead the programmed F)")
+    return out
+
+
 def with_lead(line: str, text: str, add: bool = True) -> str:
     """``line`` (one output line) with its F word's number replaced by ``text``, or ``F{text}`` added after its last
     word (``add``)."""

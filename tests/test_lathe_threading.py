@@ -96,6 +96,8 @@ def test_g32_passes_exact_position_and_lead(tmp_path, dialect):
     assert out[k].endswith(" F0.2") and "F" not in out[k + 1]  # its own F kept; the next: the modal F0.2 of it
     summary = json.loads((written.parent / "compensate_summary.json").read_text())["files"][0]
     assert sum("thread's start" in c for c in summary["lathe_cycles"]) == 3
+    leads = [c for c in summary["lathe_cycles"] if ": G32 F1.5 written as " in c]  # one per G32 block, its pieces
+    assert len(leads) == 4 and sum(int(c.split("written as ")[1].split(" ")[0]) for c in leads) == len(lead_err)
 
 
 @pytest.mark.parametrize("new,restored", [("G01 X38.\n", True), ("F0.3\nG01 X38.\n", False)])
