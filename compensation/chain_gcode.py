@@ -315,7 +315,7 @@ def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, fr
         pos = {id(m): p for m, p in zip(with_start, pieces)}
         n_fld = np.array([pos.get(id(m), 1) for m in comp], dtype=int)
     counts = np.maximum(n_arc, n_fld)
-    counts[[i for i, m in enumerate(comp) if m.synced]] = 1  # a spindle-synchronised line stays one line
+    counts[[i for i, m in enumerate(comp) if m.synced and m.lead is None]] = 1  # one line (a G32: pieces, each F)
     _check_counts(program, counts, [m.index for m in comp], arc_tolerance_um, max_segment_mm)
     verts = []
     for m, c in zip(comp, counts):
@@ -370,7 +370,7 @@ def plan_table(program: GProgram, arc_tolerance_um: float, field_=None, frames=N
     _check_counts(program, np.where(known, counts, 1), t.line[rows], arc_tolerance_um, max_segment_mm)
     counts[~known] = 1  # a move whose start is unknown: its end alone
     objs = np.flatnonzero(t.obj[rows] >= 0)
-    counts[[i for i in objs if t.objects[t.obj[rows[i]]].synced]] = 1  # spindle-synchronised: one line
+    counts[[i for i in objs if t.objects[t.obj[rows[i]]].synced and t.objects[t.obj[rows[i]]].lead is None]] = 1
     axes = _table_vertices(start, end, counts, known, moves)
     lines = np.repeat(t.line[rows] + 1, counts)
     kept = np.flatnonzero(~t.compensate)

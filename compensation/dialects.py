@@ -178,6 +178,9 @@ SYNCED = {"G33": "spindle-synchronised motion (G33 X Y Z K: a straight line, K p
           "G33.1": "rigid tapping (G33.1 X Y Z K [I]: a synchronised line to the point and back to the start)"}
 """LinuxCNC G-code reference, "G33 Spindle Synchronized Motion", "G33.1 Rigid Tapping": motion codes read as one
 straight line each, its end compensated, never split (:mod:`compensation.gcode_state`)."""
+LATHE_SYNCED = {"G32": "thread cutting (G32 X Z F: a straight line synchronised with the spindle, F the lead)"}
+"""Fanuc 0i-TF / Haas lathe ``G32``: read on a lathe only, split and written with a lead per piece
+(:mod:`compensation.nc_thread`)."""
 PROBES = {"G38.2": "probe towards the part, stop on contact (an error if none)",
           "G38.3": "probe towards the part, stop on contact", "G38.4": "probe away from the part, stop on loss of "
           "contact (an error if none)", "G38.5": "probe away from the part, stop on loss of contact"}
@@ -200,7 +203,8 @@ DIALECTS = {
                                48: "overrides on", 49: "overrides off"},
                      program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G50": SCALING_OFF, "G50.1": MIRROR_OFF,
                                                          "G8": PREVIEW, "G5": HPCC}, g80_with_motion=True, dwell_x=True,
-                     g80_keeps_motion=True, h_offset_alone=True, lathe_x_by_parameter=True, lathe_t_offset=True),
+                     g80_keeps_motion=True, h_offset_alone=True, lathe_x_by_parameter=True, lathe_t_offset=True,
+                     synced=LATHE_SYNCED),
     "haas": Dialect("haas", {**_COMMON, 10: "4th-axis brake on", 11: "4th-axis brake off", 12: "5th-axis brake on",
                              13: "5th-axis brake off", 16: "tool change", 19: "orient spindle",
                              31: "chip auger forward", 33: "chip auger stop", 34: "coolant spigot +",
@@ -210,7 +214,7 @@ DIALECTS = {
                     modes={"G5.1": LOOKAHEAD, "G187": "smoothness / accuracy (P1-P3, E corner rounding)", "G50": SCALING_OFF,
                            "G50.1": MIRROR_OFF, "G103": LOOKAHEAD_BLOCKS}, g80_with_motion=True,
                     g80_keeps_motion=True, h_offset_alone=True, work_systems=HAAS_SYSTEMS, lathe_x_by_parameter=True,
-                    lathe_t_offset=True),
+                    lathe_t_offset=True, synced=LATHE_SYNCED),
     "siemens-iso": Dialect("siemens-iso", {**_COMMON, 19: "orient spindle", 41: "gear 1", 42: "gear 2"},
                            program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G291": "ISO dialect mode", "G50": SCALING_OFF,
                                   "G50.1": MIRROR_OFF},

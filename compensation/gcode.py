@@ -177,7 +177,7 @@ def _parse_lines(path, rapids, block_delete, data: bytes, ax: AxisWords, dia, la
         classes.append(cls)
         if move is not None:
             moves.append(move)
-    if not any(m.compensate for m in moves):
+    if not any(m.compensate for m in moves) and not any(e[2] == "lathe-thread" for e in st.events):  # G92: expanded
         raise _no_motion(path, ax)
     return GProgram(path, lines, classes, moves, rapids, block_delete, axis_words=ax, events=tuple(st.events),
                     g80_line=st.g80_line)

@@ -13,6 +13,7 @@ from .gcode_state import (LOCAL_SHIFT_DIALECTS, lathe_t_offset, ttoo_lathe, MODE
 from .nc_contour import ContourState, after_line, cycle_line
 from .nc_contour import applies as contour_reading
 from .nc_flow import TRACKED_NAMES
+from .nc_thread import feed_word_seen, g32_move
 from .nc_state import lathe_words
 from .gcode_spline import nurbs_end, nurbs_line, spline_move, spline_points, spline_segments
 from .gcode_words import (ALLOWED_G, ARC_RADIUS_TOL_INCH_MM, ARC_RADIUS_TOL_MM, AxisWords, CENTRE_AXIS,
@@ -51,6 +52,9 @@ class _State:
         self.last_given = {}       # axis letter -> index of the last move line that gave it (the refusals say why)
         self.replay = None         # nc_state.FrameReplay: a G53 move's end in the program's frame (None: no tables)
         self.contours = ContourState()  # a Fanuc/Haas lathe's G70-G73 contour cycles (compensation.nc_contour)
+        self.thread = None         # a modal G92 thread cutting cycle in force (compensation.nc_thread)
+        self.thread_lead = None    # (value, text) of the lead a G32 without F takes (compensation.nc_thread)
+        self.last_move = None      # the last move read (a G32's start: compensation.nc_thread.g32_move)
 
 
 def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=None,
@@ -284,7 +288,7 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
         return _classify_words(body, idx, st, rapids, block_delete, ax)  # not a Fanuc/Haas lathe: no cycle to read
     try:
         words = tokenize(body)[1] if any(c in body for c in ("G7", "g7", "G3", "g3", "G9", "g9")) or cs.pending or \
-            cs.active else ()
+            cs.active or st.thread else ()
     except _Refuse:
         words = ()  # the line's own reading names what it holds
     if words and cycle_line(words, idx, st, ax) == "state":
@@ -338,6 +342,7 @@ def _classify_words(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
         raise _Refuse(body.index("/") + 1, "block delete '/' on a line that moves or changes modal state; "
                                            "say whether the controller skips it: --block-delete on|off")
     motion_word = _apply_modal(st, groups)
+    feed_word_seen(st, by, st.mode)
     _check_p_q(st, by, gs, axis_words, arc_words, ttoo_lathe(dia, ax), lathe_words(ax.words))
     if "nonmodal" in groups and groups["nonmodal"][0] == "G10":
         return _g10(idx, st, groups, by, axis_words, ax), None
@@ -455,7 +460,7 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
                 end[j] = start[j] + v
             else:
                 end[j] = v
-    kind = {"G0": "rapid", "G1": "linear", "G33": "linear", "G33.1": "linear"}.get(st.mode, "arc")
+    kind = {"G0": "rapid", "G1": "linear", "G33": "linear", "G33.1": "linear", "G32": "linear"}.get(st.mode, "arc")
     compensate = not (kind == "rapid" and rapids == "keep")
     words = dict(axis_words)
     words.update(arc_words)
@@ -478,6 +483,7 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
             raise _Refuse(r.col, f"'{first.letter}{first.text}': {r.msg}") from None
     st.pos = end
     st.last_given.update(dict.fromkeys(axis_words, idx))
+    st.last_move = move
     return move
 
 
@@ -534,6 +540,17 @@ def synced_move(idx, st: _State, by, axis_words, arc_words, motion_word, rapids,
     """A ``G33``/``G33.1`` line: one straight move to its end (K the pitch, :func:`synced_words`), marked
     ``synced``; after ``G33.1`` the position is its start again (the tap returns)."""
     first = min(axis_words.values(), key=lambda w: w.start)
+    if st.mode == "G32":  # Fanuc/Haas lathe thread cutting: F the lead (compensation.nc_thread)
+        prev = st.last_move
+        if arc_words:
+            w = next(iter(arc_words.values()))
+            raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' on a G32 line (F is the lead)")
+        move = _move(idx, st, by, axis_words, {}, motion_word, rapids, ax)
+        move.kind, move.synced = "linear", st.mode
+        st.last_move = prev
+        g32_move(st, by, ax, move)
+        st.last_move = move
+        return move
     synced_words(st.mode, by, arc_words, (motion_word or first).start + 1)
     move = _move(idx, st, by, axis_words, {}, motion_word, rapids, ax)
     move.kind, move.synced = "linear", st.mode

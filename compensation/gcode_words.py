@@ -289,6 +289,10 @@ class GMove:
     synced: str | None = None
     """``"G33"``/``"G33.1"``: a spindle-synchronised line (LinuxCNC), written as one line, never split (each
     synchronised move waits for the spindle index); None otherwise."""
+    lead: tuple | None = None
+    """A Fanuc/Haas lathe ``G32``: ``(F value, F text, lead axis column)``, the programmed lead (program units per
+    revolution) along the axis of the larger travel; split like any move, each piece written with its own F
+    (:func:`compensation.nc_thread.lead_texts`); None otherwise."""
     block_end: bool = False
     """The last block ``N(nf)`` of a lathe contour cycle (:mod:`compensation.nc_contour`): when split, its N word is
     written on the last piece (the contour ends where the block's programmed end is)."""

@@ -85,11 +85,6 @@ class ContourState:
         self.done = {}
 
 
-THREADING = {"G32": "thread cutting", "G92": "thread cutting cycle", "G76": "multiple threading cycle"}
-"""Fanuc/Haas lathe threading (Fanuc 0i-TF G-code system A, Haas lathe manual): refused (:func:`cycle_line`). Each
-pass is synchronised with the spindle's index and its lead F is the travel per revolution the control commands:
-compensating a pass's ends without its lead (or a G76's passes, which the control computes) is not exact."""
-THREAD_WHY = "spindle-synchronised, compensated ends would change its lead F: not read (compensate without it)"
 GROOVING = {"G74": "face peck drilling / grooving cycle", "G75": "diameter grooving cycle"}
 """Fanuc/Haas lathe grooving cycles (Fanuc 0i-TF ``G74``/``G75 X(U) Z(W) P Q R F``, Haas ``G74``/``G75 X Z I K D
 F``): refused (:func:`cycle_line`). The control cuts from the start point along one axis (Z for G74, X for G75) in
@@ -114,11 +109,10 @@ def _xz(st, ax) -> np.ndarray:
 def cycle_line(words, idx: int, st, ax) -> str | None:
     """``"state"`` for a contour cycle line (kept as written; the state records the cycle), None for any other
     line (read as usual; its N word checked against an open cycle's contour)."""
+    from .nc_thread import thread_line
     cs = st.contours
-    thread = next((w for w in words if w.letter == "G" and w.code in THREADING), None)
-    if thread is not None and applies(st, ax):
-        raise _Refuse(thread.start + 1, f"'{thread.code}' on a {st.dialect.name} lathe: {THREADING[thread.code]}: "
-                                        f"{THREAD_WHY}")
+    if applies(st, ax) and thread_line(words, idx, st, ax) == "state":  # G92 / G76 (compensation.nc_thread)
+        return "state"
     groove = next((w for w in words if w.letter == "G" and w.code in GROOVING), None)
     if groove is not None and applies(st, ax):
         raise _Refuse(groove.start + 1, f"'{groove.code}' on a {st.dialect.name} lathe: {GROOVING[groove.code]}: "
@@ -323,11 +317,12 @@ class FinishExpansion(Expanded):
 
     finishes: int = 0
     inner: object = None
+    WHAT = ("lathe G70 finishing cycles written as the controller's moves ({n}: the contour's blocks, then G0 back to "
+            "the start point); G71/G72/G73 and their contours kept")
 
     def note(self) -> str:
         head = self.inner.note() + "; " if self.inner is not None else "volcomp: "
-        return head + (f"lathe G70 finishing cycles written as the controller's moves ({self.finishes}: the "
-                       "contour's blocks, then G0 back to the start point); G71/G72/G73 and their contours kept")
+        return head + self.WHAT.format(n=self.finishes)
 
 
 def _word_text(v: float) -> str:
@@ -377,13 +372,23 @@ def expand_finishing(prog, path, reparse):
     the roughing cycles and their contour blocks kept as written (their moves not compensated: the controller roughs
     from the programmed contour). ``reparse(text)`` reads the expanded text (a GProgram); returns ``prog`` where
     there is no G70 to expand."""
-    from errormap.io import InputError
     finishes = [e for e in prog.events if e[2] == "lathe-finish"]
     if not finishes:
         return prog
+    by_line = {e[0]: e for e in finishes}
+    out, notes = expand_lines(prog, path, reparse, by_line, lambda i, src: _finish_lines(prog, path, by_line[i], src),
+                              FinishExpansion)
+    return _keep_roughing(out, notes)
+
+
+def expand_lines(prog, path, reparse, by_line, lines_of, cls) -> tuple:
+    """``(program, [(source line, note)])``: ``prog``'s text with each line ``i`` of ``by_line`` replaced by the lines
+    ``lines_of(i, src) -> (lines, note)`` give (``src(i)``: the source line of line i, its ``origin`` entry), read
+    again by ``reparse(text)`` with its expansion (a ``cls``, :class:`FinishExpansion`'s fields) attached; an
+    InputError named at the source line."""
+    from errormap.io import InputError
     inner = prog.expanded
     src = (lambda i: inner.origin[i]) if inner is not None else (lambda i: (i + 1, True, ()))
-    by_line = {e[0]: e for e in finishes}
     text, origin, notes = [], [], []
     for i, line in enumerate(prog.lines):
         if i not in by_line:
@@ -391,20 +396,20 @@ def expand_finishing(prog, path, reparse):
             origin.append(src(i))
             continue
         try:
-            new, note = _finish_lines(prog, path, by_line[i], src)
+            new, note = lines_of(i, src)
         except InputError as exc:  # on the flat lines of a program whose calls were expanded: named at the source
             raise (inner.relocate(exc) if inner is not None else exc) from None
         text += new
         origin += [(src(i)[0], False, src(i)[2])] * len(new)
         notes.append((src(i)[0], note))
-    exp = FinishExpansion("".join(text), tuple(origin), prog.dialect, str(path),
-                          getattr(inner, "files", ()), finishes=len(finishes), inner=inner)
+    exp = cls("".join(text), tuple(origin), prog.dialect, str(path), getattr(inner, "files", ()),
+              finishes=len(by_line), inner=inner)
     try:
         out = reparse(exp.text)
     except InputError as exc:
         raise exp.relocate(exc) from None
     out.expanded = exp
-    return _keep_roughing(out, notes)
+    return out, notes
 
 
 def _finish_lines(prog, path, e, src) -> tuple:

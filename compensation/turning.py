@@ -21,6 +21,7 @@ from errormap.io import InputError
 from .evaluate import gradient_norm
 from .gcode import AxisWords, GProgram, parse_program, tokenize
 from .nc_contour import expand_finishing, refuse_open
+from .nc_thread import expand_threading, refuse_kept
 
 TURN_SAMPLES = 24
 """Spindle angles (every 15°) at which the error is averaged over one turn: the chain's errors are smooth
@@ -113,6 +114,12 @@ def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe
     _refuse_lathe_x(prog, option)
     flags = spindle_turning(prog.lines, machine.spindle)
     turning = np.array([flags[m.index] for m in prog.moves], dtype=bool)
+    stopped = next((m for m in prog.moves if m.lead is not None and not flags[m.index]), None)
+    if stopped is not None:  # a thread with the spindle stopped (C-axis mode)
+        on = ", ".join(f"M{k}" for k in machine.spindle["turning_on"])
+        exc = InputError(f"{path}: line {stopped.index + 1}: 'G32' while the spindle is stopped (C-axis mode): a "
+                         f"thread is cut while it turns; start it ({on}) before the thread")
+        raise exc if prog.expanded is None else prog.expanded.relocate(exc)
     if not turning.any():
         return prog, turning
     for m in prog.moves:
@@ -131,14 +138,20 @@ def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe
 
 
 def _read(path, cycles, **kw) -> GProgram:
-    """:func:`compensation.gcode.parse_program` of a lathe program (``kw``), its G70 lines expanded where
-    ``cycles`` is ``"expand"`` (:func:`compensation.nc_contour.expand_finishing`)."""
+    """:func:`compensation.gcode.parse_program` of a lathe program (``kw``), its G70 lines and G92 passes expanded
+    where ``cycles`` is ``"expand"`` (:func:`compensation.nc_contour.expand_finishing`,
+    :func:`compensation.nc_thread.expand_threading`); a G92 kept as a cycle refused otherwise."""
     prog = parse_program(path, **kw)
     if cycles != "expand":
+        try:
+            refuse_kept(path, prog.events)  # a G92 kept as a cycle (compensation.nc_thread)
+        except InputError as exc:
+            raise (prog.expanded.relocate(exc) if prog.expanded is not None else exc) from None
         return prog
     refuse_open(path, prog.events)
     kw.pop("subprograms", None)  # the flat text: its calls are expanded already
-    return expand_finishing(prog, path, lambda text: parse_program(path, data=text.encode("latin-1"), **kw))
+    reparse = lambda text: parse_program(path, data=text.encode("latin-1"), **kw)  # noqa: E731
+    return expand_threading(expand_finishing(prog, path, reparse), path, reparse)
 
 
 class ColumnsField:

@@ -30,7 +30,15 @@ residual judged here, not by the compensator: the true machine driven to the wri
 (mean over one turn) beside the programmed contour point that move reaches (``gcode_corpus.lathe_points_reached``,
 the corpus count's lathe check); beside it the program as written (uncompensated) at the same points.
 
-    python -m benchmarks.run lathe           # seeds 0–2 (user path), 0–4 (tool offsets), 0–19 (contour cycles)
+Threading (Fanuc G32, compensation/nc_thread.py): :data:`THREAD` on ``lathe-xzc``, per seed a truth
+``ChainElementSet.random(lathe, seed, 10.0, 11)`` that is also the model, compensated by default. Judged here: the
+TRUE lead of every written G32 piece (:func:`true_leads`: written F' × true travel / commanded travel along the lead
+axis, the tip mean over one turn) against the programmed F, the TRUE position at the programmed points
+(``lathe_points_reached``) and the spread of the passes' TRUE start Z (the thread's phase between passes); beside
+each, the program as written (uncompensated) on the same truth.
+
+    python -m benchmarks.run lathe           # seeds 0–2 (user path), 0–4 (tool offsets), 0–19 (contour cycles,
+                                             # threading)
 """
 from __future__ import annotations
 
@@ -85,7 +93,7 @@ TOL_POINT_UM = 1.0
 
 
 def _compensate_steps(d: Path, extra=()) -> tuple[int, str, Path]:
-    """``volcomp compensate`` of STEPS with the truth in ``d`` as model and truth: (rc, last stderr line, output)."""
+    """``volcomp compensate`` of ``d/p.nc`` (STEPS, THREAD) with the truth in ``d`` as model and truth: (rc, last stderr line, output)."""
     from compensation.app.cli import main
     err, out = io.StringIO(), "out-expand" if extra else "out"
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
@@ -97,19 +105,26 @@ def _compensate_steps(d: Path, extra=()) -> tuple[int, str, Path]:
     return rc, lines[-1] if lines else "", d / out / "p.nc"
 
 
-def contour_cycle(seed: int, d: Path) -> dict:
-    """One truth seed: the default's outcome, and with ``--expand-cycles`` the TRUE max (μm) at the contour points of
-    the G70's written moves beside the program as written at the same points."""
-    from compensation.turning import parse_lathe_program
+def _seeded(seed: int, d: Path, program: str) -> tuple:
+    """``(lathe, truth)``: ``lathe-xzc`` and its truth ``ChainElementSet.random(lathe, seed, 10.0, 11)`` written to
+    ``d/truth.json`` with the G54 offset (Z :data:`PART_Z_MM`), the tool table and ``program`` as ``d/p.nc``."""
     from errormap.chain_elements import ChainElementSet
-    from errormap.chain_field import ChainField
     from errormap.machine import load_machine
     lathe = load_machine("lathe-xzc")
     els = ChainElementSet.random(lathe, seed, 10.0, 11)
     els.save(d / "truth.json")
     (d / "off.csv").write_text(f"system,x_mm,y_mm,z_mm\nG54,0,0,{PART_Z_MM}\n")
     (d / "tools.csv").write_text("tool,length_mm,radius_mm\n1,0,0.8\n")
-    (d / "p.nc").write_text(STEPS)
+    (d / "p.nc").write_text(program)
+    return lathe, els
+
+
+def contour_cycle(seed: int, d: Path) -> dict:
+    """One truth seed: the default's outcome, and with ``--expand-cycles`` the TRUE max (μm) at the contour points of
+    the G70's written moves beside the program as written at the same points."""
+    from compensation.turning import parse_lathe_program
+    from errormap.chain_field import ChainField
+    lathe, els = _seeded(seed, d, STEPS)
     rc, err, _ = _compensate_steps(d)
     row = {"default": "accepted" if rc == 0 else "expand" if "use --expand-cycles" in err else err}
     rc, err, written = _compensate_steps(d, ("--expand-cycles",))
@@ -131,12 +146,18 @@ def contour_cycle(seed: int, d: Path) -> dict:
     return row | {"true_max": max(errs), "unc_max": max(as_written)}
 
 
-def contour_cycle_figures(seeds) -> tuple[list, list]:
-    """The contour-cycle figures (module docstring) over ``seeds``, and notes on any other outcome."""
+def over_seeds(one, seeds) -> list:
+    """``one(seed, directory)`` per seed, each in a temporary directory of its own."""
     rows = []
     for s in seeds:
         with tempfile.TemporaryDirectory() as td:
-            rows.append(contour_cycle(s, Path(td)))
+            rows.append(one(s, Path(td)))
+    return rows
+
+
+def contour_cycle_figures(seeds) -> tuple[list, list]:
+    """The contour-cycle figures (module docstring) over ``seeds``, and notes on any other outcome."""
+    rows = over_seeds(contour_cycle, seeds)
     n, ok = len(rows), [r for r in rows if r["expanded"]]
     k_in = sum(r["default"] == "accepted" for r in rows)
     what = "stepped-shaft G71/G70 (type I), truth as the model"
@@ -153,6 +174,74 @@ def contour_cycle_figures(seeds) -> tuple[list, list]:
                                               r.get("expand_error", ""))
              for s, r in zip(seeds, rows) if r["default"] not in ("accepted", "expand") or not r["expanded"]]
     return figs, notes
+
+
+THREAD = ("%\nO0100\nG21 G18 G40 G99\nT0101\nG97 S800 M03\nG00 X40. Z5.\nX29.4\nG32 Z-30. F1.5\nG00 X40.\nZ5.\n"
+          "X28.8\nG32 Z-30.\nG00 X40.\nZ5.\nX28.4\nG32 Z-10. F1.5\nZ-30.\nG00 X40.\nZ5.\nG01 X38. F0.2\nX37.\n"
+          "G00 X100. Z50.\nM05\nM30\n%\n")
+"""An M30x1.5 thread in three Fanuc G32 passes (the second's lead modal, the third two consecutive G32 blocks), then
+a feed move with its own F and one without (tests/test_lathe_threading.py reads the same program)."""
+THREAD_LEAD_MM = 1.5
+
+
+def true_leads(field, lathe, moves, zero_xz_mm, lead_mm: float) -> tuple:
+    """``(relative TRUE lead errors (n,), TRUE start Z (mm) of each thread (t,))`` of the G32 pieces among ``moves``
+    (each with ``lead``: its written F, the lead axis), judged on ``field`` (the truth): the tip driven to each piece's
+    written start and end (program axes, the work frame's zero ``zero_xz_mm`` in the machine), mean over one turn
+    (``compensation.turning.surface_residual_um``); true lead = F × true travel / commanded travel along the lead
+    axis, against ``lead_mm``. A thread starts at a piece whose line does not follow another piece's."""
+    from compensation.turning import surface_residual_um
+    pieces = [m for m in moves if m.lead is not None]
+
+    def tip(xz):  # the TRUE tip (radius, z) mm in the work frame, the nominal moving one for one with X and Z
+        q = np.column_stack([xz[:, 0] + zero_xz_mm[0], xz[:, 1] + zero_xz_mm[1], np.zeros(len(xz))])
+        return xz + surface_residual_um(field, lathe, q, q)[0] * 1e-3
+    a, b = tip(np.array([m.start for m in pieces])), tip(np.array([m.end for m in pieces]))
+    j = np.array([m.lead[2] for m in pieces])
+    k = np.arange(len(pieces))
+    revs = np.array([(m.end[i] - m.start[i]) / m.lead[0] for m, i in zip(pieces, j)])
+    first = [n for n, m in enumerate(pieces) if n == 0 or pieces[n - 1].index != m.index - 1]
+    return (b[k, j] - a[k, j]) / revs / lead_mm - 1.0, a[first, 1]
+
+
+def threading(seed: int, d: Path) -> dict:
+    """One truth seed: THREAD compensated (default) with the truth as the model; TRUE lead error (relative, max over the
+    pieces) and TRUE position error at the programmed points (μm, max), beside the program as written."""
+    from compensation.turning import parse_lathe_program
+    from errormap.chain_field import ChainField
+    lathe, els = _seeded(seed, d, THREAD)
+    rc, err, written = _compensate_steps(d)
+    assert rc == 0, f"seed {seed}: the thread was refused: {err}"
+    read = lambda f: parse_lathe_program(f, lathe, "keep", None, "fanuc", "diameter")[0].moves  # noqa: E731
+    src, out = read(d / "p.nc"), read(written)
+    field, zero = ChainField(lathe, els), (0.0, PART_Z_MM)
+    m_src = [m for m in src if m.compensate]
+    errs, missed = lathe_points_reached(field, lathe, m_src, [m for m in out if m.compensate], zero, TOL_POINT_UM)
+    assert missed is None, f"seed {seed}: THREAD line {missed} reached by no written move"
+    unc, _ = lathe_points_reached(field, lathe, m_src, m_src, zero, np.inf)
+    lead, starts = true_leads(field, lathe, out, zero, THREAD_LEAD_MM)
+    lead_unc, starts_unc = true_leads(field, lathe, src, zero, THREAD_LEAD_MM)
+    return {"lead": float(np.abs(lead).max()), "lead_unc": float(np.abs(lead_unc).max()), "pos": max(errs),
+            "pos_unc": max(unc), "phase": float(np.ptp(starts)) * 1e3, "phase_unc": float(np.ptp(starts_unc)) * 1e3,
+            "pieces": int(sum(m.lead is not None for m in out))}
+
+
+def threading_figures(seeds) -> list:
+    """The threading figures (module docstring) over ``seeds``: maxima over the seeds."""
+    rows = over_seeds(threading, seeds)
+    mx = lambda k: float(max(r[k] for r in rows))  # noqa: E731
+    what = "Fanuc G32 thread M30x1.5, 3 passes, truth as the model"
+    return [{"what": f"{what}: TRUE lead error of every written G32 piece (max over pieces and seeds)",
+             "value": mx("lead") * THREAD_LEAD_MM * 1e3, "unit": "μm/rev", "residual": "true",
+             "anchor": "uncompensated (F as programmed)", "anchor_value": mx("lead_unc") * THREAD_LEAD_MM * 1e3},
+            {"what": f"{what}: TRUE position at the programmed points (pass starts, G32 ends; max over seeds)",
+             "value": mx("pos"), "unit": "μm", "residual": "true", "anchor": "uncompensated",
+             "anchor_value": mx("pos_unc")},
+            {"what": f"{what}: spread of the passes' TRUE start Z (the thread's phase; max over seeds)",
+             "value": mx("phase"), "unit": "μm", "residual": "true", "anchor": "uncompensated",
+             "anchor_value": mx("phase_unc")},
+            {"what": f"{what}: written G32 pieces (max over seeds; 4 G32 blocks programmed)", "value": mx("pieces"),
+             "unit": "", "residual": "none", "anchor": "G32 blocks programmed", "anchor_value": 4}]
 
 
 def grid_figure(machine_name, seeds):
@@ -217,7 +306,8 @@ TITLE = "Lathe (`lathe-xzc`): identification from sweeps and a turning program c
 DATA = ("simulated `lathe-xzc` (`volcomp simulate --seed S`), sweeps at 2 μm, a G18 turning program with C moves; "
         "seeds 0–2 (quick: seed 0, no volume-grid figure); tool offsets: LinuxCNC two-tool program, ±10 μm/μrad "
         "truths, seeds 0–4 (quick: seed 0); contour cycles: Fanuc G71/G70 stepped shaft, ±10 μm/μrad truths as "
-        "the model, seeds 0–19 (quick: 0–2)")
+        "the model, seeds 0–19 (quick: 0–2); threading: Fanuc G32 M30x1.5 in 3 passes, ±10 μm/μrad truths as the "
+        "model, seeds 0–19 (quick: 0–2)")
 
 
 def run(quick: bool, seed: int) -> dict:
@@ -240,16 +330,14 @@ def run(quick: bool, seed: int) -> dict:
                      "anchor_value": float(np.median([x.grid_rms_um for x in grid_figure("mill-xyz", seeds)]))})
     figs += tool_offset_figures([seed] if quick else [seed + k for k in range(5)])
     cfigs, notes = contour_cycle_figures([seed + k for k in range(3 if quick else 20)])
-    return {"figures": figs + cfigs, "notes": notes}
+    tfigs = threading_figures([seed + k for k in range(3 if quick else 20)])
+    return {"figures": figs + cfigs + tfigs, "notes": notes}
 
 
 def tool_offset_figures(seeds) -> list:
     """The tool-offset figures: offsets used in the chain beside ignored, ignored beside uncompensated."""
     import numpy as np
-    rows = []
-    for s in seeds:
-        with tempfile.TemporaryDirectory() as td:
-            rows.append(tool_offsets(s, Path(td)))
+    rows = over_seeds(tool_offsets, seeds)
     mx = lambda k: float(max(r[k] for r in rows))  # noqa: E731
     figs = []
     for model, label in (("truth", "truth as the model"), ("noisy", "model 0.3 μm/μrad off the truth")):

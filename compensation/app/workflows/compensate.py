@@ -528,6 +528,10 @@ def gcode_entry(entry, tp: ToolPath, res, true_r, true_base, field_, truth, mach
         entry.update(lathe_x_entry(machine, getattr(s, "lathe_x", None), job.program.dialect))
         from ...nc_contour import cycle_notes  # G70-G73: the contour's points compensated, the cycles kept
         notes = cycle_notes(job.program.events)
+        if any(m.lead is not None for m in job.program.moves):  # G32 pieces and their leads (compensation.nc_thread)
+            from ...nc_thread import lead_notes
+            from .compensate_paths import program_axes
+            notes += lead_notes(job.program, job.counts, program_axes(tp, res.axes, machine)[:, list(tp.columns)])
         if notes:
             entry["lathe_cycles"] = notes
             entry["lathe_contour_held"] = res.info.get("contour_held", [])
