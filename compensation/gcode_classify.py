@@ -287,8 +287,11 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
             cs.active else ()
     except _Refuse:
         words = ()  # the line's own reading names what it holds
-    if words and cycle_line(words, idx, st, ax) == "state":
+    read = cycle_line(words, idx, st, ax) if words else None
+    if read == "state":
         return "state", None
+    if read is not None:
+        return read  # a grooving cycle's bottom (compensation.nc_groove)
     out = _classify_words(body, idx, st, rapids, block_delete, ax)
     if cs.active is not None:
         after_line(words or tokenize(body)[1], idx, st, ax, out[1])

@@ -131,14 +131,19 @@ def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe
 
 
 def _read(path, cycles, **kw) -> GProgram:
-    """:func:`compensation.gcode.parse_program` of a lathe program (``kw``), its G70 lines expanded where
-    ``cycles`` is ``"expand"`` (:func:`compensation.nc_contour.expand_finishing`)."""
+    """:func:`compensation.gcode.parse_program` of a lathe program (``kw``), its G70 lines and G74/G75 cycles expanded
+    where ``cycles`` is ``"expand"`` (:func:`compensation.nc_contour.expand_finishing`,
+    :func:`compensation.nc_groove.expand_grooves`); kept, a G74/G75 of several columns refused
+    (:func:`compensation.nc_groove.refuse_kept`)."""
+    from .nc_groove import expand_grooves, refuse_kept
     prog = parse_program(path, **kw)
     if cycles != "expand":
+        refuse_kept(prog, path)  # a G74/G75 of several columns: only as its moves
         return prog
     refuse_open(path, prog.events)
     kw.pop("subprograms", None)  # the flat text: its calls are expanded already
-    return expand_finishing(prog, path, lambda text: parse_program(path, data=text.encode("latin-1"), **kw))
+    reparse = lambda text: parse_program(path, data=text.encode("latin-1"), **kw)  # noqa: E731
+    return expand_grooves(expand_finishing(prog, path, reparse), path, reparse)
 
 
 class ColumnsField:
