@@ -2,12 +2,12 @@
 (diameter grooving: pecks along X), on a lathe (X and Z; C the spindle).
 
 Formats read (Fanuc 0i-TF operator's manual, "multiple repetitive cycles", G74/G75, as restated by the
-Fanuc-compatible ADT-CNC4620 programming manual §3.6.6, manualshelf.com/manual/adtech/adt-tp3340dj/programming-
-instructions-english/page-61.html, and gcodetutor.com/cnc-machine-training/g75-groove-cycle.html; Haas lathe
-operator's manual, G74/G75):
+Fanuc-compatible ADT-CNC4620 programming manual §3.6.6,
+manualshelf.com/manual/adtech/adt-tp3340dj/programming-instructions-english/page-61.html, and
+gcodetutor.com/cnc-machine-training/g75-groove-cycle.html; Haas lathe operator's manual, G74/G75):
 
-- Fanuc first block ``G74 R(e)`` / ``G75 R(e)``: ``e`` the return after each peck, a radius length; it is modal and
-  sets parameter 5139, which both cycles use: without it in the program the control runs on the value it holds;
+- Fanuc first block ``G74 R(e)`` / ``G75 R(e)``: ``e`` the return after each peck, a radius length; modal, it sets
+  parameter 5139, which both cycles use: without it in the program the control runs on the value it holds;
 - Fanuc second block ``G74 X Z P(Δi) Q(Δk) R(Δd) F`` / ``G75 X Z P(Δi) Q(Δk) R(Δd) F``: X Z the end point (the last
   column's bottom); G74: Q the peck along Z, P the shift along X; G75: P the peck along X, Q the shift along Z; both
   unsigned radius values in the least input increment (0.001 mm, 0.0001 in) without a decimal point; ``Δd`` the
@@ -350,9 +350,10 @@ def expand_grooves(prog, path, reparse):
         added.append((len(text), len(text) + len(pts)))
         text += new
         origin += [(src(i)[0], False, src(i)[2])] * len(new)
-        notes.append((src(i)[0], 1, "lathe-cycle", code, f"line {src(i)[0]}: {code} ({GROOVING[code]}) expanded: {len(g.columns())} column(s), "
-                     f"{sum(c == 'G1' for c, _, _ in pts)} feed(s), written as {len(pts)} moves compensated point "
-                     "by point (the rapids too)"))
+        notes.append((src(i)[0], 1, "lathe-cycle", code,
+                      f"line {src(i)[0]}: {code} ({GROOVING[code]}) expanded: {len(g.columns())} column(s), "
+                      f"{sum(c == 'G1' for c, _, _ in pts)} feed(s), written as {len(pts)} moves compensated point "
+                      "by point (the rapids too)"))
     exp = GrooveExpansion("".join(text), tuple(origin), prog.dialect, str(path), getattr(inner, "files", ()),
                           cycles=len(cycles), inner=inner)
     try:
@@ -379,6 +380,6 @@ def _carried(prog, out, copied: dict, added: list, notes: list):
             m.compensate = flags[copied[m.index]][k] if k < len(flags[copied[m.index]]) else m.compensate
             seen[m.index] = k + 1
     kept = [e for e in prog.events if e[2] == "lathe-cycle"]
-    out.events = tuple(e for e in out.events if e[2] != "lathe-cycle") + tuple(sorted(kept + notes,
-                                                                                      key=lambda e: e[0]))
+    notes = sorted(kept + notes, key=lambda e: e[0])
+    out.events = tuple(e for e in out.events if e[2] != "lathe-cycle") + tuple(notes)
     return out
