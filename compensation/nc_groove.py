@@ -116,8 +116,10 @@ def groove_line(words, idx: int, st, ax):
         raise _Refuse(g.start + 1, f"'{g.code}' without {plunge}: the {GROOVING[g.code]}'s end point needs its "
                                    f"{plunge} (the bottom along the axis it pecks)" + (
                                        "; a first block 'G74 R(e)' holds R only" if name == "fanuc" else ""))
-    if st.incremental:
-        raise _Refuse(g.start + 1, f"'{g.code}' under incremental distance (G91): write the cycle in G90")
+    if st.incremental or st.cutter != "G40":
+        raise _Refuse(g.start + 1, f"'{g.code}' under incremental distance (G91): write the cycle in G90" if
+                      st.incremental else f"'{g.code}' with tool nose radius compensation ({st.cutter}) in force: "
+                      "whether the control offsets the cycle's moves is not read here: cancel it (G40) before")
     from .gcode_classify import _diameter_mode
     _diameter_mode(st, {}, by, ax)  # X refused without --lathe-x; a diameter read as the radius
     ix, iz = ax.words.index("X"), ax.words.index("Z")

@@ -204,6 +204,8 @@ REFUSED = [  # program, dialect, extra options, (line, column), words of the rea
     (G75_SERIES.replace("G75 R0.5", "G75 R3."), "fanuc", ("--expand-cycles",), "line 6, column 1: 'G75': the return "
      "e (3 mm) is more than the peck P (2 mm)", "the control alarms"),
     (G75_SERIES.replace("G75 X40. Z-30.", "G75 Z-30."), "fanuc", (), "line 6, column 1: 'G75' without X", "end point"),
+    (G75_SERIES.replace("G00 X62.", "G00 G42 X62."), "fanuc", (), "line 6, column 1: 'G75' with tool nose radius "
+     "compensation (G42) in force", "cancel it (G40) before"),
 ]
 
 
