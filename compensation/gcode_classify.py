@@ -11,6 +11,7 @@ import numpy as np
 from .gcode_state import (LOCAL_SHIFT_DIALECTS, lathe_t_offset, ttoo_lathe, MODE_E, bare_d, bare_g43_rule, bare_g43_tool, d_modal, _dialect_mode, _forget, _g10, _g92, probe_move, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
 from .nc_contour import ContourState, after_line, cycle_line
+from .nc_groove import groove_line
 from .nc_contour import applies as contour_reading
 from .nc_flow import TRACKED_NAMES
 from .nc_state import lathe_words
@@ -278,7 +279,7 @@ def _grbl_system(body: str, st: _State, ax: AxisWords) -> str:
 
 def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     """One line: ``(class, GMove or None)``; a lathe's contour cycle lines kept as written and their contour
-    blocks read as moves (:mod:`compensation.nc_contour`)."""
+    blocks read as moves (:mod:`compensation.nc_contour`), its grooving cycles read (:mod:`compensation.nc_groove`)."""
     cs = st.contours
     if cs.pending is None and cs.active is None and not contour_reading(st, ax):
         return _classify_words(body, idx, st, rapids, block_delete, ax)  # not a Fanuc/Haas lathe: no cycle to read
@@ -287,11 +288,11 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
             cs.active else ()
     except _Refuse:
         words = ()  # the line's own reading names what it holds
-    read = cycle_line(words, idx, st, ax) if words else None
-    if read == "state":
-        return "state", None
+    read = groove_line(words, idx, st, ax, lambda by: _diameter_mode(st, {}, by, ax)) if words else None
     if read is not None:
-        return read  # a grooving cycle's bottom (compensation.nc_groove)
+        return ("state", None) if read == "state" else read  # G74/G75 (compensation.nc_groove): state, or its bottom
+    if words and cycle_line(words, idx, st, ax) == "state":
+        return "state", None
     out = _classify_words(body, idx, st, rapids, block_delete, ax)
     if cs.active is not None:
         after_line(words or tokenize(body)[1], idx, st, ax, out[1])

@@ -101,19 +101,13 @@ def _xz(st, ax) -> np.ndarray:
 
 
 def cycle_line(words, idx: int, st, ax) -> str | None:
-    """``"state"`` for a contour cycle line (kept as written; the state records the cycle), a grooving cycle's
-    reading (:func:`compensation.nc_groove.groove_line`), None for any other line (read as usual; its N word checked
-    against an open cycle's contour)."""
+    """``"state"`` for a contour cycle line (kept as written; the state records the cycle), None for any other
+    line (read as usual; its N word checked against an open cycle's contour)."""
     cs = st.contours
     thread = next((w for w in words if w.letter == "G" and w.code in THREADING), None)
     if thread is not None and applies(st, ax):
         raise _Refuse(thread.start + 1, f"'{thread.code}' on a {st.dialect.name} lathe: {THREADING[thread.code]}: "
                                         f"{THREAD_WHY}")
-    if cs.pending is None and cs.active is None and applies(st, ax):  # G74/G75 (compensation.nc_groove)
-        from .nc_groove import groove_line
-        groove = groove_line(words, idx, st, ax)
-        if groove is not None:
-            return groove
     g = [w for w in words if w.letter == "G" and w.code in CYCLE_CODES]
     if not g or not applies(st, ax):
         if cs.pending is not None or cs.active is not None:

@@ -23,9 +23,9 @@ rapid after each peck and feeding on from there, to the bottom; rapid back along
 across by Δi toward the end point (the last shift to its across coordinate); and so on to the column at the end
 point; then rapid back to S.
 
-Kept (the default): the cycle line stays, its plunge word (G74's Z, G75's X) written compensated at the bottom. The
-control plunges at the across coordinate it stands at (the previous line's written end), so the bottom's
-compensation across the plunge axis cannot be written: the cycle is kept where that error across is at most
+Kept (the default; :mod:`compensation.nc_groove_kept`): the cycle line stays, its plunge word (G74's Z, G75's X)
+written compensated at the bottom. The control plunges at the across coordinate it stands at (the previous line's
+written end), so the bottom's compensation across the plunge axis cannot be written: the cycle is kept where that error across is at most
 :data:`ACROSS_UM` and reported per cycle line (as a kept drilling cycle's tilt, :mod:`compensation.nc_cycles`);
 a cycle of several columns (the control spaces them by Δi from the written start: compensated columns are not
 equally spaced) or with a larger error across is refused naming ``--expand-cycles``.
@@ -42,7 +42,8 @@ import dataclasses
 import numpy as np
 
 from .gcode_state import MM_PER_INCH, _Refuse
-from .nc_contour import HOLD_UM
+from .gcode_words import GMove
+from .nc_contour import HOLD_UM, _word_text, applies
 from .nc_expand import Expanded
 
 GROOVING = {"G74": "face peck drilling / grooving cycle", "G75": "diameter grooving cycle"}
@@ -90,9 +91,13 @@ class Groove:
         return np.append(a0 + np.sign(a1 - a0) * self.shift_mm * np.arange(n), a1)
 
 
-def groove_line(words, idx: int, st, ax):
+def groove_line(words, idx: int, st, ax, x_words):
     """``"state"`` for a first block (e recorded), ``("move", GMove)`` for a second block (its bottom, the end point,
-    as one compensated point; the event ``"lathe-groove"`` recorded), None for any other line."""
+    as one compensated point; the event ``"lathe-groove"`` recorded), None for any other line (or where no contour
+    cycle is read: :func:`compensation.nc_contour.applies`). ``x_words(by)``: the reader's X rule on the line's words
+    by letter (refused without ``--lathe-x``; a diameter replaced by the radius)."""
+    if st.contours.pending is not None or st.contours.active is not None or not applies(st, ax):
+        return None  # inside a contour's blocks G74/G75 is refused there
     g = next((w for w in words if w.letter == "G" and w.code in GROOVING), None)
     if g is None:
         return None
@@ -120,8 +125,7 @@ def groove_line(words, idx: int, st, ax):
         raise _Refuse(g.start + 1, f"'{g.code}' under incremental distance (G91): write the cycle in G90" if
                       st.incremental else f"'{g.code}' with tool nose radius compensation ({st.cutter}) in force: "
                       "whether the control offsets the cycle's moves is not read here: cancel it (G40) before")
-    from .gcode_classify import _diameter_mode
-    _diameter_mode(st, {}, by, ax)  # X refused without --lathe-x; a diameter read as the radius
+    x_words(by)  # X refused without --lathe-x; a diameter read as the radius
     ix, iz = ax.words.index("X"), ax.words.index("Z")
     start = np.array([st.pos[ix], st.pos[iz]], dtype=float)
     if not np.isfinite(start).all():
@@ -141,7 +145,6 @@ def groove_line(words, idx: int, st, ax):
     st.events.append((idx, g.start + 1, "lathe-groove", groove, g.code))
     bottom = np.array(st.pos, dtype=float)
     bottom[[ix, iz]] = end
-    from .gcode_words import GMove
     return "move", GMove(idx, "linear", bottom.copy(), bottom, "inch" if st.inch else "mm", False,
                          {a: by[a] for a in "XZ" if a in by}, g, True, diameter=bool(st.diameter))
 
@@ -182,81 +185,16 @@ def refuse_kept(prog, path) -> None:
     from errormap.io import InputError
     for idx, col, kind, g, code in prog.events:
         if kind == "lathe-groove" and len(g.columns()) > 1:
-            raise InputError(f"{_where(prog, path, idx, col)}: '{code}' ({GROOVING[code]}) of {len(g.columns())} "
-                             f"columns: the control spaces them by {SHIFT_WORD[(g.dialect, code)]} from the written "
-                             "start, so compensated columns cannot be written in the cycle; use --expand-cycles (the "
-                             "cycle written as its moves, compensated point by point)")
-
-
-def hold_kept(res, tp, field, machine):
-    """``res`` with each kept G74/G75's bottom (its one compensated point) at the across coordinate the control
-    plunges at (the written end of the move before it: compensated, or as programmed where kept), its model
-    residual and commands recomputed there; refused (InputError, naming ``--expand-cycles``) where that moves it
-    more than :data:`ACROSS_UM` from its compensation or where the spindle does not turn. ``res.info["grooves"]``:
-    per cycle line its error across (um)."""
-    from errormap.io import InputError
-    from .turning import nominal_by_tool, surface_residual_by_tool
-    prog = tp.source.program
-    events = [e for e in prog.events if e[2] == "lathe-groove"]
-    if not events:
-        return res
-    comp = [m for m in prog.moves if m.compensate]
-    row = dict(zip((m.index for m in comp), np.cumsum(tp.source.counts) - 1))
-    moves = sorted(prog.moves, key=lambda m: m.index)
-    out = []
-    for idx, col, _, g, code in events:
-        r = int(row[idx])
-        ja = machine.axis_words.index(ACROSS[code])
-        before = [m for m in moves if m.index < idx]
-        at = res.axes[row[before[-1].index], ja] if before and before[-1].compensate else tp.axes[r, ja]
-        across_um = float(abs(res.axes[r, ja] - at) * 1e3)
-        where = _where(prog, tp.path, idx, col)
-        if tp.turning is not None and not tp.turning[r]:
-            raise InputError(f"{where}: '{code}' with the spindle stopped (C-axis mode): a grooving cycle is read "
-                             "while the spindle turns")
-        if across_um > ACROSS_UM:
-            raise InputError(f"{where}: '{code}' kept: the control plunges at the {ACROSS[code]} it stands at, "
-                             f"{across_um:.3g} um across from where compensation puts the bottom (more than "
-                             f"{ACROSS_UM:g} um); use --expand-cycles (the cycle written as its moves, compensated "
-                             "point by point)")
-        res.axes[r, ja] = at
-        txz = None if tp.tool_xz is None else np.asarray(tp.tool_xz)[[r]]
-        mean, _ = surface_residual_by_tool(field, machine, res.axes[[r]], tp.axes[[r]], txz)
-        res.residual_um[r] = [mean[0, 0], 0.0, mean[0, 1]]
-        res.commands_mm[[r]] = nominal_by_tool(machine, res.axes[[r]], txz)
-        out.append({"line": _source(prog, idx), "code": code, "across_um": across_um})
-    res.info["grooves"] = out
-    return res
+            raise InputError(f"{_where(prog, path, idx, col)}: '{code}' ({GROOVING[code]}) of several columns (its "
+                             f"end point's {ACROSS[code]} is not the start's): the control spaces them by "
+                             f"{SHIFT_WORD[(g.dialect, code)]} from the written start, so compensated columns cannot "
+                             "be written in the cycle; use --expand-cycles (the cycle written as its moves, "
+                             "compensated point by point)")
 
 
 def _source(prog, idx: int) -> int:
     exp = getattr(prog, "expanded", None)
     return exp.origin[idx][0] if exp is not None else idx + 1
-
-
-def render_kept(program, vertices, header=(), held=None) -> str:
-    """The program with its kept G74/G75 lines written with the compensated plunge word (G74's Z, G75's X) of their
-    bottom's vertex, the across word (where given) at the across coordinate the control stands at; every other line
-    as :func:`compensation.gcode.render_program` writes it."""
-    from .gcode import DECIMALS, fmt
-    from .gcode_write import _with_header, render_program
-    from .nc_cycles import _substitute
-    _, groups = render_program(program, vertices, held=held)
-    comp = [m.index for m in program.moves if m.compensate]
-    for idx, _, kind, g, code in program.events:
-        if kind != "lathe-groove":
-            continue
-        q = np.asarray(vertices[comp.index(idx)], dtype=float).reshape(-1, len(program.axis_words.words))[-1]
-        scale = MM_PER_INCH if g.inch else 1.0
-        vals = {}
-        for a in "XZ":
-            if a in g.words:
-                s = scale * (0.5 if a == "X" and g.diameter else 1.0)
-                vals[a] = fmt(q[program.axis_words.words.index(a)] / s, DECIMALS["inch" if g.inch else "mm"])
-        line = program.lines[idx]
-        body = line.rstrip("\r\n")
-        groups[idx] = [_substitute(body, vals) + line[len(body):]]
-    return _with_header([ln for grp in groups for ln in grp], program.notes() + tuple(header))
 
 
 def cycle_points(g: Groove) -> list:
@@ -322,7 +260,6 @@ def expand_grooves(prog, path, reparse):
     ending in the G0-G3 in force before it (one-shot cycles); every move of them compensated (the rapids too), every
     other line kept. ``reparse(text)`` reads the expanded text (a GProgram); returns ``prog`` where there is none."""
     from errormap.io import InputError
-    from .nc_contour import _word_text
     cycles = {e[0]: e for e in prog.events if e[2] == "lathe-groove"}
     if not cycles:
         return prog

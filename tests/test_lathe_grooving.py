@@ -106,10 +106,14 @@ def _reached(truth, expected, moves):
     return max(errs), len(errs)
 
 
-def test_g75_series_expanded_reaches_every_point_of_the_manuals_moves(tmp_path):
-    rc, out, truth = _compensate(tmp_path, G75_SERIES, extra=("--expand-cycles",))
+@pytest.mark.parametrize("text", [G75_SERIES, G75_SERIES.replace("T0101\n", "T0101\nG00 C0.\n")],
+                         ids=["xz", "c-axis-before"])
+def test_g75_series_expanded_reaches_every_point_of_the_manuals_moves(tmp_path, text):
+    """With a C-axis move before the spindle starts the program is read with C (kept): the cycle's moves, while
+    turning, still get no C word."""
+    rc, out, truth = _compensate(tmp_path, text, extra=("--expand-cycles",))
     assert rc == 0
-    src = G75_SERIES.splitlines()
+    src = text.splitlines()
     at = src.index("G75 X40. Z-30. P2000 Q2500 F0.08")
     tail = len(src) - at - 1
     assert out[:at] == src[:at] and out[-tail:] == src[at + 1:]  # every other line byte for byte (G75 R0.5 too)
@@ -124,8 +128,8 @@ def test_g75_series_expanded_reaches_every_point_of_the_manuals_moves(tmp_path):
     assert n == len(expected) == 65 and err <= TOL_POINT_UM
     summary = json.loads((tmp_path / "out" / "compensate_summary.json").read_text())["files"][0]
     assert summary["true"]["max_um"] <= TOL_POINT_UM < summary["true_uncompensated"]["max_um"]  # the check has teeth
-    assert summary["lathe_cycles"] == ["line 6: G75 (diameter grooving cycle) expanded: 5 column(s), 30 feed(s), "
-                                       "written as 65 moves compensated point by point (the rapids too)"]
+    assert summary["lathe_cycles"] == [f"line {at + 1}: G75 (diameter grooving cycle) expanded: 5 column(s), "
+                                       "30 feed(s), written as 65 moves compensated point by point (the rapids too)"]
 
 
 @pytest.mark.parametrize("text,code,start,end,peck,shift,e", [
@@ -186,7 +190,8 @@ def test_haas_one_block_g75_kept_in_inch(tmp_path):
 
 
 REFUSED = [  # program, dialect, extra options, (line, column), words of the reason
-    (G75_SERIES, "fanuc", (), "line 6, column 1: 'G75' (diameter grooving cycle) of 5 columns", "use --expand-cycles"),
+    (G75_SERIES, "fanuc", (), "line 6, column 1: 'G75' (diameter grooving cycle) of several columns",
+     "use --expand-cycles"),
     (G75_KEPT.replace("X61. P300", "X40. P2000"), "fanuc", (), "line 6, column 1: 'G75' kept: the control plunges at "
      "the Z it stands at", "use --expand-cycles"),
     (G75_SERIES.replace("G75 R0.5\n", ""), "fanuc", ("--expand-cycles",), "line 5, column 1: 'G75': the return after "

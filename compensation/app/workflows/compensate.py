@@ -402,7 +402,7 @@ def compensate_one(p, dst, tp: ToolPath, res, targets, true_r, true_base, field_
     """Guard and render one solved file (in memory; nothing is written): its summary entry and text."""
     turning = tp.turning if tp.turning is not None and tp.turning.any() else None
     if turning is not None and tp.kind == "gcode":  # a lathe contour cycle stays monotonic (compensation.nc_contour)
-        from ...nc_groove import hold_kept
+        from ...nc_groove_kept import hold_kept
         from ...turning import hold_contours
         res = hold_kept(hold_contours(res, tp, field_, machine), tp, field_, machine)  # kept G74/G75: their bottoms
     if turning is None and s.orientation:
