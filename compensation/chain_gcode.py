@@ -437,11 +437,16 @@ def render_chain_axes(program: GProgram, axes, counts, header=(), held=None) -> 
     """The program with its compensated vertices ``axes`` (n, k), ``counts`` (c,) of them per compensated
     move; every other line byte for byte, with the file's line end (:func:`compensation.gcode.render_program`; a
     program read in bulk written in bulk, :func:`compensation.gcode.render_table`; kept canned cycles written back
-    as cycles, :func:`compensation.nc_cycles.render_kept`). ``held`` (c, k) bool: the axes each move holds at a ``G53``
+    as cycles, :func:`compensation.nc_cycles.render_kept`; kept lathe grooving cycles likewise,
+    :func:`compensation.nc_groove_kept.render_kept`). ``held`` (c, k) bool: the axes each move holds at a ``G53``
     value (:mod:`compensation.held_axes`)."""
     t = program.table
     from .gcode import _bulk_words, render_table
-    if (program.tcp is None and t is not None and not t.incremental.any() and program.expanded is None
+    if any(e[2] == "lathe-groove" for e in program.events):  # kept G74/G75: their cycle lines rewritten
+        from .nc_groove_kept import render_kept as render_grooves
+        vertices = np.split(np.asarray(axes), np.cumsum(counts)[:-1]) if len(counts) else []
+        text = render_grooves(program, vertices, header=header, held=held)
+    elif (program.tcp is None and t is not None and not t.incremental.any() and program.expanded is None
             and _bulk_words(program.axis_words) and held is None):  # read in bulk: written in bulk, the same text
         text = render_table(program, np.asarray(axes), list(counts), header=header)[0]
     else:

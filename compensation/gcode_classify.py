@@ -11,6 +11,8 @@ import numpy as np
 from .gcode_state import (LOCAL_SHIFT_DIALECTS, lathe_t_offset, ttoo_lathe, MODE_E, bare_d, bare_g43_rule, bare_g43_tool, d_modal, _dialect_mode, _forget, _g10, _g92, probe_move, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
 from .nc_contour import ContourState, after_line, cycle_line
+from .nc_groove import groove_line
+from .nc_thread import thread_line
 from .nc_contour import applies as contour_reading
 from .nc_flow import TRACKED_NAMES
 from .nc_thread import feed_word_seen, g32_move
@@ -282,7 +284,8 @@ def _grbl_system(body: str, st: _State, ax: AxisWords) -> str:
 
 def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     """One line: ``(class, GMove or None)``; a lathe's contour cycle lines kept as written and their contour
-    blocks read as moves (:mod:`compensation.nc_contour`)."""
+    blocks read as moves (:mod:`compensation.nc_contour`), its grooving cycles and threading read
+    (:mod:`compensation.nc_groove`, :mod:`compensation.nc_thread`)."""
     cs = st.contours
     if cs.pending is None and cs.active is None and not contour_reading(st, ax):
         return _classify_words(body, idx, st, rapids, block_delete, ax)  # not a Fanuc/Haas lathe: no cycle to read
@@ -291,6 +294,11 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
             cs.active or st.thread else ()
     except _Refuse:
         words = ()  # the line's own reading names what it holds
+    read = groove_line(words, idx, st, ax, lambda by: _diameter_mode(st, {}, by, ax)) if words else None
+    if read is not None:
+        return ("state", None) if read == "state" else read  # G74/G75 (compensation.nc_groove): state, or its bottom
+    if words and contour_reading(st, ax) and thread_line(words, idx, st, ax) == "state":  # G92 (compensation.nc_thread)
+        return "state", None
     if words and cycle_line(words, idx, st, ax) == "state":
         return "state", None
     out = _classify_words(body, idx, st, rapids, block_delete, ax)

@@ -85,17 +85,6 @@ class ContourState:
         self.done = {}
 
 
-GROOVING = {"G74": "face peck drilling / grooving cycle", "G75": "diameter grooving cycle"}
-"""Fanuc/Haas lathe grooving cycles (Fanuc 0i-TF ``G74``/``G75 X(U) Z(W) P Q R F``, Haas ``G74``/``G75 X Z I K D
-F``): refused (:func:`cycle_line`). The control cuts from the start point along one axis (Z for G74, X for G75) in
-pecks of the programmed increments and shifts across by P/Q (I/K) to the end point: a compensated end point moves
-the cycle's bottom along that axis only (its error across, the machine's straightness between start and bottom,
-stays), a compensated end across the start point's turns one groove into a series, and the pecks' return amount is
-a control parameter (Fanuc 5139 without the first block ``G74 R(e)``; Haas setting): no exact reading, kept or
-written as moves."""
-GROOVE_WHY = "pecks along one axis from the start point: its bottom's error across stays; post the groove as G1 moves"
-
-
 def applies(st, ax) -> bool:
     """Contour cycles are read on a Fanuc or Haas lathe (X and Z words, no Y)."""
     from .nc_state import lathe_words
@@ -109,14 +98,7 @@ def _xz(st, ax) -> np.ndarray:
 def cycle_line(words, idx: int, st, ax) -> str | None:
     """``"state"`` for a contour cycle line (kept as written; the state records the cycle), None for any other
     line (read as usual; its N word checked against an open cycle's contour)."""
-    from .nc_thread import thread_line
     cs = st.contours
-    if applies(st, ax) and thread_line(words, idx, st, ax) == "state":  # G92 / G76 (compensation.nc_thread)
-        return "state"
-    groove = next((w for w in words if w.letter == "G" and w.code in GROOVING), None)
-    if groove is not None and applies(st, ax):
-        raise _Refuse(groove.start + 1, f"'{groove.code}' on a {st.dialect.name} lathe: {GROOVING[groove.code]}: "
-                                        f"{GROOVE_WHY}")
     g = [w for w in words if w.letter == "G" and w.code in CYCLE_CODES]
     if not g or not applies(st, ax):
         if cs.pending is not None or cs.active is not None:

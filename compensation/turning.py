@@ -21,7 +21,8 @@ from errormap.io import InputError
 from .evaluate import gradient_norm
 from .gcode import AxisWords, GProgram, parse_program, tokenize
 from .nc_contour import expand_finishing, refuse_open
-from .nc_thread import expand_threading, refuse_kept
+from .nc_groove import expand_grooves, refuse_kept as refuse_kept_groove
+from .nc_thread import expand_threading, refuse_kept as refuse_kept_thread
 
 TURN_SAMPLES = 24
 """Spindle angles (every 15°) at which the error is averaged over one turn: the chain's errors are smooth
@@ -138,20 +139,23 @@ def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe
 
 
 def _read(path, cycles, **kw) -> GProgram:
-    """:func:`compensation.gcode.parse_program` of a lathe program (``kw``), its G70 lines and G92 passes expanded
-    where ``cycles`` is ``"expand"`` (:func:`compensation.nc_contour.expand_finishing`,
-    :func:`compensation.nc_thread.expand_threading`); a G92 kept as a cycle refused otherwise."""
+    """:func:`compensation.gcode.parse_program` of a lathe program (``kw``), its G70 lines, G92 passes and G74/G75
+    cycles expanded where ``cycles`` is ``"expand"`` (:func:`compensation.nc_contour.expand_finishing`,
+    :func:`compensation.nc_thread.expand_threading`, :func:`compensation.nc_groove.expand_grooves`); kept, a G92
+    refused (:func:`compensation.nc_thread.refuse_kept`) and a G74/G75 of several columns refused
+    (:func:`compensation.nc_groove.refuse_kept`)."""
     prog = parse_program(path, **kw)
     if cycles != "expand":
         try:
-            refuse_kept(path, prog.events)  # a G92 kept as a cycle (compensation.nc_thread)
+            refuse_kept_thread(path, prog.events)  # a G92 kept as a cycle (compensation.nc_thread)
         except InputError as exc:
             raise (prog.expanded.relocate(exc) if prog.expanded is not None else exc) from None
+        refuse_kept_groove(prog, path)  # a G74/G75 of several columns: only as its moves
         return prog
     refuse_open(path, prog.events)
     kw.pop("subprograms", None)  # the flat text: its calls are expanded already
     reparse = lambda text: parse_program(path, data=text.encode("latin-1"), **kw)  # noqa: E731
-    return expand_threading(expand_finishing(prog, path, reparse), path, reparse)
+    return expand_grooves(expand_threading(expand_finishing(prog, path, reparse), path, reparse), path, reparse)
 
 
 class ColumnsField:

@@ -368,19 +368,6 @@ def test_expand_cycles_in_inch_returns_to_the_start_point_in_the_programs_words(
     assert out[out.index("G00 X3. Z1.") - 1] == "G00 X2.5 Z0.1"
 
 
-@pytest.mark.parametrize("dialect,line,code", [("fanuc", "G75 X30. Z-20. P1500 Q2000 F0.1", "G75"),
-                                               ("haas", "G75 X30. I0.5", "G75"), ("haas", "G74 Z-10. K2.", "G74"),
-                                               ("fanuc", "G74 R0.5", "G74")])
-def test_grooving_cycles_are_refused_saying_why(tmp_path, capsys, dialect, line, code):
-    """Fanuc/Haas lathe G74/G75 (compensation.nc_contour.GROOVING): the control pecks along one axis from the start
-    point, so a compensated end cannot hold the bottom's error across it: refused naming the word and the way out."""
-    text = FANUC.replace("G70 P100 Q200\n", f"G70 P100 Q200\nG00 X62. Z-10.\n{line}\n")
-    rc, *_ = _compensate(tmp_path, text, dialect)
-    err = capsys.readouterr().err.strip().splitlines()[-1]
-    assert rc != 0 and f"line 17, column 1: '{code}' on a {dialect} lathe:" in err and "post the groove as G1" in err
-    assert "..." not in err and "Traceback" not in err
-
-
 def test_expand_cycles_with_a_c_axis_section_after_it(tmp_path):
     """The G70's moves shift the lines after it: the spindle's state (turning or C-axis mode) is read on the lines
     written, so the C-axis move after M05 is compensated with its C and the G70's moves, while turning, get no C."""

@@ -37,8 +37,16 @@ axis, the tip mean over one turn) against the programmed F, the TRUE position at
 (``lathe_points_reached``) and the spread of the passes' TRUE start Z (the thread's phase between passes); beside
 each, the program as written (uncompensated) on the same truth.
 
+Grooving cycles (Fanuc G74/G75, compensation/nc_groove.py): tests/test_lathe_grooving.py's programs on ``lathe-xzc``,
+per seed a truth ``ChainElementSet.random(lathe, seed, 10.0, 11)`` that is also the model: a G75 groove series (5
+columns of pecks) by default (kept: refused naming ``--expand-cycles``, its columns cannot be written compensated)
+and with ``--expand-cycles`` (written as the control's moves); TRUE residual judged here at the manual's moves rebuilt
+by the test's ``hand_moves`` (not the expander's output), the true machine at the written axes (mean over one turn),
+beside the program as written at the same points; and a one-plunge G75 kept (default: accepted where its error across
+is within ``compensation.nc_groove.ACROSS_UM``), TRUE at its bottom with the control's across coordinate.
+
     python -m benchmarks.run lathe           # seeds 0–2 (user path), 0–4 (tool offsets), 0–19 (contour cycles,
-                                             # threading)
+                                             # threading, grooving)
 """
 from __future__ import annotations
 
@@ -244,6 +252,103 @@ def threading_figures(seeds) -> list:
              "unit": "", "residual": "none", "anchor": "G32 blocks programmed", "anchor_value": 4}]
 
 
+def grooving_cycle(seed: int, d: Path) -> dict:
+    """One truth seed: the G75 series' default outcome and, expanded, the TRUE max (μm) at the manual's moves beside
+    the program as written; the one-plunge G75's default outcome and TRUE at its bottom."""
+    import re
+    from types import SimpleNamespace
+    sys.path.insert(0, str(HERE.parent.parent / "tests"))
+    from test_lathe_grooving import G75_KEPT, G75_SERIES, hand_moves  # the test's programs and rebuilt moves
+    from compensation.app.cli import main
+    from compensation.turning import parse_lathe_program
+    from errormap.chain_elements import ChainElementSet
+    from errormap.chain_field import ChainField
+    from errormap.machine import load_machine
+    lathe = load_machine("lathe-xzc")
+    els = ChainElementSet.random(lathe, seed, 10.0, 11)
+    els.save(d / "truth.json")
+    field = ChainField(lathe, els)
+    (d / "off.csv").write_text(f"system,x_mm,y_mm,z_mm\nG54,0,0,{PART_Z_MM}\n")
+    (d / "tools.csv").write_text("tool,length_mm,radius_mm\n1,0,0.8\n")
+
+    def run(text, name, extra=()):
+        (d / f"{name}.nc").write_text(text)
+        err = io.StringIO()
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+            rc = main(["compensate", str(d / f"{name}.nc"), "--machine", "lathe-xzc", "--model", str(d / "truth.json"),
+                       "--truth", str(d / "truth.json"), "--method", "exact", "--dialect", "fanuc", "--lathe-x",
+                       "diameter", "--out", str(d / name), "--work-offsets", str(d / "off.csv"), "--tool-table",
+                       str(d / "tools.csv"), *extra])
+        lines = err.getvalue().strip().splitlines()
+        out = [] if rc else [ln for ln in (d / name / f"{name}.nc").read_text().splitlines()
+                             if not ln.startswith("(volcomp:")]
+        return rc, lines[-1] if lines else "", out
+
+    def reached(expected, moves, tol):
+        src = [SimpleNamespace(end=np.array([x, z, 0.0]), index=i) for i, (_, x, z) in enumerate(expected)]
+        errs, missed = lathe_points_reached(field, lathe, src, moves, (0.0, PART_Z_MM), tol)
+        assert missed is None, f"seed {seed}: grooving point {missed} reached by no written move"
+        return max(errs)
+    rc, err, _ = run(G75_SERIES, "series")
+    row = {"default": "accepted" if rc == 0 else "expand" if "use --expand-cycles" in err else err}
+    rc, err, out = run(G75_SERIES, "expanded", ("--expand-cycles",))
+    row["expanded"] = rc == 0
+    expected = hand_moves("G75", (31.0, -20.0), (20.0, -30.0), 2.0, 2.5, 0.5)
+    if rc == 0:
+        (d / "bare.nc").write_text("\n".join(out) + "\n")
+        at = G75_SERIES.splitlines().index("G75 X40. Z-30. P2000 Q2500 F0.08")
+        moves = [m for m in parse_lathe_program(d / "bare.nc", lathe, "keep", None, "fanuc", "diameter")[0].moves
+                 if m.index >= at]
+        as_written = [SimpleNamespace(end=np.array([x, z, 0.0]), index=i) for i, (_, x, z) in enumerate(expected)]
+        row |= {"true_max": reached(expected, moves, TOL_POINT_UM), "unc_max": reached(expected, as_written, np.inf)}
+    else:
+        row["expand_error"] = err
+    rc, err, out = run(G75_KEPT, "kept")
+    row["kept"] = "accepted" if rc == 0 else "expand" if "use --expand-cycles" in err else err
+    if rc == 0:
+        src = G75_KEPT.splitlines()
+        x_w = float(re.search(r"X(-?[\d.]+)", out[src.index("G75 X61. P300 F0.08")]).group(1))
+        z_w = float(re.search(r"Z(-?[\d.]+)", out[src.index("G01 X62. F0.2")]).group(1))
+        bottom = [("G1", 30.5, -20.0)]
+        row["kept_true"] = reached(bottom, [SimpleNamespace(end=np.array([x_w / 2, z_w, 0.0]), index=0)], np.inf)
+        row["kept_unc"] = reached(bottom, [SimpleNamespace(end=np.array([30.5, -20.0, 0.0]), index=0)], np.inf)
+    return row
+
+
+def grooving_figures(seeds) -> tuple[list, list]:
+    """The grooving-cycle figures (module docstring) over ``seeds``, and notes on any other outcome."""
+    rows = []
+    for s in seeds:
+        with tempfile.TemporaryDirectory() as td:
+            rows.append(grooving_cycle(s, Path(td)))
+    n, ok, kept = len(rows), [r for r in rows if r["expanded"]], [r for r in rows if r["kept"] == "accepted"]
+    acc = f"{sum(r['default'] == 'accepted' for r in rows)}/{n}"
+    what = "G75 groove series (5 columns of pecks), truth as the model"
+    one = "one-plunge G75 (0.5 mm deep) kept, truth as the model"
+    figs = [{"what": f"{what}: programs accepted kept (default)", "value": acc, "unit": "", "residual": "none",
+             "anchor": "refused naming `--expand-cycles`",
+             "anchor_value": f"{sum(r['default'] == 'expand' for r in rows)}/{n}"},
+            {"what": f"{what}: programs accepted with `--expand-cycles`", "value": f"{len(ok)}/{n}", "unit": "",
+             "residual": "none", "anchor": "kept (default)", "anchor_value": acc},
+            {"what": f"{what}, `--expand-cycles`: TRUE max at the manual's moves (65 points; max over seeds)",
+             "value": max((r["true_max"] for r in ok), default=None), "unit": "μm", "residual": "true",
+             "anchor": "the program as written (median over seeds)",
+             "anchor_value": float(np.median([r["unc_max"] for r in ok])) if ok else None},
+            {"what": f"{one}: programs accepted (error across within 0.5 μm)", "value": f"{len(kept)}/{n}",
+             "unit": "",
+             "residual": "none", "anchor": "refused naming `--expand-cycles`",
+             "anchor_value": f"{sum(r['kept'] == 'expand' for r in rows)}/{n}"},
+            {"what": f"{one}: TRUE at its bottom (max over the accepted seeds)",
+             "value": max((r["kept_true"] for r in kept), default=None), "unit": "μm", "residual": "true",
+             "anchor": "as written (median over the accepted seeds)",
+             "anchor_value": float(np.median([r["kept_unc"] for r in kept])) if kept else None}]
+    notes = [f"Grooving cycles, seed {s}: " + (r["default"] if r["default"] not in ("accepted", "expand") else
+                                               r.get("expand_error", r["kept"]))
+             for s, r in zip(seeds, rows) if r["default"] not in ("accepted", "expand") or not r["expanded"]
+             or r["kept"] not in ("accepted", "expand")]
+    return figs, notes
+
+
 def grid_figure(machine_name, seeds):
     """Identified-model field error over the volume grid (4,000 points), max / RMS μm, and the z-scores."""
     from errormap.machine import load_machine
@@ -307,7 +412,8 @@ DATA = ("simulated `lathe-xzc` (`volcomp simulate --seed S`), sweeps at 2 μm, a
         "seeds 0–2 (quick: seed 0, no volume-grid figure); tool offsets: LinuxCNC two-tool program, ±10 μm/μrad "
         "truths, seeds 0–4 (quick: seed 0); contour cycles: Fanuc G71/G70 stepped shaft, ±10 μm/μrad truths as "
         "the model, seeds 0–19 (quick: 0–2); threading: Fanuc G32 M30x1.5 in 3 passes, ±10 μm/μrad truths as the "
-        "model, seeds 0–19 (quick: 0–2)")
+        "model, seeds 0–19 (quick: 0–2); grooving: Fanuc G75 groove series and one-plunge G75, the same truths, "
+        "seeds 0–19 (quick: 0–2)")
 
 
 def run(quick: bool, seed: int) -> dict:
@@ -331,7 +437,8 @@ def run(quick: bool, seed: int) -> dict:
     figs += tool_offset_figures([seed] if quick else [seed + k for k in range(5)])
     cfigs, notes = contour_cycle_figures([seed + k for k in range(3 if quick else 20)])
     tfigs = threading_figures([seed + k for k in range(3 if quick else 20)])
-    return {"figures": figs + cfigs + tfigs, "notes": notes}
+    gfigs, gnotes = grooving_figures([seed + k for k in range(3 if quick else 20)])
+    return {"figures": figs + cfigs + tfigs + gfigs, "notes": notes + gnotes}
 
 
 def tool_offset_figures(seeds) -> list:

@@ -117,7 +117,9 @@ def register(sub):
                    help="machine-tool chains: write drilling canned cycles (G73 G81-G89) as the controller's explicit "
                         "G0/G1/G4 moves, compensated point by point (default: kept as cycles, each hole's X Y Z and R "
                         "compensated at its bottom and R plane and the tilt left along the hole reported); a Fanuc/"
-                        "Haas lathe's G70 as its contour's moves, the roughing cycle and contour kept as written")
+                        "Haas lathe's G70 as its contour's moves, the roughing cycle and contour kept as written; a "
+                        "Fanuc lathe's G74/G75 grooving cycles as their pecks, returns and shifts (default: kept where "
+                        "only the bottom needs its plunge word compensated)")
     add_condition_options(p)
     add_units_option(p, "CSV tool-path columns")
     add_cluster_options(p)

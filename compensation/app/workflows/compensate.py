@@ -402,8 +402,9 @@ def compensate_one(p, dst, tp: ToolPath, res, targets, true_r, true_base, field_
     """Guard and render one solved file (in memory; nothing is written): its summary entry and text."""
     turning = tp.turning if tp.turning is not None and tp.turning.any() else None
     if turning is not None and tp.kind == "gcode":  # a lathe contour cycle stays monotonic (compensation.nc_contour)
+        from ...nc_groove_kept import hold_kept
         from ...turning import hold_contours
-        res = hold_contours(res, tp, field_, machine)
+        res = hold_kept(hold_contours(res, tp, field_, machine), tp, field_, machine)  # kept G74/G75: their bottoms
     if turning is None and s.orientation:
         res, true_r = orientation_pass(field_, truth, machine, tp, res, targets, true_r)
     report = guards_report(res, machine, field_, s, tp)
@@ -535,6 +536,8 @@ def gcode_entry(entry, tp: ToolPath, res, true_r, true_base, field_, truth, mach
         if notes:
             entry["lathe_cycles"] = notes
             entry["lathe_contour_held"] = res.info.get("contour_held", [])
+        if res.info.get("grooves"):  # kept G74/G75 (compensation.nc_groove): the error across left per cycle line
+            entry["lathe_grooves"] = res.info["grooves"]
     files = getattr(job.program.expanded, "files", ())
     if files:  # subprograms read from --subprograms folders (compensation.nc_subfiles)
         entry["subprogram_files"] = [{"path": p, "sha256": h} for _, p, h in files]
@@ -634,6 +637,9 @@ def print_gcode_notes(entry) -> None:
           + (f"; X words: {entry['lathe_x']} ({entry['lathe_x_source']})" if "lathe_x" in entry else ""))
     for note in entry.get("lathe_cycles", ())[:10]:  # a lathe's contour cycles (compensation.nc_contour)
         print(f"  {note}")
+    for g in entry.get("lathe_grooves", ())[:10]:
+        print(f"  line {g['line']}: {g['code']} kept, its bottom compensated along the plunge; error across left "
+              f"{g['across_um']:.3g} um")
     if entry.get("lathe_contour_held"):
         print(f"  {len(entry['lathe_contour_held'])} contour point(s) held monotonic: "
               + "; ".join(entry["lathe_contour_held"][:3]))
