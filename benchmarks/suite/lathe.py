@@ -100,10 +100,11 @@ TOL_POINT_UM = 1.0
 """A programmed contour point is reached by the first later written move whose TRUE tip is this close to it."""
 
 
-def _compensate_steps(d: Path, extra=()) -> tuple[int, str, Path]:
-    """``volcomp compensate`` of ``d/p.nc`` (STEPS, THREAD) with the truth in ``d`` as model and truth: (rc, last stderr line, output)."""
+def _compensate_steps(d: Path, extra=(), out: str | None = None) -> tuple[int, str, Path]:
+    """``volcomp compensate`` of ``d/p.nc`` (STEPS, THREAD, the grooving programs) with the truth in ``d`` as model and
+    truth into ``d/out`` (``out-expand`` with ``extra``; ``out`` names another): (rc, last stderr line, output)."""
     from compensation.app.cli import main
-    err, out = io.StringIO(), "out-expand" if extra else "out"
+    err, out = io.StringIO(), out or ("out-expand" if extra else "out")
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
         rc = main(["compensate", str(d / "p.nc"), "--machine", "lathe-xzc", "--model", str(d / "truth.json"),
                    "--truth", str(d / "truth.json"), "--method", "exact", "--dialect", "fanuc", "--lathe-x",
@@ -259,39 +260,23 @@ def grooving_cycle(seed: int, d: Path) -> dict:
     from types import SimpleNamespace
     sys.path.insert(0, str(HERE.parent.parent / "tests"))
     from test_lathe_grooving import G75_KEPT, G75_SERIES, hand_moves  # the test's programs and rebuilt moves
-    from compensation.app.cli import main
     from compensation.turning import parse_lathe_program
-    from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
-    from errormap.machine import load_machine
-    lathe = load_machine("lathe-xzc")
-    els = ChainElementSet.random(lathe, seed, 10.0, 11)
-    els.save(d / "truth.json")
+    lathe, els = _seeded(seed, d, G75_SERIES)
     field = ChainField(lathe, els)
-    (d / "off.csv").write_text(f"system,x_mm,y_mm,z_mm\nG54,0,0,{PART_Z_MM}\n")
-    (d / "tools.csv").write_text("tool,length_mm,radius_mm\n1,0,0.8\n")
 
-    def run(text, name, extra=()):
-        (d / f"{name}.nc").write_text(text)
-        err = io.StringIO()
-        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
-            rc = main(["compensate", str(d / f"{name}.nc"), "--machine", "lathe-xzc", "--model", str(d / "truth.json"),
-                       "--truth", str(d / "truth.json"), "--method", "exact", "--dialect", "fanuc", "--lathe-x",
-                       "diameter", "--out", str(d / name), "--work-offsets", str(d / "off.csv"), "--tool-table",
-                       str(d / "tools.csv"), *extra])
-        lines = err.getvalue().strip().splitlines()
-        out = [] if rc else [ln for ln in (d / name / f"{name}.nc").read_text().splitlines()
-                             if not ln.startswith("(volcomp:")]
-        return rc, lines[-1] if lines else "", out
+    def run(extra=(), out=None):
+        rc, err, written = _compensate_steps(d, extra, out)
+        return rc, err, [] if rc else [ln for ln in written.read_text().splitlines() if not ln.startswith("(volcomp:")]
 
     def reached(expected, moves, tol):
         src = [SimpleNamespace(end=np.array([x, z, 0.0]), index=i) for i, (_, x, z) in enumerate(expected)]
         errs, missed = lathe_points_reached(field, lathe, src, moves, (0.0, PART_Z_MM), tol)
         assert missed is None, f"seed {seed}: grooving point {missed} reached by no written move"
         return max(errs)
-    rc, err, _ = run(G75_SERIES, "series")
+    rc, err, _ = run()
     row = {"default": "accepted" if rc == 0 else "expand" if "use --expand-cycles" in err else err}
-    rc, err, out = run(G75_SERIES, "expanded", ("--expand-cycles",))
+    rc, err, out = run(("--expand-cycles",))
     row["expanded"] = rc == 0
     expected = hand_moves("G75", (31.0, -20.0), (20.0, -30.0), 2.0, 2.5, 0.5)
     if rc == 0:
@@ -303,7 +288,8 @@ def grooving_cycle(seed: int, d: Path) -> dict:
         row |= {"true_max": reached(expected, moves, TOL_POINT_UM), "unc_max": reached(expected, as_written, np.inf)}
     else:
         row["expand_error"] = err
-    rc, err, out = run(G75_KEPT, "kept")
+    (d / "p.nc").write_text(G75_KEPT)
+    rc, err, out = run(out="out-kept")
     row["kept"] = "accepted" if rc == 0 else "expand" if "use --expand-cycles" in err else err
     if rc == 0:
         src = G75_KEPT.splitlines()
@@ -317,10 +303,7 @@ def grooving_cycle(seed: int, d: Path) -> dict:
 
 def grooving_figures(seeds) -> tuple[list, list]:
     """The grooving-cycle figures (module docstring) over ``seeds``, and notes on any other outcome."""
-    rows = []
-    for s in seeds:
-        with tempfile.TemporaryDirectory() as td:
-            rows.append(grooving_cycle(s, Path(td)))
+    rows = over_seeds(grooving_cycle, seeds)
     n, ok, kept = len(rows), [r for r in rows if r["expanded"]], [r for r in rows if r["kept"] == "accepted"]
     acc = f"{sum(r['default'] == 'accepted' for r in rows)}/{n}"
     what = "G75 groove series (5 columns of pecks), truth as the model"
