@@ -19,6 +19,9 @@ from .nc_cycles import cycle_pass
 
 MAX_SEGMENTS_PER_MOVE = 100_000
 """A move split or linearised into more pieces than this is refused (a tolerance far too tight)."""
+TAP_SAMPLES = 17
+"""Points along a ``G33.1`` at which :func:`tap_bend_um` evaluates the field (every 1/16 of the hole; the field's
+stations are far apart beside a hole, so its bend between them is resolved)."""
 MAX_PATH_POINTS = 10_000_000
 """Vertices of one file at most, checked before any is placed: ``compensate`` holds about 1.2 kB per vertex
 from reading to writing (1.18 GB peak for 1,000,000 vertices measured, docs/decisions/020-benchmark-notebook.md
@@ -254,6 +257,9 @@ class ChainGCodeJob:
     kept_axes: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     frames: object = None
     """:class:`compensation.nc_state.ProgramFrames` the vertices were placed with (None: machine coordinates)."""
+    taps: dict = field(default_factory=dict)
+    """``{0-based line: μm}`` per LinuxCNC ``G33.1``: the error its one move leaves along the hole
+    (:func:`tap_bend_um`)."""
 
     @property
     def vertices(self) -> list:
@@ -297,25 +303,24 @@ def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, fr
     (:class:`compensation.gcode.MoveTable`) is planned column-wise (:func:`plan_table`): the same vertices."""
     by_length = _by_length(max_segment_mm, nominal)
     rotated = frames is not None and frames.rotated
+    taps = tap_bend_um(program, field_, frames, arc_tolerance_um, machine)
     if program.table is not None and program.tcp is None and program.expanded is None and not rotated:
-        return plan_table(program, arc_tolerance_um, field_, frames, max_segment_mm, nominal)
+        return dataclasses.replace(plan_table(program, arc_tolerance_um, field_, frames, max_segment_mm, nominal),
+                                   taps=taps)
     comp = [m for m in program.moves if m.compensate]
     tol_mm = arc_tolerance_um * 1e-3
     n_arc = np.array([arc_segments(m, tol_mm) if m.arc is not None else 1 for m in comp], dtype=int)
     with_start = [m for m in comp if np.all(np.isfinite(m.start))]
     n_fld = np.ones(len(comp), dtype=int)
     if with_start and (by_length or (max_segment_mm == "auto" and field_ is not None)):
-        shift = frames.shift([m.index for m in with_start], program.axis_words.words) if frames is not None else None
-        place = partial(frames.place, words=program.axis_words.words) if rotated else None
-        if program.tcp is not None and frames is not None and machine is not None:
-            place = partial(program.tcp.place, machine, program, frames, count=False)
+        shift, place = _placing(program, with_start, frames, machine)
         pieces = (length_pieces(with_start, nominal, max_segment_mm, shift, place) if by_length
                   else field_pieces(with_start, field_, arc_tolerance_um, shift, place,
                                     at_least=[n_arc[i] for i, m in enumerate(comp) if np.all(np.isfinite(m.start))]))
         pos = {id(m): p for m, p in zip(with_start, pieces)}
         n_fld = np.array([pos.get(id(m), 1) for m in comp], dtype=int)
     counts = np.maximum(n_arc, n_fld)
-    counts[[i for i, m in enumerate(comp) if m.synced and m.lead is None]] = 1  # one line (a G32: pieces, each F)
+    counts[[i for i, m in enumerate(comp) if m.synced == "G33.1"]] = 1  # a tap: one line (G32, G33: pieces)
     _check_counts(program, counts, [m.index for m in comp], arc_tolerance_um, max_segment_mm)
     verts = []
     for m, c in zip(comp, counts):
@@ -328,7 +333,43 @@ def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, fr
     kept = [m for m in program.moves if not m.compensate]
     return ChainGCodeJob(program, np.array([len(v) for v in verts], dtype=int), axes, lines, arc_tolerance_um,
                          np.array([m.index + 1 for m in kept], dtype=int),
-                         np.array([m.end for m in kept]).reshape(len(kept), len(program.axis_words.words)), frames)
+                         np.array([m.end for m in kept]).reshape(len(kept), len(program.axis_words.words)), frames,
+                         taps)
+
+
+def _placing(program, moves, frames, machine) -> tuple:
+    """``(shift, place)`` that put ``moves`` in the machine (:func:`field_pieces`' arguments): the frames' shift
+    (m, k) per move (None: none), and ``place`` where the frames rotate or the program is in TCP mode (else None)."""
+    words = program.axis_words.words
+    shift = frames.shift([m.index for m in moves], words) if frames is not None else None
+    place = partial(frames.place, words=words) if frames is not None and frames.rotated else None
+    if program.tcp is not None and frames is not None and machine is not None:
+        place = partial(program.tcp.place, machine, program, frames, count=False)
+    return shift, place
+
+
+def tap_bend_um(program, field_, frames, tol_um: float, machine=None) -> dict:
+    """``{0-based line: μm}`` per compensated LinuxCNC ``G33.1`` (rigid tapping): the largest distance of the field
+    along the tap, at :data:`TAP_SAMPLES` points, from the straight line between its values at the start and the
+    bottom — the error the one synchronised move (its K' from the compensated ends, :mod:`compensation.nc_thread`)
+    leaves along the hole, as a piece of a split move leaves within ``tol_um`` (``--arc-tolerance-um``). Refused
+    (InputError) over ``tol_um``: a tap and its return cannot be split. {} without a field."""
+    moves = program.table.objects if program.table is not None else program.moves
+    taps = [m for m in moves if m.synced == "G33.1" and m.compensate and np.all(np.isfinite(m.start))]
+    if not taps or field_ is None:
+        return {}
+    u = np.linspace(0.0, 1.0, TAP_SAMPLES)
+    E = np.asarray(field_.predict(_move_samples(taps, u, *_placing(program, taps, frames, machine))))
+    E = E.reshape(len(taps), len(u), 3)
+    line = E[:, :1] * (1.0 - u)[None, :, None] + E[:, -1:] * u[None, :, None]
+    bend = np.linalg.norm(E - line, axis=2).max(axis=1)
+    if (bend > tol_um).any():
+        k = int(np.argmax(bend > tol_um))  # the first in line order
+        from .nc_expand import source_line
+        raise InputError(f"{program.path}: line {source_line(program, taps[k].index + 1)}: 'G33.1' (a tap and its "
+                         f"return, one K): the field bends {bend[k]:.3g} um along the hole, more than "
+                         f"--arc-tolerance-um {tol_um:g}; raise it or tap shorter holes")
+    return {m.index: float(b) for m, b in zip(taps, bend)}
 
 
 def plan_table(program: GProgram, arc_tolerance_um: float, field_=None, frames=None, max_segment_mm="auto",
@@ -370,7 +411,7 @@ def plan_table(program: GProgram, arc_tolerance_um: float, field_=None, frames=N
     _check_counts(program, np.where(known, counts, 1), t.line[rows], arc_tolerance_um, max_segment_mm)
     counts[~known] = 1  # a move whose start is unknown: its end alone
     objs = np.flatnonzero(t.obj[rows] >= 0)
-    counts[[i for i in objs if t.objects[t.obj[rows[i]]].synced and t.objects[t.obj[rows[i]]].lead is None]] = 1
+    counts[[i for i in objs if t.objects[t.obj[rows[i]]].synced == "G33.1"]] = 1
     axes = _table_vertices(start, end, counts, known, moves)
     lines = np.repeat(t.line[rows] + 1, counts)
     kept = np.flatnonzero(~t.compensate)

@@ -128,10 +128,10 @@ def _g80_noted(prog: GProgram, line_end: str = "\n") -> GProgram:
 def _parse_data(path: Path, data: bytes, rapids, block_delete, fast: bool, ax: AxisWords, dia,
                 evidence: str, lathe_x: str | None = None, tables: tuple | None = None) -> GProgram:
     replay = None if tables is None else (lambda: FrameReplay(path, ax.words, *tables))
-    if fast and _bulk_words(ax):
-        prog = _parse_blockwise(path, rapids, block_delete, data, ax, dia, lathe_x, replay)
-    else:
-        prog = _parse_lines(path, rapids, block_delete, data, ax, dia, lathe_x, replay)
+    prog = _parse_blockwise(path, rapids, block_delete, data, ax, dia, lathe_x, replay) if (
+        fast and _bulk_words(ax)) else None
+    if prog is None or any(m.synced for m in prog.table.objects):  # a synchronised move (G33) makes the rapid before
+        prog = _parse_lines(path, rapids, block_delete, data, ax, dia, lathe_x, replay)  # it compensated: per line
     prog.dialect, prog.dialect_evidence = dia.name, evidence
     return prog
 

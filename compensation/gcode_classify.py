@@ -15,7 +15,7 @@ from .nc_groove import groove_line
 from .nc_thread import thread_line
 from .nc_contour import applies as contour_reading
 from .nc_flow import TRACKED_NAMES
-from .nc_thread import feed_word_seen, g32_move
+from .nc_thread import feed_word_seen, g32_move, g33_move
 from .nc_state import lathe_words
 from .gcode_spline import nurbs_end, nurbs_line, spline_move, spline_points, spline_segments
 from .gcode_words import (ALLOWED_G, ARC_RADIUS_TOL_INCH_MM, ARC_RADIUS_TOL_MM, AxisWords, CENTRE_AXIS,
@@ -545,23 +545,21 @@ def _unknown_since(st: _State, lacking) -> str:
 
 
 def synced_move(idx, st: _State, by, axis_words, arc_words, motion_word, rapids, ax: AxisWords) -> GMove:
-    """A ``G33``/``G33.1`` line: one straight move to its end (K the pitch, :func:`synced_words`), marked
-    ``synced``; after ``G33.1`` the position is its start again (the tap returns)."""
+    """A ``G32``/``G33``/``G33.1`` line: one straight move to its end (F or K the lead, :func:`synced_words`), marked
+    ``synced``, its lead read (:mod:`compensation.nc_thread`); after ``G33.1`` the position is its start again (the
+    tap returns)."""
     first = min(axis_words.values(), key=lambda w: w.start)
-    if st.mode == "G32":  # Fanuc/Haas lathe thread cutting: F the lead (compensation.nc_thread)
-        prev = st.last_move
-        if arc_words:
-            w = next(iter(arc_words.values()))
-            raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' on a G32 line (F is the lead)")
-        move = _move(idx, st, by, axis_words, {}, motion_word, rapids, ax)
-        move.kind, move.synced = "linear", st.mode
-        st.last_move = prev
-        g32_move(st, by, ax, move)
-        st.last_move = move
-        return move
-    synced_words(st.mode, by, arc_words, (motion_word or first).start + 1)
+    if st.mode == "G32" and arc_words:  # Fanuc/Haas lathe thread cutting: F the lead (compensation.nc_thread)
+        w = next(iter(arc_words.values()))
+        raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' on a G32 line (F is the lead)")
+    if st.mode != "G32":
+        synced_words(st.mode, by, arc_words, (motion_word or first).start + 1)
+    prev = st.last_move
     move = _move(idx, st, by, axis_words, {}, motion_word, rapids, ax)
     move.kind, move.synced = "linear", st.mode
+    st.last_move = prev
+    (g32_move if st.mode == "G32" else g33_move)(st, by, ax, move)  # the lead, the start (compensation.nc_thread)
+    st.last_move = move
     if st.mode == "G33.1":
         st.pos = move.start.copy()
     return move

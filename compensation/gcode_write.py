@@ -45,6 +45,7 @@ def render_program(program: GProgram, vertices: list, header=(), track: dict | N
             q = np.asarray(vertices[k], dtype=float).reshape(-1, k_axes)
             k += 1
             skip = () if held is None else tuple(a for a, h in zip(ax.words, held[k - 1]) if h and a not in m.words)
+            start = ctrl
             try:
                 groups[m.index], ctrl = _render_move(program.lines[m.index], m, q, ctrl, ax, skip)
             except ValueError as exc:
@@ -52,7 +53,9 @@ def render_program(program: GProgram, vertices: list, header=(), track: dict | N
                     raise
                 from errormap.io import InputError
                 raise InputError(f"{program.path}: {exc}") from None
-            if m.lead is not None or (feed is not None and m.kind != "rapid"):
+            if m.synced == "G33.1":  # the tap returns: the controller is at its start again
+                ctrl = start
+            if m.synced == "G32" or (feed is not None and m.kind != "rapid" and m.lead is None):
                 from .nc_thread import restore_feed
                 if m.lead is None:
                     groups[m.index] = restore_feed(groups[m.index], feed[0], program.lines[feed[1] + 1:m.index])
@@ -79,11 +82,11 @@ def _render_move(line: str, m: GMove, q, ctrl, ax: AxisWords, skip=()):
         written.append(vals)
     first = _rewrite_line(body, m, written[0], before[0], ax, skip)
     leads = None
-    if m.lead is not None:  # a G32's pieces, each with its own lead (compensation.nc_thread)
-        from .nc_thread import lead_texts, with_lead
+    if m.lead is not None:  # a G32's or G33's pieces, each with its own lead (compensation.nc_thread)
+        from .nc_thread import LEAD_WORD, lead_texts, with_lead
         after = np.array(before[1:] + [ctrl])
-        leads = lead_texts(m, np.array(before), after, m.units)
-        first = with_lead(first, leads[0])
+        leads, word = lead_texts(m, np.array(before), after, m.units), LEAD_WORD[m.synced]
+        first = with_lead(first, leads[0], word=word)
     # a block-delete move (run under --block-delete off) keeps its '/' on every piece, so
     # that switching block delete on at the controller skips the whole move, not its first piece
     slash = "/" if body.lstrip(" \t").startswith("/") else ""
@@ -94,7 +97,7 @@ def _render_move(line: str, m: GMove, q, ctrl, ax: AxisWords, skip=()):
         extra = [slash + " ".join(f"{a}{v}" for a, v in zip(ax.words, vals) if a not in skip) + ending
                  for vals in written[1:]]
     if leads is not None:
-        extra = [with_lead(e, t) for e, t in zip(extra, leads[1:])]
+        extra = [with_lead(e, t, word=word) for e, t in zip(extra, leads[1:])]
     if m.block_end and extra:  # a contour's last block N(nf): its number goes with its end (the last piece)
         first, extra[-1] = _n_to_last(first, extra[-1], m)
     return _pieces(line, body, first, extra), ctrl

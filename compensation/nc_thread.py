@@ -50,6 +50,11 @@ LEAD_TOL_REL = 1e-5
 a lead ≥ 0.1 mm) plus the end points' error (each ≤ 0.5 nm written rounding + 1e-4 μm solver residual) over a piece
 of at least 1 mm (≤ 1.2e-6), with margin. Over a thread the axial error of the cut helix is bounded by the position
 tolerance at every piece's end (the ends are exact) and by LEAD_TOL_REL × a piece's length between them."""
+LEAD_WORD = {"G32": "F", "G33": "K", "G33.1": "K"}
+"""The word that holds a synchronised move's lead (Fanuc/Haas G32: F; LinuxCNC G33, G33.1: K)."""
+SPLIT = ("G32", "G33")
+"""Synchronised moves split into consecutive pieces, each with its own lead: the control keeps the synchronisation
+from one to the next (module docstring); a G33.1 (a tap and its return) is one move."""
 RAPID_NOTE = "compensated: its end is a thread's start (the spindle's index synchronises the pass there)"
 
 
@@ -78,10 +83,37 @@ def g32_move(st, by, ax, move) -> None:
                            "another angle")
     move.lead = (by["F"].value if "F" in by else st.thread_lead[0], st.thread_lead[1],
                  jz if d[jz] > d[jx] else jx)
+    _start_compensated(st, move)
+
+
+def g33_move(st, by, ax, move) -> None:
+    """The lead of a LinuxCNC ``G33``/``G33.1`` move read (:func:`compensation.gcode_classify.synced_move`, its K
+    checked by :func:`compensation.gcode_state.synced_words`): ``move.lead`` set to ``(K value, K text, drive-line
+    columns)``, K the distance per revolution along the drive line X Y Z (LinuxCNC G-code reference: "K follows the
+    drive line described by X- Y- Z-"); the rapid before it made compensated (module docstring). Refused: from an
+    unknown position, or moving a rotary axis (K's drive line is X Y Z: a rotary word's share is not read)."""
+    col = (move.motion_word or next(iter(move.words.values()))).start + 1
+    if not move.start_known:
+        raise _Refuse(col, f"'{move.synced}' from an unknown position: give {ax.joined('and')} before it")
+    rot = [a for j, a in enumerate(ax.words) if a in ax.rotary and move.end[j] != move.start[j]]
+    if rot:
+        w = move.words[rot[0]]
+        raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' on a {move.synced} line: K follows the drive line X Y Z; "
+                                   "a synchronised rotary move is not read: move the rotary axis on a line of its own")
+    cols = tuple(j for j, a in enumerate(ax.words) if a in "XYZ" and move.end[j] != move.start[j])
+    if not cols:
+        raise _Refuse(col, f"'{move.synced}' that moves none of X Y Z (its drive line)")
+    move.lead = (by["K"].value, by["K"].text, cols)
+    _start_compensated(st, move)
+
+
+def _start_compensated(st, move) -> None:
+    """The move before a synchronised ``move`` (``st.last_move``), a rapid kept as written that ends at its start,
+    made compensated (module docstring), with the summary's note."""
     prev = getattr(st, "last_move", None)
     if prev is not None and not prev.compensate and prev.kind == "rapid" and np.array_equal(prev.end, move.start):
         prev.compensate = True
-        st.events.append((prev.index, 1, "lathe-cycle", "G32",
+        st.events.append((prev.index, 1, "lathe-cycle", move.synced,
                           f"line {prev.index + 1}: rapid {RAPID_NOTE}"))
 
 
@@ -92,30 +124,39 @@ def feed_word_seen(st, by, code) -> None:
 
 
 def lead_texts(m, before, after, units: str) -> list:
-    """The F' text of each written piece of the G32 move ``m`` (module docstring): ``before``/``after`` (c, k) the
-    controller's positions before and after each written piece (mm, as written); ValueError where a piece's lead
-    axis differs from the block's (a taper near 45°) or a piece does not move along it."""
+    """The lead text (F' of a G32, K' of a G33/G33.1) of each written piece of the synchronised move ``m`` (module
+    docstring): ``before``/``after`` (c, k) the controller's positions before and after each written piece (mm, as
+    written); ValueError where a piece's lead axis differs from the block's (a G32 taper near 45°), or a piece does
+    not move along it (or, a G33's, along its drive line)."""
     f, _, j = m.lead
     before, after = np.asarray(before, float), np.asarray(after, float)
     if not (np.isfinite(before).all() and np.isfinite(after).all()):
-        raise ValueError(f"line {m.index + 1}: a G32 whose start the written program does not fix (a position not "
-                         "known before it): give X and Z absolutely before the thread")
+        raise ValueError(f"line {m.index + 1}: a {m.synced} whose start the written program does not fix (a position "
+                         "not known before it): give its axes absolutely before the thread")
     c = len(after)
-    prog = (m.end[j] - m.start[j]) / c
-    cmd = after[:, j] - before[:, j]
+    prog = (m.end - m.start) / c
+    cmd = after - before
+    if isinstance(j, tuple):  # LinuxCNC: K along the drive line X Y Z
+        ratio = np.linalg.norm(cmd[:, j], axis=1) / np.linalg.norm(prog[list(j)])
+        if not np.all(cmd[:, j] @ prog[list(j)] > 0):
+            raise ValueError(f"line {m.index + 1}: a compensated {m.synced} piece that does not move along its "
+                             "drive line")
+        return [f"{v:.{LEAD_DECIMALS[units]}f}" for v in f * ratio]
     other = 1 - j if len(m.end) == 2 else [k for k in range(len(m.end)) if k != j and abs(m.end[k] - m.start[k])
                                              > 0][:1] or [j]
     across = np.abs(after[:, other] - before[:, other]).reshape(c, -1).max(axis=1)
-    if not (np.all(np.sign(cmd) == np.sign(prog)) and np.all(np.abs(cmd) > across)):
+    if not (np.all(np.sign(cmd[:, j]) == np.sign(prog[j])) and np.all(np.abs(cmd[:, j]) > across)):
         raise ValueError(f"line {m.index + 1}: a compensated G32 piece whose lead axis is not the block's (a taper "
                          "near 45°): thread at another angle")
-    return [f"{v:.{LEAD_DECIMALS[units]}f}" for v in f * cmd / prog]
+    return [f"{v:.{LEAD_DECIMALS[units]}f}" for v in f * cmd[:, j] / prog[j]]
 
 
-def lead_notes(program, counts, axes) -> list:
-    """The summary's line per compensated ``G32`` block of ``program`` (its source line): its pieces and the range of
-    their F' (:func:`lead_texts` of the compensated program axes ``axes`` (n, k) mm, ``counts`` (c,) vertices per
-    compensated move, before the written rounding; a G32 whose start is a kept move's end is left out)."""
+def lead_notes(program, counts, axes, taps=None) -> list:
+    """The summary's line per compensated ``G32``/``G33``/``G33.1`` block of ``program`` (its source line): its pieces
+    and the range of their F' or K' (:func:`lead_texts` of the compensated program axes ``axes`` (n, k) mm, ``counts``
+    (c,) vertices per compensated move, before the written rounding; a block whose start is a kept move's end is left
+    out); a G33.1's the error left along the hole, ``taps`` {0-based line: μm}
+    (:func:`compensation.chain_gcode.tap_bend_um`)."""
     from .nc_expand import source_line
     order = {id(m): k for k, m in enumerate(program.moves)}
     comp = [m for m in program.moves if m.compensate]
@@ -125,26 +166,29 @@ def lead_notes(program, counts, axes) -> list:
         if m.lead is None or i == 0 or order[id(comp[i - 1])] != order[id(m)] - 1:
             continue
         rows = np.asarray(axes)[ends[i - 1] - 1:ends[i]]
-        f = lead_texts(m, rows[:-1], rows[1:], m.units)
-        out.append(f"line {source_line(program, m.index + 1)}: G32 F{m.lead[1]} written as {len(f)} piece(s), F' "
-                   f"{min(f, key=float)} to {max(f, key=float)} (each piece's true lead the programmed F)")
+        f, w = lead_texts(m, rows[:-1], rows[1:], m.units), LEAD_WORD[m.synced]
+        bend = (taps or {}).get(m.index)
+        left = "" if bend is None else f"; one move and its return, error left along the hole {bend:.3g} um"
+        out.append(f"line {source_line(program, m.index + 1)}: {m.synced} {w}{m.lead[1]} written as {len(f)} "
+                   f"piece(s), {w}' {min(f, key=float)} to {max(f, key=float)} (each piece's true lead the "
+                   f"programmed {w}{left})")
     return out
 
 
-def with_lead(line: str, text: str, add: bool = True) -> str:
-    """``line`` (one output line) with its F word's number replaced by ``text``, or ``F{text}`` added after its last
-    word (``add``)."""
+def with_lead(line: str, text: str, add: bool = True, word: str = "F") -> str:
+    """``line`` (one output line) with its ``word`` (F, a G33's K)'s number replaced by ``text``, or ``{word}{text}``
+    added after its last word (``add``)."""
     from .gcode_words import tokenize
     body = line.rstrip("\r\n")
     end = line[len(body):]
     _, words, _ = tokenize(body)
-    f = next((w for w in words if w.letter == "F"), None)
+    f = next((w for w in words if w.letter == word), None)
     if f is not None:
-        return body[:f.start] + "F" + text + body[f.num_end:] + end
+        return body[:f.start] + word + text + body[f.num_end:] + end
     if not add:
         return line
     last = max((w.num_end for w in words), default=len(body))
-    return body[:last] + f" F{text}" + body[last:] + end
+    return body[:last] + f" {word}{text}" + body[last:] + end
 
 
 def restore_feed(lines: list, text: str, between) -> list:

@@ -118,8 +118,8 @@ def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe
     stopped = next((m for m in prog.moves if m.lead is not None and not flags[m.index]), None)
     if stopped is not None:  # a thread with the spindle stopped (C-axis mode)
         on = ", ".join(f"M{k}" for k in machine.spindle["turning_on"])
-        exc = InputError(f"{path}: line {stopped.index + 1}: 'G32' while the spindle is stopped (C-axis mode): a "
-                         f"thread is cut while it turns; start it ({on}) before the thread")
+        exc = InputError(f"{path}: line {stopped.index + 1}: '{stopped.synced}' while the spindle is stopped (C-axis "
+                         f"mode): a thread is cut while it turns; start it ({on}) before the thread")
         raise exc if prog.expanded is None else prog.expanded.relocate(exc)
     if not turning.any():
         return prog, turning

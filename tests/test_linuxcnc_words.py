@@ -113,43 +113,79 @@ def test_a_lathe_program_without_c_is_refused_for_its_own_word_not_for_c(tmp_pat
 
 
 # ---------------------------------------------------------------------------- G33, G33.1, G4 with motion
-SYNCED_TARGETS = {5: (20.0, 30.0, -12.0), 7: (60.0, 30.0, -12.0), 10: (10.0, 10.0, -20.0)}
+SYNCED_TARGETS = {3: (20.0, 30.0, 5.0), 5: (20.0, 30.0, -12.0), 6: (60.0, 30.0, 5.0), 7: (60.0, 30.0, -12.0),
+                  9: (10.0, 10.0, 5.0), 10: (10.0, 10.0, -20.0)}
 """tap_and_thread.ngc by the manual's wording (1-based lines): G33.1 moves synchronised from the current point
 to the one given and back, so the rapid of line 6 starts at the first tap's start (X20 Y30 Z5) and only moves
-X (the second tap from X60 Y30 Z5); G33 is a straight synchronised line to its end."""
+X (the second tap from X60 Y30 Z5); G33 is a straight synchronised line to its end. The rapids to a synchronised
+move's start (lines 3, 6, 9) are compensated: the spindle's index synchronises the move there."""
+K_BY_CODE = {"G33.1": 1.25, "G33": 2.0}
+"""The file's K per code."""
+TAP_TOL_UM = 1.0
+"""--arc-tolerance-um of the accepted run: the file's taps bend 0.725 um along the hole on this truth (refused at the
+default 0.5 um)."""
 
 
-def _compensated(tmp_path, src, offsets):
+def _compensated(tmp_path, src, offsets, extra=()):
     mill = load_machine("mill-xyz")
     truth = ChainElementSet.random(mill, 101, 10.0, 11).save(tmp_path / "truth.json")
     assert main(["compensate", str(src), "--machine", "mill-xyz", "--model", str(truth), "--truth", str(truth),
                  "--method", "exact", "--out", str(tmp_path / "out"), "--dialect", "linuxcnc",
-                 "--work-offsets", str(offsets)]) == 0
+                 "--work-offsets", str(offsets), *extra]) == 0
     aw = AxisWords.of(mill)
     p_src = parse_program(src, axis_words=aw, fast=False, dialect="linuxcnc")
     p_out = parse_program(tmp_path / "out" / src.name, axis_words=aw, fast=False, dialect="linuxcnc")
     return mill, ChainField(mill, ChainElementSet.load(truth, mill)), p_src, p_out
 
 
-def test_g33_and_g33_1_are_one_synchronised_line_each_compensated_at_their_end(tmp_path, offsets):
-    """Each G33/G33.1 line is written as one line (never split: every synchronised move waits for the spindle
-    index), K and I kept, its end reached by the TRUE machine within 1 um; the tap returns to its start, so the
-    next rapid starts there; every other line byte-identical."""
+def test_g33_pieces_and_g33_1_carry_k_prime_true_lead_k_and_reach_every_point(tmp_path, offsets, capsys):
+    """LinuxCNC keeps the synchronisation along a chain of G33 moves (motion(9): the index is awaited "before the
+    start of every chain of spindle-synchronized moves"): a G33 is split, each piece with K' = K x commanded / programmed
+    length along the drive line; a G33.1 (a tap and its return) is one move with one K' from its compensated start and
+    bottom, refused where the field bends more than --arc-tolerance-um along the hole. Judged here on the truth: every
+    programmed point reached within 1 um, every written synchronised move's TRUE travel per revolution (K' x true /
+    commanded length) equals K within LEAD_TOL_REL; I kept; every other line byte-identical."""
+    from compensation.nc_thread import LEAD_TOL_REL
     src = DATA / "tap_and_thread.ngc"
-    mill, field, p_src, p_out = _compensated(tmp_path, src, offsets)
-    assert len(p_out.lines) == len(p_src.lines)  # nothing split, nothing added
-    by_line = {m.index + 1: m for m in p_src.moves}
-    assert np.array_equal(by_line[6].start, [20.0, 30.0, 5.0]) and np.array_equal(by_line[6].end, [60.0, 30.0, 5.0])
-    errs = []
-    for i, (s, o) in enumerate(zip(p_src.lines, p_out.lines)):
-        if i + 1 not in SYNCED_TARGETS:
-            assert o == s
-            continue
-        assert o.split()[0] == s.split()[0] and o.split()[-1] == s.split()[-1]  # G33.1 ... K1.25 / I2 kept
-        q = next(m for m in p_out.moves if m.index == i).end + WORK_MM
-        tip = mill.nominal(q[None])[0] + field.predict(q[None])[0] * 1e-3
-        errs.append(np.linalg.norm(tip - mill.nominal((np.array(SYNCED_TARGETS[i + 1]) + WORK_MM)[None])[0]) * 1e3)
-    assert len(errs) == 3 and max(errs) <= TOL_POINT_UM, errs
+    mill = load_machine("mill-xyz")
+    truth = ChainElementSet.random(mill, 101, 10.0, 11).save(tmp_path / "truth.json")
+    rc = main(["compensate", str(src), "--machine", "mill-xyz", "--model", str(truth), "--truth", str(truth),
+               "--method", "exact", "--out", str(tmp_path / "refused"), "--dialect", "linuxcnc", "--work-offsets",
+               str(offsets)])
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert rc != 0 and f"{src}: line 5: 'G33.1' (a tap and its return, one K): the field bends " in err
+    assert float(err.split("bends ")[1].split(" um")[0]) > 0.5 and "more than --arc-tolerance-um 0.5;" in err
+    mill, field, p_src, p_out = _compensated(tmp_path, src, offsets, ("--arc-tolerance-um", f"{TAP_TOL_UM:g}"))
+    assert np.array_equal(next(m for m in p_src.moves if m.index == 5).start, [20.0, 30.0, 5.0])
+    assert [ln for ln, c in zip(p_src.lines, p_src.classes) if c != "move"] == \
+        [ln for ln, c in zip(p_out.lines, p_out.classes) if c != "move" and not ln.startswith("(volcomp:")]
+    assert sum(ln.startswith("G33.1 ") and ln.rstrip().endswith(" I2") for ln in p_out.lines) == 1
+
+    def tip(p):  # the TRUE tool point of program axes p (n, 3)
+        q = np.asarray(p) + WORK_MM
+        return mill.nominal(q) + field.predict(q) * 1e-3
+    out = [m for m in p_out.moves if m.compensate]
+    j = 0
+    for line, target in SYNCED_TARGETS.items():  # in order: the first later written move that reaches it
+        want = mill.nominal((np.array(target) + WORK_MM)[None])[0]
+        while np.linalg.norm(tip(out[j].end[None])[0] - want) * 1e3 > TOL_POINT_UM:
+            j += 1
+        j += 1
+    synced = [m for m in out if m.synced]
+    assert [m.synced for m in synced].count("G33.1") == 2 and [m.synced for m in synced].count("G33") >= 2
+    true_len = np.linalg.norm(tip([m.end for m in synced]) - tip([m.start for m in synced]), axis=1)
+    revs = np.array([np.linalg.norm(m.end - m.start) / m.lead[0] for m in synced])  # the written K'
+    true_k = true_len / revs
+    assert np.abs(true_k / [K_BY_CODE[m.synced] for m in synced] - 1.0).max() <= LEAD_TOL_REL
+
+
+def test_a_synchronised_rotary_move_is_refused_naming_the_word(tmp_path):
+    """K follows the drive line X Y Z (LinuxCNC G-code reference, G33's note): a G33 that also turns A is not read."""
+    p = tmp_path / "p.ngc"
+    p.write_text("G21 G90\nG0 X1 Y2 Z3 A0\nS500 M3\nG33 Z-5 A10 K1\nM2\n")
+    with pytest.raises(InputError) as err:
+        parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyza")), dialect="linuxcnc")
+    assert str(err.value).startswith(f"{p}: line 4, column 9: 'A10' on a G33 line: K follows the drive line X Y Z")
 
 
 def test_a_dwell_line_moves_in_the_motion_mode_on_linuxcnc(tmp_path, offsets):

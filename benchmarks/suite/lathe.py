@@ -194,11 +194,12 @@ THREAD_LEAD_MM = 1.5
 
 
 def true_leads(field, lathe, moves, zero_xz_mm, lead_mm: float) -> tuple:
-    """``(relative TRUE lead errors (n,), TRUE start Z (mm) of each thread (t,))`` of the G32 pieces among ``moves``
-    (each with ``lead``: its written F, the lead axis), judged on ``field`` (the truth): the tip driven to each piece's
-    written start and end (program axes, the work frame's zero ``zero_xz_mm`` in the machine), mean over one turn
-    (``compensation.turning.surface_residual_um``); true lead = F × true travel / commanded travel along the lead
-    axis, against ``lead_mm``. A thread starts at a piece whose line does not follow another piece's."""
+    """``(relative TRUE lead errors (n,), TRUE start Z (mm) of each thread (t,))`` of the G32 (or LinuxCNC G33)
+    pieces among ``moves`` (each with ``lead``: its written F or K, the lead axis or the drive line's columns), judged
+    on ``field`` (the truth): the tip driven to each piece's written start and end (program axes, the work frame's
+    zero ``zero_xz_mm`` in the machine), mean over one turn (``compensation.turning.surface_residual_um``); true
+    lead = F × true travel / commanded travel along the lead axis (a G33: along its drive line), against
+    ``lead_mm``. A thread starts at a piece whose line does not follow another piece's."""
     from compensation.turning import surface_residual_um
     pieces = [m for m in moves if m.lead is not None]
 
@@ -206,11 +207,13 @@ def true_leads(field, lathe, moves, zero_xz_mm, lead_mm: float) -> tuple:
         q = np.column_stack([xz[:, 0] + zero_xz_mm[0], xz[:, 1] + zero_xz_mm[1], np.zeros(len(xz))])
         return xz + surface_residual_um(field, lathe, q, q)[0] * 1e-3
     a, b = tip(np.array([m.start for m in pieces])), tip(np.array([m.end for m in pieces]))
-    j = np.array([m.lead[2] for m in pieces])
-    k = np.arange(len(pieces))
-    revs = np.array([(m.end[i] - m.start[i]) / m.lead[0] for m, i in zip(pieces, j)])
+
+    def travel(p, q, j):  # along the lead axis j (a G32), or the drive line's length (columns j: a LinuxCNC G33)
+        return float(np.linalg.norm(q[list(j)] - p[list(j)])) if isinstance(j, tuple) else q[j] - p[j]
+    revs = np.array([travel(m.start, m.end, m.lead[2]) / m.lead[0] for m in pieces])
+    true = np.array([travel(p, q, m.lead[2]) for p, q, m in zip(a, b, pieces)])
     first = [n for n, m in enumerate(pieces) if n == 0 or pieces[n - 1].index != m.index - 1]
-    return (b[k, j] - a[k, j]) / revs / lead_mm - 1.0, a[first, 1]
+    return true / revs / lead_mm - 1.0, a[first, 1]
 
 
 def threading(seed: int, d: Path) -> dict:

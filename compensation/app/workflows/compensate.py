@@ -524,15 +524,19 @@ def gcode_entry(entry, tp: ToolPath, res, true_r, true_base, field_, truth, mach
                   "moves_kept": int(len(job.kept_lines)), "rapids": s.rapids, "block_delete": s.block_delete,
                   "arc_tolerance_um": s.arc_tolerance_um, **job.frames.notes,
                   "dialect": job.program.dialect, "dialect_evidence": job.program.dialect_evidence})
+    leads = []
+    if any(m.lead is not None for m in job.program.moves):  # G32/G33 pieces, G33.1, their leads (nc_thread)
+        from ...nc_thread import lead_notes
+        from .compensate_paths import program_axes
+        leads = lead_notes(job.program, job.counts, program_axes(tp, res.axes, machine)[:, list(tp.columns)],
+                           job.taps)
+    if leads and tp.turning is None:
+        entry["spindle_synchronised"] = leads
     if tp.turning is not None:  # a lathe: what its X words are and who said it (option or machine file)
         from ...turning import lathe_x_entry
         entry.update(lathe_x_entry(machine, getattr(s, "lathe_x", None), job.program.dialect))
         from ...nc_contour import cycle_notes  # G70-G73: the contour's points compensated, the cycles kept
-        notes = cycle_notes(job.program.events)
-        if any(m.lead is not None for m in job.program.moves):  # G32 pieces and their leads (compensation.nc_thread)
-            from ...nc_thread import lead_notes
-            from .compensate_paths import program_axes
-            notes += lead_notes(job.program, job.counts, program_axes(tp, res.axes, machine)[:, list(tp.columns)])
+        notes = cycle_notes(job.program.events) + leads
         if notes:
             entry["lathe_cycles"] = notes
             entry["lathe_contour_held"] = res.info.get("contour_held", [])
