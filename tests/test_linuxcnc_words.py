@@ -168,8 +168,9 @@ def test_g33_pieces_and_g33_1_carry_k_prime_true_lead_k_and_reach_every_point(tm
     j = 0
     for line, target in SYNCED_TARGETS.items():  # in order: the first later written move that reaches it
         want = mill.nominal((np.array(target) + WORK_MM)[None])[0]
-        while np.linalg.norm(tip(out[j].end[None])[0] - want) * 1e3 > TOL_POINT_UM:
+        while j < len(out) and np.linalg.norm(tip(out[j].end[None])[0] - want) * 1e3 > TOL_POINT_UM:
             j += 1
+        assert j < len(out), f"line {line}'s point reached by no written move"
         j += 1
     synced = [m for m in out if m.synced]
     assert [m.synced for m in synced].count("G33.1") == 2 and [m.synced for m in synced].count("G33") >= 2
