@@ -57,6 +57,7 @@ Counted (2026-12-02; before = main at the start of this work, after = this tree;
 |---|---|---|---|---|---|
 | NC_FILES.csv (185), before | 13 | 118 | 54 | 0 | - |
 | NC_FILES.csv (185), after | 16 | 119 | 50 | 0 | 0 of 15 checked (13 mill, 2 lathe; max 0.49 um) |
+| NC_FILES.csv (185), 2026-12-03 (lathe threading read: LinuxCNC G33 in pieces with their own K, G33.1 refused where its hole bends over the arc tolerance) | 20 | 125 | 40 | 0 | 0 of 16 checked (14 mill, 2 lathe; max 0.49 um); main before it: the same counts and checks, `threading.ngc` written with K unchanged and `mmount.ngc` refused by its guards instead of its G33.1 |
 | MANIFEST.csv (101), before | 40 | 25 | 36 | 0 | - |
 | MANIFEST.csv (101), after | 42 | 25 | 34 | 0 | 0 of 34 checked (3 not checkable) |
 | MANIFEST.csv (101), with CAM-post words (G80 with G0, bare G43 with the modal H, …; kept cycles checked) | 43 | 25 | 33 | 0 | 0 of 38 checked |
