@@ -14,6 +14,7 @@ import json
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 from test_lathe_grooving import hand_moves
 
 from benchmarks.suite.gcode_corpus import lathe_points_reached
@@ -21,6 +22,7 @@ from compensation.app.cli import main
 from compensation.turning import parse_lathe_program
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import ChainField
+from errormap.io import InputError
 from errormap.machine import load_machine
 
 LATHE = "lathe-xzc"
@@ -143,3 +145,21 @@ def test_g70_g92_g75_expanded_together(tmp_path):
     assert "uncompensated" in notes[0] and "roughing accuracy is not the part's" in notes[0]
     assert len(summary["lathe_cycles"]) == len(notes) + 3  # one lead line per G92 pass's thread
     assert summary["true"]["max_um"] <= TOL_POINT_UM < summary["true_uncompensated"]["max_um"]
+
+
+CALLED = PROGRAM.replace("G00 X110. Z3.\n", "M98 P2000\n") + "O2000\nG00 X120. Z10.\nG00 X110. Z3.\nM99\n"
+"""PROGRAM with its approach in a subprogram (Fanuc M98 of an O block after the end): the flat program the reader
+expands holds the call's lines, so its line numbers are not the source's after the call."""
+
+
+@pytest.mark.parametrize("old,new,where", [
+    ("G70 P100 Q200", "G70 P100 Q200 F0.1", f"line {G70_AT + 1}, column 15: 'F0.1' on a G70 line"),
+    ("G75 R0.5\n", "", f"line {G75_AT}, column 1: 'G75': the return after each peck e is the control's parameter"),
+])
+def test_a_refused_expansion_names_the_source_line_after_a_call(tmp_path, old, new, where):
+    """A cycle refused while written as moves is named at its source line, once re-addressed from the flat line."""
+    p = tmp_path / "p.nc"
+    p.write_text(CALLED.replace(old, new, 1))
+    with pytest.raises(InputError) as exc:
+        parse_lathe_program(p, load_machine(LATHE), "keep", None, "fanuc", "diameter", cycles="expand")
+    assert f"{p}: {where}" in str(exc.value)
