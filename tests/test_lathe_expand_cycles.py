@@ -155,7 +155,7 @@ expands holds the call's lines, so its line numbers are not the source's after t
 @pytest.mark.parametrize("old,new,where", [
     ("G70 P100 Q200", "G70 P100 Q200 F0.1", f"line {G70_AT + 1}, column 15: 'F0.1' on a G70 line"),
     ("G75 R0.5\n", "", f"line {G75_AT}, column 1: 'G75': the return after each peck e is the control's parameter"),
-])
+], ids=["G70", "G75"])
 def test_a_refused_expansion_names_the_source_line_after_a_call(tmp_path, old, new, where):
     """A cycle refused while written as moves is named at its source line, once re-addressed from the flat line."""
     p = tmp_path / "p.nc"
