@@ -293,18 +293,26 @@ refuses a feed move that would run on them (:func:`_feed_refusals`)."""
 
 
 @dataclasses.dataclass(frozen=True)
-class FinishExpansion(Expanded):
-    """:class:`compensation.nc_expand.Expanded` of ``G70`` lines written as the controller's moves
-    (:func:`expand_finishing`): ``finishes`` the number of G70 lines expanded, ``inner`` the expansion before it."""
+class LatheExpansion(Expanded):
+    """:class:`compensation.nc_expand.Expanded` of a lathe program whose cycle lines of one kind are written as the
+    controller's moves (:func:`expand_lines`): ``count`` the lines expanded, ``inner`` the expansion before it (None:
+    the program as read); ``WHAT`` the written header's words on them (``{n}``: ``count``)."""
 
-    finishes: int = 0
+    count: int = 0
     inner: object = None
-    WHAT = ("lathe G70 finishing cycles written as the controller's moves ({n}: the contour's blocks, then G0 back to "
-            "the start point); G71/G72/G73 and their contours kept")
+    WHAT = ""
 
     def note(self) -> str:
         head = self.inner.note() + "; " if self.inner is not None else "volcomp: "
-        return head + self.WHAT.format(n=self.finishes)
+        return head + self.WHAT.format(n=self.count)
+
+
+@dataclasses.dataclass(frozen=True)
+class FinishExpansion(LatheExpansion):
+    """G70 lines written as the controller's moves (:func:`expand_finishing`)."""
+
+    WHAT = ("lathe G70 finishing cycles written as the controller's moves ({n}: the contour's blocks, then G0 back to "
+            "the start point); G71/G72/G73 and their contours kept")
 
 
 def _word_text(v: float) -> str:
@@ -351,29 +359,31 @@ def _feed_refusals(path, lines, first: int, last: int, g70: int, g70_named: int)
 def expand_finishing(prog, path, reparse):
     """``prog`` (a lathe program read with its contour cycles, :func:`cycle_line`) with every ``G70 P Q`` that a
     roughing cycle's contour precedes written as the moves G70 makes (``--expand-cycles``, :func:`_finish_lines`);
-    the roughing cycles and their contour blocks kept as written (their moves not compensated: the controller roughs
-    from the programmed contour). ``reparse(text)`` reads the expanded text (a GProgram); returns ``prog`` where
-    there is no G70 to expand."""
-    finishes = [e for e in prog.events if e[2] == "lathe-finish"]
+    the roughing cycles and their contour blocks kept as written (:func:`_roughing_as_written`). ``reparse(text)``
+    reads the expanded text (a GProgram); returns ``prog`` where there is no G70 to expand."""
+    finishes = {e[0]: e for e in prog.events if e[2] == "lathe-finish"}
     if not finishes:
         return prog
-    by_line = {e[0]: e for e in finishes}
-    out, notes = expand_lines(prog, path, reparse, by_line, lambda i, src: _finish_lines(prog, path, by_line[i], src),
-                              FinishExpansion)
-    return _keep_roughing(out, notes)
+    return expand_lines(_roughing_as_written(prog), path, reparse, finishes,
+                        lambda i, src: _finish_lines(prog, path, finishes[i], src), FinishExpansion)
 
 
-def expand_lines(prog, path, reparse, by_line, lines_of, cls) -> tuple:
-    """``(program, [(source line, note)])``: ``prog``'s text with each line ``i`` of ``by_line`` replaced by the lines
-    ``lines_of(i, src) -> (lines, note)`` give (``src(i)``: the source line of line i, its ``origin`` entry), read
-    again by ``reparse(text)`` with its expansion (a ``cls``, :class:`FinishExpansion`'s fields) attached; an
-    InputError named at the source line."""
+def expand_lines(prog, path, reparse, by_line, lines_of, cls, compensated: bool = False):
+    """The one step that writes a lathe program's cycles of one kind as the controller's moves (``--expand-cycles``:
+    G70 :func:`expand_finishing`, G92 :func:`compensation.nc_thread.expand_threading`, G74/G75
+    :func:`compensation.nc_groove.expand_grooves`): ``prog``'s text with each line ``i`` of ``by_line`` (its event:
+    column ``[1]``, code ``[4]``) replaced by the lines ``lines_of(i, src) -> (lines, summary note)`` give (``src(i)``:
+    line i's ``origin`` entry, its source line first; an InputError named at ``prog``'s line, re-addressed here to
+    the source), read again by ``reparse(text)`` with its expansion (a :class:`LatheExpansion` ``cls``) attached, and
+    what ``prog`` held beyond its text carried (:func:`_carry`); ``compensated``: every move of the lines written
+    compensated (else as read). Returns the program read."""
     from errormap.io import InputError
     inner = prog.expanded
     src = (lambda i: inner.origin[i]) if inner is not None else (lambda i: (i + 1, True, ()))
-    text, origin, notes = [], [], []
+    text, origin, copied, added, notes = [], [], {}, set(), []
     for i, line in enumerate(prog.lines):
         if i not in by_line:
+            copied[len(text)] = i
             text.append(line)
             origin.append(src(i))
             continue
@@ -381,17 +391,43 @@ def expand_lines(prog, path, reparse, by_line, lines_of, cls) -> tuple:
             new, note = lines_of(i, src)
         except InputError as exc:  # on the flat lines of a program whose calls were expanded: named at the source
             raise (inner.relocate(exc) if inner is not None else exc) from None
+        notes.append((len(text), by_line[i][1], "lathe-cycle", by_line[i][4], note))
+        if compensated:
+            added.update(range(len(text), len(text) + len(new)))
         text += new
         origin += [(src(i)[0], False, src(i)[2])] * len(new)
-        notes.append((src(i)[0], note))
     exp = cls("".join(text), tuple(origin), prog.dialect, str(path), getattr(inner, "files", ()),
-              finishes=len(by_line), inner=inner)
+              count=len(by_line), inner=inner)
     try:
         out = reparse(exp.text)
     except InputError as exc:
         raise exp.relocate(exc) from None
     out.expanded = exp
-    return out, notes
+    return _carry(prog, out, copied, added, notes)
+
+
+def _carry(prog, out, copied: dict, added: set, notes: list):
+    """``out`` (:func:`expand_lines`' text read) with what ``prog`` held beyond its text: the moves of each copied
+    line (``copied``: output line to ``prog``'s line) compensated or not as ``prog``'s were (an earlier step's
+    roughing contour stays as written), those of the ``added`` output lines compensated; its cycle notes ``prog``'s
+    of the copied lines and ``notes`` (the written lines'), in output line order (``out``'s reading's own dropped:
+    it sees neither the cycles written nor what an earlier step decided)."""
+    flags = {}
+    for m in prog.moves:
+        flags.setdefault(m.index, []).append(m.compensate)
+    seen = {}
+    for m in out.moves:
+        if m.index in added:
+            m.compensate = True
+        elif m.index in copied:
+            k = seen[m.index] = seen.get(m.index, -1) + 1
+            was = flags.get(copied[m.index], ())
+            m.compensate = was[k] if k < len(was) else m.compensate
+    at = {i: j for j, i in copied.items()}
+    kept = [(at[e[0]],) + tuple(e[1:]) for e in prog.events if e[2] == "lathe-cycle" and e[0] in at]
+    notes = sorted(kept + notes, key=lambda e: e[0])
+    out.events = tuple(e for e in out.events if e[2] != "lathe-cycle") + tuple(notes)
+    return out
 
 
 def _finish_lines(prog, path, e, src) -> tuple:
@@ -402,20 +438,19 @@ def _finish_lines(prog, path, e, src) -> tuple:
     import re
     from errormap.io import InputError
     from .gcode_words import tokenize
-    i, lines, inner = e[0], prog.lines, prog.expanded
+    i, lines = e[0], prog.lines
     line = lines[i]
+    path = prog.expanded.path if prog.expanded is not None else path  # its flat lines (expand_lines re-addresses)
     first, last, _, start, inch, diameter, incremental, ns, nf = e[3]
-
-    def where(col):
-        return inner.where(i + 1, col) if inner is not None else f"{path}: line {i + 1}, column {col}"
     if incremental or not np.isfinite(start).all():
-        raise InputError(f"{where(e[1])}: 'G70': its start point is not known in absolute X Z (incremental "
-                         "distance mode or an unknown position): leave --expand-cycles out")
+        raise InputError(f"{path}: line {i + 1}, column {e[1]}: 'G70': its start point is not known in absolute X Z "
+                         "(incremental distance mode or an unknown position): leave --expand-cycles out")
     other = [w for w in tokenize(line.rstrip("\r\n"))[1] if w.letter not in "NGPQ"]
     if other:
-        raise InputError(f"{where(other[0].start + 1)}: '{other[0].letter}{other[0].text}' on a G70 line: the "
-                         "manuals' G70 is 'G70 P(ns) Q(nf)' (F S T from its contour): leave --expand-cycles out")
-    _feed_refusals(path if inner is None else inner.path, lines, first - 1, last - 1, i, src(i)[0])
+        raise InputError(f"{path}: line {i + 1}, column {other[0].start + 1}: '{other[0].letter}{other[0].text}' on "
+                         "a G70 line: the manuals' G70 is 'G70 P(ns) Q(nf)' (F S T from its contour): leave "
+                         "--expand-cycles out")
+    _feed_refusals(path, lines, first - 1, last - 1, i, src(i)[0])
     n = re.match(r"[ \t/]*([nN]\s*\d+\s*)?", line).group(1) or ""
     out = [re.sub(r"^([ \t/]*)([nN]\s*\d+\s*)?", lambda m, j=j: m.group(1) + (n if j == first - 1 else ""),
                   lines[j], count=1) for j in range(first - 1, last)]
@@ -428,19 +463,21 @@ def _finish_lines(prog, path, e, src) -> tuple:
                  "point, then G0 back to its start point")
 
 
-def _keep_roughing(prog, finish_notes):
-    """``prog`` (expanded) with its roughing contours' moves kept as written and its cycle notes saying so."""
+def _roughing_as_written(prog):
+    """``prog`` (as read) with its roughing cycles as :func:`expand_finishing` writes them: their contours' moves
+    uncompensated (the controller roughs from the programmed contour) and their cycle notes saying so (at the cycle
+    line; :func:`expand_lines` carries both)."""
     spans = [e for e in prog.events if e[2] == "lathe-contour"]
     for m in prog.moves:
         if any(e[3][0] - 1 <= m.index <= e[3][1] - 1 for e in spans):
             m.compensate = False
-    src = (lambda line: prog.expanded.origin[line - 1][0])
-    notes = [(src(e[3][2]), e[1], "lathe-cycle", e[4],
+    inner = prog.expanded
+    src = (lambda line: inner.origin[line - 1][0]) if inner is not None else (lambda line: line)
+    notes = [(e[3][2] - 1, e[1], "lathe-cycle", e[4],
               f"line {src(e[3][2])}: {e[4]} P{e[3][4]} Q{e[3][5]} ({ROUGHING[e[4]]}"
               f"{', ' + e[3][3] if e[3][3] else ''}): kept "
               f"as written with its contour (lines {src(e[3][0])}-{src(e[3][1])}) uncompensated: the controller "
               "roughs from the programmed contour, leaving its U/W allowance (roughing accuracy is not the part's)")
              for e in spans]
-    notes = sorted(notes + [(line, 1, "lathe-cycle", "G70", n) for line, n in finish_notes], key=lambda e: e[0])
-    prog.events = tuple(e for e in prog.events if e[2] != "lathe-cycle") + tuple(notes)
+    prog.events = tuple(e for e in prog.events if e[2] != "lathe-cycle" or e[3] not in ROUGHING) + tuple(notes)
     return prog

@@ -43,8 +43,7 @@ import numpy as np
 
 from .gcode_state import MM_PER_INCH, _Refuse
 from .gcode_words import GMove
-from .nc_contour import HOLD_UM, _word_text, applies
-from .nc_expand import Expanded
+from .nc_contour import HOLD_UM, LatheExpansion, _word_text, applies, expand_lines
 
 GROOVING = {"G74": "face peck drilling / grooving cycle", "G75": "diameter grooving cycle"}
 PLUNGE = {"G74": "Z", "G75": "X"}
@@ -221,17 +220,11 @@ def cycle_points(g: Groove) -> list:
 
 
 @dataclasses.dataclass(frozen=True)
-class GrooveExpansion(Expanded):
-    """:class:`compensation.nc_expand.Expanded` of G74/G75 second blocks written as the controller's moves
-    (:func:`expand_grooves`): ``cycles`` how many, ``inner`` the expansion before it."""
+class GrooveExpansion(LatheExpansion):
+    """G74/G75 second blocks written as the controller's moves (:func:`expand_grooves`; ``count``: the cycles)."""
 
-    cycles: int = 0
-    inner: object = None
-
-    def note(self) -> str:
-        head = self.inner.note() + "; " if self.inner is not None else "volcomp: "
-        return head + (f"lathe G74/G75 grooving cycles written as the controller's moves ({self.cycles}: pecks, "
-                       "returns, shifts and the return to the start point), compensated point by point")
+    WHAT = ("lathe G74/G75 grooving cycles written as the controller's moves ({n}: pecks, returns, shifts and the "
+            "return to the start point), compensated point by point")
 
 
 def _expansion_refusal(g: Groove, path: str) -> str | None:
@@ -256,69 +249,37 @@ def _expansion_refusal(g: Groove, path: str) -> str | None:
 
 def expand_grooves(prog, path, reparse):
     """``prog`` (a lathe program read with its grooving cycles, :func:`groove_line`) with every G74/G75 second block
-    written as the control's moves (``--expand-cycles``, :func:`cycle_points`) in absolute X Z of the program's units,
-    ending in the G0-G3 in force before it (one-shot cycles); every move of them compensated (the rapids too), every
-    other line kept. ``reparse(text)`` reads the expanded text (a GProgram); returns ``prog`` where there is none."""
-    from errormap.io import InputError
+    written as the control's moves (``--expand-cycles``, :func:`_groove_lines`), every move of them compensated (the
+    rapids too: they run inside the groove), every other line kept (:func:`compensation.nc_contour.expand_lines`).
+    ``reparse(text)`` reads the expanded text (a GProgram); returns ``prog`` where there is none."""
     cycles = {e[0]: e for e in prog.events if e[2] == "lathe-groove"}
     if not cycles:
         return prog
-    inner = prog.expanded
-    src = (lambda i: inner.origin[i]) if inner is not None else (lambda i: (i + 1, True, ()))
-    text, origin, added, notes, copied = [], [], [], [], {}
-    for i, line in enumerate(prog.lines):
-        if i not in cycles:
-            copied[len(text)] = i
-            text.append(line)
-            origin.append(src(i))
-            continue
-        idx, col, _, g, code = cycles[i]
-        why = _expansion_refusal(g, str(path))
-        if why is not None:
-            raise InputError(f"{_where(prog, path, idx, col)}: {why}")
-        unit = MM_PER_INCH if g.inch else 1.0
-        ending = line[len(line.rstrip("\r\n")):] or "\n"
-        pts = cycle_points(g)
-        new, feed = [], f" F{g.feed}" if g.feed else ""
-        for code_, x, z in pts:
-            new.append(f"{code_} X{_word_text(x * (2.0 if g.diameter else 1.0) / unit)} Z{_word_text(z / unit)}"
-                       + (feed if code_ == "G1" else "") + ending)
-            feed = "" if code_ == "G1" else feed
-        if g.mode not in (None, "G0"):
-            new.append(g.mode + ending)  # one-shot: the G0-G3 in force before the cycle stays after it
-        added.append((len(text), len(text) + len(pts)))
-        text += new
-        origin += [(src(i)[0], False, src(i)[2])] * len(new)
-        notes.append((src(i)[0], 1, "lathe-cycle", code,
-                      f"line {src(i)[0]}: {code} ({GROOVING[code]}) expanded: {len(g.columns())} column(s), "
-                      f"{sum(c == 'G1' for c, _, _ in pts)} feed(s), written as {len(pts)} moves compensated point "
-                      "by point (the rapids too)"))
-    exp = GrooveExpansion("".join(text), tuple(origin), prog.dialect, str(path), getattr(inner, "files", ()),
-                          cycles=len(cycles), inner=inner)
-    try:
-        out = reparse(exp.text)
-    except InputError as exc:
-        raise exp.relocate(exc) from None
-    out.expanded = exp
-    return _carried(prog, out, copied, added, notes)
+    return expand_lines(prog, path, reparse, cycles, lambda i, src: _groove_lines(prog, path, cycles[i], src(i)),
+                        GrooveExpansion, compensated=True)
 
 
-def _carried(prog, out, copied: dict, added: list, notes: list):
-    """``out`` (the expansion read) with the moves of ``added`` (output line spans) compensated, those of the lines
-    ``copied`` (output line: ``prog``'s line) as ``prog`` had them (a G70 expansion keeps its roughing contour
-    uncompensated), and ``prog``'s cycle notes (source lines) with ``notes``."""
-    flags = {}
-    for m in prog.moves:
-        flags.setdefault(m.index, []).append(m.compensate)
-    seen = {}
-    for m in out.moves:
-        if any(a <= m.index < b for a, b in added):
-            m.compensate = True
-        elif m.index in copied and copied[m.index] in flags:
-            k = seen.get(m.index, 0)
-            m.compensate = flags[copied[m.index]][k] if k < len(flags[copied[m.index]]) else m.compensate
-            seen[m.index] = k + 1
-    kept = [e for e in prog.events if e[2] == "lathe-cycle"]
-    notes = sorted(kept + notes, key=lambda e: e[0])
-    out.events = tuple(e for e in out.events if e[2] != "lathe-cycle") + tuple(notes)
-    return out
+def _groove_lines(prog, path, e, src) -> tuple:
+    """``(lines, summary note)`` of the second block of event ``e`` (:func:`cycle_points`) in absolute X Z of the
+    program's units, G1 at the cycle's F for the pecks, G0 for the returns, ending in the G0-G3 in force before it
+    (one-shot cycles); ``src`` its line's origin entry. Refused (InputError): :func:`_expansion_refusal`."""
+    from errormap.io import InputError
+    idx, col, _, g, code = e
+    why = _expansion_refusal(g, str(path))
+    if why is not None:
+        flat = prog.expanded.path if prog.expanded is not None else path  # expand_lines re-addresses to the source
+        raise InputError(f"{flat}: line {idx + 1}, column {col}: {why}")
+    line = prog.lines[idx]
+    unit = MM_PER_INCH if g.inch else 1.0
+    ending = line[len(line.rstrip("\r\n")):] or "\n"
+    pts = cycle_points(g)
+    new, feed = [], f" F{g.feed}" if g.feed else ""
+    for code_, x, z in pts:
+        new.append(f"{code_} X{_word_text(x * (2.0 if g.diameter else 1.0) / unit)} Z{_word_text(z / unit)}"
+                   + (feed if code_ == "G1" else "") + ending)
+        feed = "" if code_ == "G1" else feed
+    if g.mode not in (None, "G0"):
+        new.append(g.mode + ending)  # one-shot: the G0-G3 in force before the cycle stays after it
+    return new, (f"line {src[0]}: {code} ({GROOVING[code]}) expanded: {len(g.columns())} column(s), "
+                 f"{sum(c == 'G1' for c, _, _ in pts)} feed(s), written as {len(pts)} moves compensated point by "
+                 "point (the rapids too)")

@@ -37,7 +37,7 @@ import dataclasses
 import numpy as np
 
 from .gcode_state import MM_PER_INCH, _Refuse
-from .nc_contour import FinishExpansion, _word_text, expand_lines
+from .nc_contour import LatheExpansion, _word_text, expand_lines
 
 THREADING = {"G32": "thread cutting", "G92": "thread cutting cycle", "G76": "multiple threading cycle"}
 """Fanuc/Haas lathe threading codes (Fanuc 0i-TF G-code system A, Haas lathe manual)."""
@@ -208,9 +208,8 @@ def restore_feed(lines: list, text: str, between) -> list:
 
 
 @dataclasses.dataclass(frozen=True)
-class ThreadExpansion(FinishExpansion):
-    """G92 passes written as the control's moves (:func:`expand_threading`): ``finishes`` the number of passes
-    (:class:`compensation.nc_contour.FinishExpansion`'s fields, its own note)."""
+class ThreadExpansion(LatheExpansion):
+    """G92 passes written as the control's moves (:func:`expand_threading`; ``count``: the passes)."""
 
     WHAT = ("lathe G92 thread cutting passes written as the controller's moves ({n}: G0 X, G32 Z in compensated "
             "pieces each with its own F, G0 X and G0 Z back to the start point)")
@@ -311,18 +310,8 @@ def expand_threading(prog, path, reparse):
     passes = {e[0]: e for e in prog.events if e[2] == "lathe-thread"}
     if not passes:
         return prog
-    out, notes = expand_lines(prog, path, reparse, passes, lambda i, src: _pass_lines(prog.lines[i], passes[i], src(i)),
-                              ThreadExpansion)
-    exp = out.expanded
-    kept = []
-    for e in out.events:  # a rapid note names its source line; the passes' own G0 are in the G92 notes
-        if e[2] == "lathe-cycle" and e[3] == "G32":
-            if not exp.origin[e[0]][1]:
-                continue
-            e = (e[0], e[1], e[2], e[3], f"line {exp.origin[e[0]][0]}: rapid {RAPID_NOTE}")
-        kept.append(e)
-    out.events = tuple(kept) + tuple((0, 1, "lathe-cycle", "G92", n) for _, n in notes)
-    return out
+    return expand_lines(prog, path, reparse, passes, lambda i, src: _pass_lines(prog.lines[i], passes[i], src(i)),
+                        ThreadExpansion)
 
 
 def _pass_lines(line, e, src) -> tuple:
