@@ -58,6 +58,7 @@ SAME_WORKER = {
     "tests/test_hybrid_user_path.py": "bump user path",
     "tests/test_tracking_learned_residual.py": "bump user path",
     "tests/test_cluster.py": "Ray, MLflow tracking server",
+    "tests/test_chain_cluster.py": "Ray, MLflow tracking server",
     "tests/test_mlflow_server.py": "Ray, MLflow tracking server",
     "tests/test_benchmark.py": "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark",
     "tests/test_plain_csv_outputs.py": "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark",
@@ -205,6 +206,27 @@ def mill_quick_benchmark(tmp_path_factory):
     that read it (``SAME_WORKER``)."""
     import shared_runs
     return shared_runs.mill_quick_benchmark(tmp_path_factory.mktemp("mill-quick-benchmark"))
+
+
+@pytest.fixture(scope="session")
+def ray_session():
+    """A local 2-CPU Ray instance, started once for the tests that run on Ray (tests/test_cluster.py,
+    tests/test_chain_cluster.py: one unit of ``SAME_WORKER``, so two instances never run at once and each worker's
+    session starts at most one); the workers import this tree (``PYTHONPATH``)."""
+    ray = pytest.importorskip("ray")
+    from pathlib import Path
+    root = str(Path(__file__).resolve().parents[1])
+    old = os.environ.get("PYTHONPATH")
+    os.environ["PYTHONPATH"] = root + (os.pathsep + old if old else "")
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        yield
+    finally:
+        ray.shutdown()
+        if old is None:
+            os.environ.pop("PYTHONPATH", None)
+        else:
+            os.environ["PYTHONPATH"] = old
 
 
 @pytest.fixture
