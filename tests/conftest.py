@@ -58,6 +58,7 @@ SAME_WORKER = {
     "tests/test_hybrid_user_path.py": "bump user path",
     "tests/test_tracking_learned_residual.py": "bump user path",
     "tests/test_cluster.py": "Ray, MLflow tracking server",
+    "tests/test_chain_cluster.py": "Ray, MLflow tracking server",
     "tests/test_mlflow_server.py": "Ray, MLflow tracking server",
     "tests/test_benchmark.py": "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark",
     "tests/test_plain_csv_outputs.py": "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark",
@@ -79,7 +80,10 @@ UNIT_CPU_S = {
     "tests/test_hybrid.py": 100.0,
     "tests/test_chain_loop_terms.py::test_cli_term_the_joint_fit_does_not_support_is_dropped": 100.0,
     "tests/test_hybrid_backfit.py::test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt": 40.0,
-    "Ray, MLflow tracking server": 110.0,   # tests/test_cluster.py 100 and tests/test_mlflow_server.py
+    # tests/test_cluster.py (solo, one BLAS thread, 2026-12-03: 281 s before the fleet test's --no-learned, the 4k-point
+    # Ray batch and the one Ray start: ~230), tests/test_chain_cluster.py (107 with its own Ray start: ~95) and
+    # tests/test_mlflow_server.py (~5): the longest unit
+    "Ray, MLflow tracking server": 330.0,
     # the shared runs of tests/shared_runs.py plus tests/test_benchmark.py's slow tests (-n 0 on a loaded machine,
     # 2026-12-03: ~220 s, of which test_benchmark.py ~150): the longest unit since test_benchmark.py joined it
     "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark": 150.0,
@@ -205,6 +209,53 @@ def mill_quick_benchmark(tmp_path_factory):
     that read it (``SAME_WORKER``)."""
     import shared_runs
     return shared_runs.mill_quick_benchmark(tmp_path_factory.mktemp("mill-quick-benchmark"))
+
+
+RAY_STARTED = pytest.StashKey[tuple]()
+"""``config.stash``: ``(PYTHONPATH before,)`` while a Ray instance started by :func:`ray_session` runs."""
+
+
+@pytest.fixture
+def ray_session(request):
+    """A local 2-CPU Ray instance for the tests that run on Ray (tests/test_cluster.py, tests/test_chain_cluster.py:
+    one unit of ``SAME_WORKER``, so two instances never run at once and ``--dist loadscope`` starts one): started by
+    the first of them, kept while the next test is of the same unit, ended after the unit's last one
+    (:func:`pytest_runtest_teardown`; an idle instance takes ~6 % of a core). The workers import this tree
+    (``PYTHONPATH``)."""
+    ray = pytest.importorskip("ray")
+    stash = request.config.stash
+    if RAY_STARTED not in stash:
+        from pathlib import Path
+        root = str(Path(__file__).resolve().parents[1])
+        old = os.environ.get("PYTHONPATH")
+        os.environ["PYTHONPATH"] = root + (os.pathsep + old if old else "")
+        stash[RAY_STARTED] = (old,)
+        ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield
+
+
+def _stop_ray(config) -> None:
+    """End the Ray instance :func:`ray_session` started, if one runs, and restore ``PYTHONPATH``."""
+    if RAY_STARTED not in config.stash:
+        return
+    (old,) = config.stash[RAY_STARTED]
+    del config.stash[RAY_STARTED]
+    import ray
+    ray.shutdown()
+    if old is None:
+        os.environ.pop("PYTHONPATH", None)
+    else:
+        os.environ["PYTHONPATH"] = old
+
+
+def pytest_runtest_teardown(item, nextitem):
+    """After the last test of a unit of work (``_unit``) that started Ray: end it."""
+    if nextitem is None or _unit(nextitem.nodeid) != _unit(item.nodeid):
+        _stop_ray(item.config)
+
+
+def pytest_sessionfinish(session):
+    _stop_ray(session.config)
 
 
 @pytest.fixture

@@ -16,7 +16,6 @@ from compensation.app.cli import main  # noqa: E402
 from tests.test_chain_scaleout import (FIVE_AXIS_PROGRAM, MILL_PROGRAM, TOOLS_CSV, TWO_TOOL_PROGRAM,  # noqa: E402
                                        chain_files)
 from tests.test_turning import MIXED  # noqa: E402  (a lathe program: turning and C-axis points)
-from tests.test_cluster import ray_session  # noqa: E402,F401  (the fixture: a local 2-CPU Ray instance)
 
 pytestmark = pytest.mark.slow
 
@@ -29,7 +28,7 @@ LATHE_CHUNK = 8
 @pytest.mark.parametrize("machine, program, seed, tools", [
     ("mill-xyz", None, 101, False), ("five-axis-ac", FIVE_AXIS_PROGRAM, 7, False),
     ("mill-xyz", TWO_TOOL_PROGRAM, 101, True), ("lathe-xzc", MIXED, 51, False)])
-def test_ray_two_workers_write_the_one_process_bytes(ray_session, tmp_path, machine, program, seed, tools,  # noqa: F811
+def test_ray_two_workers_write_the_one_process_bytes(ray_session, tmp_path, machine, program, seed, tools,
                                                      capsys):
     _, model = chain_files(tmp_path, machine, seed)
     prog = MILL_PROGRAM
@@ -52,7 +51,7 @@ def test_ray_two_workers_write_the_one_process_bytes(ray_session, tmp_path, mach
 
 
 @pytest.mark.parametrize("method", ["exact", "batched-ga"])
-def test_ray_two_workers_write_the_one_process_bytes_on_the_grinder(ray_session, tmp_path, method):  # noqa: F811
+def test_ray_two_workers_write_the_one_process_bytes_on_the_grinder(ray_session, tmp_path, method):
     """The built-in grinder compensates on its chain through the same chunk plan: Ray's bytes are the one
     process's (the seeded GA too: the chunks and their seeds are the same with the same --chunk-points)."""
     from compensation.pathio import write_axes_gcode

@@ -35,6 +35,9 @@ def register(sub):
     p.add_argument("--bootstrap", type=int, default=None,
                    help="N >= 2 residual-bootstrap draws for the identification's covariance (default: Gauss-Newton's)")
     p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap and of the training")
+    p.add_argument("--no-learned", action="store_true",
+                   help="diagnose without the learned-residual stage (as `volcomp diagnose --no-learned`: the loop "
+                        "stops at the physical model's stages)")
     add_cluster_options(p, chunks=False)
     p.set_defaults(func=run)
 
@@ -63,7 +66,7 @@ def run(args) -> int:
     print(f"fleet: checking the inputs of {len(machines)} machine(s) ...", file=sys.stderr)
     validate_inputs(machines)
     settings = {"tracking_uri": uri, "train_iter": args.train_iter, "hidden": hidden, "grid": args.grid,
-                "bootstrap": args.bootstrap, "seed": args.seed, "threads": 1, "fleet": str(Path(args.fleet).resolve())}
+                "bootstrap": args.bootstrap, "seed": args.seed, "learned": not args.no_learned, "threads": 1, "fleet": str(Path(args.fleet).resolve())}
     try:
         if args.cluster == "ray":
             with RayExecutor(address=args.address, workers=args.workers) as ex:

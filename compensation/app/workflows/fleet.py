@@ -154,7 +154,8 @@ def run_machine(m: dict, out_dir: str, settings: dict) -> dict:
     """Identify → train → diagnose one machine into ``out_dir/<name>``; returns its summary
     (``status`` ``"ok"``, ``"verdict-failed"`` (:func:`machine_status`) or ``"failed"`` with a one-line
     ``error``; a failed machine's folder is removed). ``settings``: ``tracking_uri``, ``train_iter``, ``hidden``, ``bootstrap``,
-    ``seed``, ``grid``, ``threads`` (torch threads, 1 on a cluster), ``fleet``."""
+    ``seed``, ``grid``, ``learned`` (the diagnosis's learned-residual stage; default on), ``threads`` (torch threads, 1 on
+    a cluster), ``fleet``."""
     from ..validate import one_line
     t0 = time.perf_counter()
     folder = Path(out_dir) / m["name"]
@@ -220,7 +221,8 @@ def _run_machine(m, folder: Path, s: dict) -> dict:
         el_path, noise_um = _identify(machine, m, folder, s)   # 1. identify
         fp_path, run_id, iterations, train_metrics = _train(machine, el_path, folder, s, name)   # 2. train
         # 3. diagnose: the closed loop on the identified set and its covariance (measured residual)
-        summary, paths = diagnose_chain(m["checks"], machine, el_path, folder / "diagnosis")
+        summary, paths = diagnose_chain(m["checks"], machine, el_path, folder / "diagnosis",
+                                        learn=s.get("learned", True))
         paths.append(write_chain_diagnosis_page(folder / "diagnosis", machine))
     st = summary["stages"]
     metrics = {"diagnose_heldout_rms_identified_um": st["identified"]["held_out"]["rms_um"],
