@@ -66,7 +66,8 @@ def run(args) -> int:
     print(f"fleet: checking the inputs of {len(machines)} machine(s) ...", file=sys.stderr)
     validate_inputs(machines)
     settings = {"tracking_uri": uri, "train_iter": args.train_iter, "hidden": hidden, "grid": args.grid,
-                "bootstrap": args.bootstrap, "seed": args.seed, "learned": not args.no_learned, "threads": 1, "fleet": str(Path(args.fleet).resolve())}
+                "bootstrap": args.bootstrap, "seed": args.seed, "learned": not args.no_learned, "threads": 1,
+                "fleet": str(Path(args.fleet).resolve())}
     try:
         if args.cluster == "ray":
             with RayExecutor(address=args.address, workers=args.workers) as ex:
