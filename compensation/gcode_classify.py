@@ -12,10 +12,9 @@ from .gcode_state import (LOCAL_SHIFT_DIALECTS, lathe_t_offset, ttoo_lathe, MODE
                           _tool_change, _work_state)
 from .nc_contour import ContourState, after_line, cycle_line
 from .nc_groove import groove_line
-from .nc_thread import thread_line
 from .nc_contour import applies as contour_reading
 from .nc_flow import TRACKED_NAMES
-from .nc_thread import feed_word_seen, g32_move, g33_move
+from .nc_thread import feed_word_seen, g32_move, g33_move, thread_line
 from .nc_state import lathe_words
 from .gcode_spline import nurbs_end, nurbs_line, spline_move, spline_points, spline_segments
 from .gcode_words import (ALLOWED_G, ARC_RADIUS_TOL_INCH_MM, ARC_RADIUS_TOL_MM, AxisWords, CENTRE_AXIS,
@@ -554,12 +553,10 @@ def synced_move(idx, st: _State, by, axis_words, arc_words, motion_word, rapids,
         raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' on a G32 line (F is the lead)")
     if st.mode != "G32":
         synced_words(st.mode, by, arc_words, (motion_word or first).start + 1)
-    prev = st.last_move
+    prev = st.last_move  # the move before it (its end the thread's start); _move makes this one the last
     move = _move(idx, st, by, axis_words, {}, motion_word, rapids, ax)
     move.kind, move.synced = "linear", st.mode
-    st.last_move = prev
-    (g32_move if st.mode == "G32" else g33_move)(st, by, ax, move)  # the lead, the start (compensation.nc_thread)
-    st.last_move = move
+    (g32_move if st.mode == "G32" else g33_move)(st, by, ax, move, prev)  # the lead, the start (nc_thread)
     if st.mode == "G33.1":
         st.pos = move.start.copy()
     return move

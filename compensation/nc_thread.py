@@ -58,7 +58,7 @@ from one to the next (module docstring); a G33.1 (a tap and its return) is one m
 RAPID_NOTE = "compensated: its end is a thread's start (the spindle's index synchronises the pass there)"
 
 
-def g32_move(st, by, ax, move) -> None:
+def g32_move(st, by, ax, move, prev) -> None:
     """The lead of a ``G32`` move read (:func:`compensation.gcode_classify.synced_move`): ``move.lead`` set to
     ``(F value, F text, lead axis column)``; the move before it, a rapid kept as written, made compensated (module
     docstring). Refused: a G32 off a lathe, without a lead (no F on it and none from a G32 before it), from an
@@ -71,7 +71,7 @@ def g32_move(st, by, ax, move) -> None:
         if not by["F"].value > 0:
             raise _Refuse(by["F"].start + 1, f"'F{by['F'].text}': a thread's lead must be positive")
         st.thread_lead = (by["F"].value, by["F"].text)
-    if getattr(st, "thread_lead", None) is None:
+    if st.thread_lead is None:
         raise _Refuse(col, "'G32' without F (the lead): give F on the line (an F of another move before it is not "
                            "taken as a lead here)")
     if not move.start_known:
@@ -83,10 +83,10 @@ def g32_move(st, by, ax, move) -> None:
                            "another angle")
     move.lead = (by["F"].value if "F" in by else st.thread_lead[0], st.thread_lead[1],
                  jz if d[jz] > d[jx] else jx)
-    _start_compensated(st, move)
+    _start_compensated(st, prev, move)
 
 
-def g33_move(st, by, ax, move) -> None:
+def g33_move(st, by, ax, move, prev) -> None:
     """The lead of a LinuxCNC ``G33``/``G33.1`` move read (:func:`compensation.gcode_classify.synced_move`, its K
     checked by :func:`compensation.gcode_state.synced_words`): ``move.lead`` set to ``(K value, K text, drive-line
     columns)``, K the distance per revolution along the drive line X Y Z (LinuxCNC G-code reference: "K follows the
@@ -104,13 +104,12 @@ def g33_move(st, by, ax, move) -> None:
     if not cols:
         raise _Refuse(col, f"'{move.synced}' that moves none of X Y Z (its drive line)")
     move.lead = (by["K"].value, by["K"].text, cols)
-    _start_compensated(st, move)
+    _start_compensated(st, prev, move)
 
 
-def _start_compensated(st, move) -> None:
-    """The move before a synchronised ``move`` (``st.last_move``), a rapid kept as written that ends at its start,
-    made compensated (module docstring), with the summary's note."""
-    prev = getattr(st, "last_move", None)
+def _start_compensated(st, prev, move) -> None:
+    """The move before a synchronised ``move`` (``prev``, None: none), a rapid kept as written that ends at its
+    start, made compensated (module docstring), with the summary's note."""
     if prev is not None and not prev.compensate and prev.kind == "rapid" and np.array_equal(prev.end, move.start):
         prev.compensate = True
         st.events.append((prev.index, 1, "lathe-cycle", move.synced,
