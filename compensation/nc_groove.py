@@ -178,14 +178,15 @@ def _where(prog, path, line0: int, col: int) -> str:
     return exp.where(line0 + 1, col) if exp is not None else f"{path}: line {line0 + 1}, column {col}"
 
 
-def refuse_kept(prog, path) -> None:
+def refuse_kept(path, events) -> None:
     """Refuse (InputError) a kept (default) G74/G75 whose control cuts several columns: it spaces them by Δi from the
-    written start, the compensated columns are not equally spaced (module docstring)."""
+    written start, the compensated columns are not equally spaced (module docstring). Named on the program's flat
+    lines (the caller relocates to the source)."""
     from errormap.io import InputError
-    for idx, col, kind, g, code in prog.events:
+    for idx, col, kind, g, code in events:
         if kind == "lathe-groove" and len(g.columns()) > 1:
-            raise InputError(f"{_where(prog, path, idx, col)}: '{code}' ({GROOVING[code]}) of several columns (its "
-                             f"end point's {ACROSS[code]} is not the start's): the control spaces them by "
+            raise InputError(f"{path}: line {idx + 1}, column {col}: '{code}' ({GROOVING[code]}) of several "
+                             f"columns (its end point's {ACROSS[code]} is not the start's): the control spaces them by "
                              f"{SHIFT_WORD[(g.dialect, code)]} from the written start, so compensated columns cannot "
                              "be written in the cycle; use --expand-cycles (the cycle written as its moves, "
                              "compensated point by point)")

@@ -146,11 +146,11 @@ def _read(path, cycles, **kw) -> GProgram:
     (:func:`compensation.nc_groove.refuse_kept`)."""
     prog = parse_program(path, **kw)
     if cycles != "expand":
-        try:
+        try:  # refused on the program's flat lines, named at the source line
             refuse_kept_thread(path, prog.events)  # a G92 kept as a cycle (compensation.nc_thread)
+            refuse_kept_groove(path, prog.events)  # a G74/G75 of several columns: only as its moves
         except InputError as exc:
             raise (prog.expanded.relocate(exc) if prog.expanded is not None else exc) from None
-        refuse_kept_groove(prog, path)  # a G74/G75 of several columns: only as its moves
         return prog
     refuse_open(path, prog.events)
     kw.pop("subprograms", None)  # the flat text: its calls are expanded already

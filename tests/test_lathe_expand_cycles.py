@@ -163,3 +163,18 @@ def test_a_refused_expansion_names_the_source_line_after_a_call(tmp_path, old, n
     with pytest.raises(InputError) as exc:
         parse_lathe_program(p, load_machine(LATHE), "keep", None, "fanuc", "diameter", cycles="expand")
     assert f"{p}: {where}" in str(exc.value)
+
+
+@pytest.mark.parametrize("code", ["G92", "G75"])
+def test_a_cycle_refused_kept_names_the_source_line_after_a_call(tmp_path, code):
+    """Kept (no --expand-cycles), a G92 pass and a G75 of several columns are refused on the reader's flat lines and
+    named once at their source line (the call's lines before them in the flat program); for the G75 the G92 and its
+    passes left out (the G92 is refused first)."""
+    text = CALLED if code == "G92" else "".join(ln for i, ln in enumerate(CALLED.splitlines(True))
+                                                if not G92_AT <= i < G92_AT + CYCLE_LINES[G92_AT])
+    p = tmp_path / "p.nc"
+    p.write_text(text)
+    line = next(i for i, ln in enumerate(text.splitlines(), 1) if ln.startswith(code + " X"))
+    with pytest.raises(InputError) as exc:
+        parse_lathe_program(p, load_machine(LATHE), "keep", None, "fanuc", "diameter")
+    assert f"{p}: line {line}, column 1: '{code}'" in str(exc.value)
