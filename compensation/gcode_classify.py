@@ -14,6 +14,7 @@ from .nc_contour import ContourState, after_line, cycle_line
 from .nc_groove import groove_line
 from .nc_contour import applies as contour_reading
 from .nc_flow import TRACKED_NAMES
+from .nc_g76 import g76_line
 from .nc_thread import feed_word_seen, g32_move, g33_move, thread_line
 from .nc_state import lathe_words
 from .gcode_spline import nurbs_end, nurbs_line, spline_move, spline_points, spline_segments
@@ -281,11 +282,24 @@ def _grbl_system(body: str, st: _State, ax: AxisWords) -> str:
                                        "program (only $$ $# $G $I $N $X and $H pass)")
 
 
+_LCNC_G76 = re.compile(r"[gG]\s*0*7\s*6(?![\d.])")
+"""A line that may hold LinuxCNC's G76 (read by :func:`compensation.nc_g76.g76_line` on a lathe)."""
+
+
 def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     """One line: ``(class, GMove or None)``; a lathe's contour cycle lines kept as written and their contour
     blocks read as moves (:mod:`compensation.nc_contour`), its grooving cycles and threading read
     (:mod:`compensation.nc_groove`, :mod:`compensation.nc_thread`)."""
     cs = st.contours
+    if _LCNC_G76.search(body) and getattr(st.dialect, "name", None) == "linuxcnc" and lathe_words(ax.words):
+        try:
+            bd, words, _ = tokenize(body)
+        except _Refuse:
+            words = ()  # the line's own reading names what it holds
+        if words and g76_line(words, idx, st, ax) == "state":  # LinuxCNC's G76 (compensation.nc_g76)
+            if bd:
+                raise _Refuse(body.index("/") + 1, "block delete '/' on a G76 line: not read; remove it")
+            return "state", None
     if cs.pending is None and cs.active is None and not contour_reading(st, ax):
         return _classify_words(body, idx, st, rapids, block_delete, ax)  # not a Fanuc/Haas lathe: no cycle to read
     try:
