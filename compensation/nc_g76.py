@@ -35,6 +35,10 @@ from .gcode_state import MM_PER_INCH, _Refuse
 LETTERS = frozenset("NGPZIJKRQHEL")
 """Words a G76 line may hold here (module docstring)."""
 REQUIRED = "PZIJK"
+MAX_PASSES = 10_000
+"""A G76 of more passes than this is refused (its expansion would write hundreds of thousands of lines; LinuxCNC's
+reference warns that a high degression R makes "a large number of passes"): the count (K/J)^R + H + 1 is checked
+before the passes are made."""
 
 
 def passes(x0_mm, z0_mm, z_mm, p_mm, i_mm, j_mm, k_mm, r=1.0, q_deg=0.0, h=0, e_mm=0.0, ends=0) -> list:
@@ -95,8 +99,12 @@ def g76_line(words, idx: int, st, ax) -> str | None:
     i, j, k = (by[a].value * across for a in "IJK")
     r = by["R"].value if "R" in by else 1.0
     q = by["Q"].value if "Q" in by else 0.0
-    h, ends = (int(by[a].value) if a in by else 0 for a in "HL")
     _check_values(by, z0, p, z, e, i, j, k)
+    h, ends = (int(by[a].value) if a in by else 0 for a in "HL")
+    if r * math.log(k / j) > math.log(MAX_PASSES) or h + 1 > MAX_PASSES:
+        raise _Refuse(by["R" if "R" in by and h + 1 <= MAX_PASSES else "H" if "H" in by else "J"].start + 1,
+                      f"a G76 of more than {MAX_PASSES} passes ((K/J)^R + H + 1): not written; fewer passes (a lower "
+                      "R or H, a larger J)")
     cut = passes(x0, z0, z, p, i, j, k, r, q, h, e, ends)
     st.events.append((idx, col, "lathe-thread", (cut, p, by["P"].text, st.inch, bool(st.diameter)), "G76"))
     st.pos = np.array(st.pos, dtype=float)  # a new array: the moves read hold the old one as their end
@@ -152,9 +160,10 @@ def _check_values(by, z0, p, z, e, i, j, k) -> None:
 
 
 def g76_lines(line, e, src) -> tuple:
-    """``(lines, summary note)`` of the G76 of event ``e`` on ``line``
-    (:func:`compensation.nc_thread.expand_threading`): its moves (:func:`passes`) in absolute X Z of the program's units (X as the program writes it), each G33 with its
-    lead K (the main cut's as P is written); ``src`` the line's origin entry (its source line first)."""
+    """``(lines, summary note)`` of the G76 of event ``e`` on ``line`` (:func:`compensation.nc_thread.
+    expand_threading`): its moves (:func:`passes`) in absolute X Z of the program's units (X as the program writes
+    it), each G33 with its lead K (the main cut's as P is written); ``src`` the line's origin entry (its source line
+    first)."""
     from .nc_contour import _word_text
     cut, p_mm, p_text, inch, diameter = e[3]
     unit = MM_PER_INCH if inch else 1.0

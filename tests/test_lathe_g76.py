@@ -30,34 +30,42 @@ from test_lathe_g33 import LATHE, PART_Z_MM, TOL_POINT_UM, _compensate, checked
 TOL_WRITTEN_MM = 1e-6
 """An expanded move's end equals the reference's within this: the written words' rounding (7 decimals: 0.5e-7 mm)
 with margin."""
+TOL_WRITTEN_INCH_MM = 2e-6
+"""The same in an inch program: 7 decimals of an inch word round by 0.5e-7 in = 1.27e-6 mm; with margin."""
 X0, Z0, Z1 = 11.0, 5.0, -30.0
 """The drive line (radius, G8), the thread's start and end Z (mm)."""
 P, I, J, K, R, Q, H, E = 2.5, -1.0, 0.3, 1.534, 1.0, 29.5, 1, 2.0
 """An M20x2.5 outside thread: crest 1 mm inside the drive line, full depth 1.534 mm, first depth 0.3 mm, constant
 depth, 29.5° compound slide, one spring pass; E the taper length when L tapers an end."""
-M20 = ("(M20x2.5 outside thread, LinuxCNC G76, radius mode)\nG21 G18 G90 G8\nG54\nS400 M3\nG0 X{x0} Z{z0}\n"
-       "G76 P{p} Z{z1} I{i} J{j} K{k} R{r} Q{q} H{h}{taper}\nG0 X20 Z10\nG1 X19 F100\nM5\nM2\n")
+M20 = ("(M20x2.5 thread, LinuxCNC G76)\n{units} G18 G90 {mode}\nG54\nS400 M3\nG0 X{x0!r} Z{z0!r}\n"
+       "G76 P{p!r} Z{z1!r} I{i!r} J{j!r} K{k!r} R{r} Q{q} H{h}{taper}\nG0 X20 Z10\nG1 X19 F100\nM5\nM2\n")
 
 
-def _program(taper=""):
-    return M20.format(x0=X0, z0=Z0, z1=Z1, p=P, i=I, j=J, k=K, r=R, q=Q, h=H, taper=taper)
+def _program(taper="", x0=X0, i=I, z0=Z0, z1=Z1, inch=False, diameter=False):
+    """The thread's program (mm radius values given; written in inch and/or diameter mode as asked)."""
+    u, d = (25.4 if inch else 1.0), (2.0 if diameter else 1.0)
+    return M20.format(units="G20" if inch else "G21", mode="G7" if diameter else "G8", x0=x0 * d / u, z0=z0 / u,
+                      z1=z1 / u, p=P / u, i=i * d / u, j=J * d / u, k=K * d / u, r=R, q=Q, h=H,
+                      taper=f" E{E / u!r} L{taper}" if taper else "")
 
 
-def _reference(ends=0):
-    """The passes' moves ``[(rapid?, x, z, lead or None)]`` from the reference's rules (module docstring)."""
+def _reference(ends=0, x0=X0, i=I, z0=Z0, z1=Z1):
+    """The passes' moves ``[(rapid?, x, z, lead or None)]`` (mm, radius) from the reference's rules (module
+    docstring): s the side (outside −1, inside +1), the compound slide and the tapers turned where Z runs toward +Z."""
     n = np.arange(1, 1000)
     depth = J * n ** (1.0 / R)
     depth = np.concatenate([depth[depth < K], [K] * (H + 1)])
-    t = math.tan(math.radians(Q))
-    crest, taper_lead = X0 + I, P * math.hypot(E, K) / E
+    s, toward = (1.0 if i > 0 else -1.0), (-1.0 if z1 > z0 else 1.0)
+    t, e = math.tan(math.radians(Q)) * toward, E * toward
+    crest, taper_lead = x0 + i, P * math.hypot(E, K) / E
     out = []
     for d in depth:
-        za, zb, cut = Z0 - d * t, Z1 + K * t - d * t, crest - d
-        out.append((True, cut + abs(I) + K, za, None))
-        out += [(False, cut + K, za, taper_lead), (False, cut, za - E, taper_lead)] if ends & 1 else \
-            [(True, cut, za, None)]
-        out += [(False, cut, zb + E, P), (False, cut + K, zb, taper_lead)] if ends & 2 else [(False, cut, zb, P)]
-        out.append((True, cut + abs(I) + K, zb, None))
+        za, zb, cut = z0 - d * t, z1 + K * t - d * t, crest + s * d
+        back, top = cut - s * (abs(i) + K), cut - s * K
+        out.append((True, back, za, None))
+        out += [(False, top, za, taper_lead), (False, cut, za - e, taper_lead)] if ends & 1 else [(True, cut, za, None)]
+        out += [(False, cut, zb + e, P), (False, top, zb, taper_lead)] if ends & 2 else [(False, cut, zb, P)]
+        out.append((True, back, zb, None))
     return out, len(depth)
 
 
@@ -65,21 +73,29 @@ def _read(path, cycles="keep"):
     return parse_lathe_program(path, load_machine(LATHE), "keep", None, "linuxcnc", cycles=cycles)[0]
 
 
-@pytest.mark.parametrize("ends", [0, 1, 2, 3])
-def test_g76_expanded_passes_are_the_reference_geometry(tmp_path, ends):
+@pytest.mark.parametrize("ends, side, inch, diameter", [
+    (0, "outside", False, False), (1, "outside", False, False), (2, "outside", False, False),
+    (3, "outside", False, False), (3, "inside", False, False), (3, "outside, toward +Z", True, True),
+    (0, "inside, toward +Z", False, True)])
+def test_g76_expanded_passes_are_the_reference_geometry(tmp_path, ends, side, inch, diameter):
+    geo = {"x0": 8.0, "i": 1.0} if side.startswith("inside") else {}  # a bore: the crest 1 mm outside the drive line
+    if "+Z" in side:
+        geo.update(z0=Z1, z1=Z0)
     src = tmp_path / "p.ngc"
-    src.write_text(_program(f" E{E} L{ends}" if ends else ""))
+    src.write_text(_program(ends, inch=inch, diameter=diameter, **geo))
     prog = _read(src, "expand")
-    ref, n = _reference(ends)
+    ref, n = _reference(ends, **geo)
     moves = prog.moves[1:-2]  # the G0 to the drive line before, the G0 and G1 after
     assert n == 7 and len(moves) == len(ref)  # ceil(1.534 / 0.3) - 1 = 5 passes under K, then K twice (H1)
+    tol = TOL_WRITTEN_INCH_MM if inch else TOL_WRITTEN_MM
     got = np.array([m.end for m in moves])
-    assert np.abs(got - np.array([r[1:3] for r in ref])).max() <= TOL_WRITTEN_MM
+    assert np.abs(got - np.array([r[1:3] for r in ref])).max() <= tol
     assert [m.kind == "rapid" for m in moves] == [r[0] for r in ref]
-    leads = [(m.lead[0], r[3]) for m, r in zip(moves, ref) if r[3] is not None]
+    leads = [(m.lead[0] * (25.4 if inch else 1.0), r[3]) for m, r in zip(moves, ref) if r[3] is not None]
     assert all(m.synced == "G33" for m, r in zip(moves, ref) if r[3] is not None)
-    assert max(abs(a - b) for a, b in leads) <= TOL_WRITTEN_MM
-    assert np.allclose(prog.moves[-3].end, [X0, Z1], rtol=0, atol=TOL_WRITTEN_MM)  # the tool ends at (X0, Z)
+    assert max(abs(a - b) for a, b in leads) <= tol
+    end = (geo.get("x0", X0), geo.get("z1", Z1))
+    assert np.allclose(prog.moves[-3].end, end, rtol=0, atol=tol)  # the tool ends at (X0, Z)
 
 
 def test_g76_compensated_every_point_lead_and_phase_true(tmp_path):
@@ -109,6 +125,7 @@ def test_g76_compensated_every_point_lead_and_phase_true(tmp_path):
     (" H1", " H1 E20 L1", "line 6, column 49: 'E20' on a G76 line: the taper length"),
     (" H1", " H1 F100", "line 6, column 49: 'F100' on a G76 line"),
     ("G0 X20 Z10", "Z10", "line 7, column 1: axis word 'Z10' but no motion mode"),
+    (" R1.0", " R100", "line 6, column 35: a G76 of more than 10000 passes"),
 ])
 def test_g76_refusals_name_line_column_word(tmp_path, old, new, where):
     src = tmp_path / "p.ngc"
