@@ -82,7 +82,8 @@ def _checked_words(words, ax: AxisWords, dia=None):
                 raise _Refuse(w.start + 1, f"'G{w.text}': unknown G code")
             if code in dia.modes or code in dia.work_systems or code in dia.splines or code in dia.synced or (
                     code in dia.lathe_modes) or code in dia.probes or (
-                    dia.g92_offsets and code in G92_CODES) or (code == "G52" and dia.name in LOCAL_SHIFT_DIALECTS):
+                    dia.g92_offsets and code in G92_CODES) or (code == "G52" and dia.name in LOCAL_SHIFT_DIALECTS) or (
+                    code == "G43.1" and dia.dynamic_length):
                 gs.append((code, w))
                 continue
             if code in BARE_UNITS and dia.g80_unrecognised and "Y" in ax.words and all(x.letter in "GN" for x in words):
@@ -172,7 +173,7 @@ def _modal_groups(gs, dia=None) -> dict:
     a motion code where the dialect runs them so: the motion code is kept)."""
     groups = {}
     for code, w in gs:
-        grp = "lathe" if dia is not None and code in dia.lathe_modes else "nonmodal" if code in G92_CODES or code == "G52" else "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
+        grp = "length" if code == "G43.1" else "lathe" if dia is not None and code in dia.lathe_modes else "nonmodal" if code in G92_CODES or code == "G52" else "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
             code in dia.splines or code in dia.synced or code in dia.probes) else ALLOWED_G[code][0] if code in ALLOWED_G else (
             "coords" if dia is not None and code in dia.work_systems else "dialect mode")  # a dialect's own first
         g80_motion = dia is not None and (dia.g80_with_motion or dia.g80_unrecognised)  # no dialect: the one reading
@@ -370,6 +371,8 @@ def _classify_words(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     if "nonmodal" in groups and (groups["nonmodal"][0] in G92_CODES or groups["nonmodal"][0] == "G52"):
         return _g92(idx, st, groups, axis_words, ax), None
     _work_state(idx, st, groups, by, ax)
+    if groups.get("length", ("",))[0] == "G43.1":
+        return "state", None  # its axis words are the tool's offsets (compensation.gcode_state.dynamic_length)
     if "dialect mode" in groups:
         return _dialect_mode(idx, st, groups, by, axis_words, arc_words), None
     if "nonmodal" in groups and groups["nonmodal"][0] == "G53":

@@ -207,7 +207,7 @@ REFUSED_G = {
     "G33.1": "rigid tapping (read with --dialect linuxcnc)",
     "G38.2": "probing", "G38.3": "probing", "G38.4": "probing", "G38.5": "probing",
     "G41.1": "dynamic cutter radius compensation", "G42.1": "dynamic cutter radius compensation",
-    "G43.1": "tool length offset", "G43.2": "tool length offset",
+    "G43.1": "dynamic tool length offset (LinuxCNC's read with --dialect linuxcnc)", "G43.2": "tool length offset",
     "G50": "scaling off / lathe coordinate setting (dialect-dependent)", "G50.1": "mirror off",
     "G51": "scaling", "G51.1": "mirror",
     "G54.2": ("dynamic fixture offset: the offset follows the rotary axes from a controller table that no file read "
