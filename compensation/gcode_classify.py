@@ -14,6 +14,7 @@ from .nc_contour import ContourState, after_line, cycle_line
 from .nc_groove import groove_line
 from .nc_contour import applies as contour_reading
 from .nc_flow import TRACKED_NAMES
+from .nc_g76 import g76_line
 from .nc_thread import feed_word_seen, g32_move, g33_move, thread_line
 from .nc_state import lathe_words
 from .gcode_spline import nurbs_end, nurbs_line, spline_move, spline_points, spline_segments
@@ -81,7 +82,8 @@ def _checked_words(words, ax: AxisWords, dia=None):
                 raise _Refuse(w.start + 1, f"'G{w.text}': unknown G code")
             if code in dia.modes or code in dia.work_systems or code in dia.splines or code in dia.synced or (
                     code in dia.lathe_modes) or code in dia.probes or (
-                    dia.g92_offsets and code in G92_CODES) or (code == "G52" and dia.name in LOCAL_SHIFT_DIALECTS):
+                    dia.g92_offsets and code in G92_CODES) or (code == "G52" and dia.name in LOCAL_SHIFT_DIALECTS) or (
+                    code == "G43.1" and dia.dynamic_length):
                 gs.append((code, w))
                 continue
             if code in BARE_UNITS and dia.g80_unrecognised and "Y" in ax.words and all(x.letter in "GN" for x in words):
@@ -171,7 +173,7 @@ def _modal_groups(gs, dia=None) -> dict:
     a motion code where the dialect runs them so: the motion code is kept)."""
     groups = {}
     for code, w in gs:
-        grp = "lathe" if dia is not None and code in dia.lathe_modes else "nonmodal" if code in G92_CODES or code == "G52" else "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
+        grp = "length" if code == "G43.1" else "lathe" if dia is not None and code in dia.lathe_modes else "nonmodal" if code in G92_CODES or code == "G52" else "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
             code in dia.splines or code in dia.synced or code in dia.probes) else ALLOWED_G[code][0] if code in ALLOWED_G else (
             "coords" if dia is not None and code in dia.work_systems else "dialect mode")  # a dialect's own first
         g80_motion = dia is not None and (dia.g80_with_motion or dia.g80_unrecognised)  # no dialect: the one reading
@@ -281,11 +283,24 @@ def _grbl_system(body: str, st: _State, ax: AxisWords) -> str:
                                        "program (only $$ $# $G $I $N $X and $H pass)")
 
 
+_LCNC_G76 = re.compile(r"[gG]\s*0*7\s*6(?![\d.])")
+"""A line that may hold LinuxCNC's G76 (read by :func:`compensation.nc_g76.g76_line` on a lathe)."""
+
+
 def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     """One line: ``(class, GMove or None)``; a lathe's contour cycle lines kept as written and their contour
     blocks read as moves (:mod:`compensation.nc_contour`), its grooving cycles and threading read
     (:mod:`compensation.nc_groove`, :mod:`compensation.nc_thread`)."""
     cs = st.contours
+    if _LCNC_G76.search(body) and getattr(st.dialect, "name", None) == "linuxcnc" and lathe_words(ax.words):
+        try:
+            bd, words, _ = tokenize(body)
+        except _Refuse:
+            words = ()  # the line's own reading names what it holds
+        if words and g76_line(words, idx, st, ax) == "state":  # LinuxCNC's G76 (compensation.nc_g76)
+            if bd:
+                raise _Refuse(body.index("/") + 1, "block delete '/' on a G76 line: not read; remove it")
+            return "state", None
     if cs.pending is None and cs.active is None and not contour_reading(st, ax):
         return _classify_words(body, idx, st, rapids, block_delete, ax)  # not a Fanuc/Haas lathe: no cycle to read
     try:
@@ -356,6 +371,8 @@ def _classify_words(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     if "nonmodal" in groups and (groups["nonmodal"][0] in G92_CODES or groups["nonmodal"][0] == "G52"):
         return _g92(idx, st, groups, axis_words, ax), None
     _work_state(idx, st, groups, by, ax)
+    if groups.get("length", ("",))[0] == "G43.1":
+        return "state", None  # its axis words are the tool's offsets (compensation.gcode_state.dynamic_length)
     if "dialect mode" in groups:
         return _dialect_mode(idx, st, groups, by, axis_words, arc_words), None
     if "nonmodal" in groups and groups["nonmodal"][0] == "G53":

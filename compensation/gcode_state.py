@@ -98,7 +98,9 @@ def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
             st.events.append((idx, w.start + 1, "cutter", value, text))
         st.cutter = code
     fanuc_h = getattr(st.dialect, "h_offset_alone", False)
-    if "length" in groups or (fanuc_h and "H" in by and st.g43):
+    if groups.get("length", ("",))[0] == "G43.1":
+        dynamic_length(idx, st, groups, by, ax)
+    elif "length" in groups or (fanuc_h and "H" in by and st.g43):
         code, w = groups["length"] if "length" in groups else ("G43", by["H"])
         value = None
         if code == "G43":
@@ -115,6 +117,36 @@ def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
         if value != st.tool:
             _forget(st, ax, _tool_axes(ax))
             st.tool = value
+
+
+def dynamic_length(idx, st: _State, groups, by, ax: AxisWords) -> None:
+    """LinuxCNC ``G43.1 axes`` (G-code reference, "G43.1 Dynamic Tool Length Offset"): the tool offset along the axes
+    given replaced by their values (program units), the others kept; no motion. Recorded as the event
+    ``"tool-dynamic"`` ``{axis: mm}`` (:meth:`compensation.nc_state._Controller.dynamic_length`); the position along
+    the tool's axes unknown after it, as after ``G43``. Refused: a motion code on the line (LinuxCNC's error), no axis
+    word, an axis other than Z (and X on a lathe), X under ``G7`` (whether it is read as a diameter is not read
+    here)."""
+    code, w = groups["length"]
+    if "motion" in groups:
+        m = groups["motion"][1]
+        raise _Refuse(m.start + 1, f"'{groups['motion'][0]}' on a G43.1 line: LinuxCNC's error (motion with G43.1)")
+    given = {a: by[a] for a in ax.words if a in by}
+    allowed = _tool_axes(ax)
+    bad = next((x for a, x in given.items() if a not in allowed), None)
+    if bad is not None or not given:
+        raise _Refuse((bad or w).start + 1, ("'G43.1' without " if bad is None else f"'{bad.letter}{bad.text}' with "
+                                             "G43.1: ") + f"a tool offset along {' and '.join(allowed)} is read here "
+                                                          "(the tool's length; X on a lathe)")
+    if "X" in given and st.diameter:
+        raise _Refuse(given["X"].start + 1, f"'X{given['X'].text}' with G43.1 under G7 (diameter mode): whether the "
+                                            "offset is read as a diameter is not read here; write it under G8")
+    scale = MM_PER_INCH if st.inch else 1.0
+    vals = {a: x.value * scale for a, x in given.items()}
+    st.events.append((idx, w.start + 1, "tool-dynamic", vals,
+                      "G43.1 " + " ".join(f"{a}{x.text}" for a, x in given.items())))
+    st.g43 = False
+    st.tool = ("G43.1", idx)
+    _forget(st, ax, allowed)
 
 
 def _tool_axes(ax: AxisWords) -> tuple:

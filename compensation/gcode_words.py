@@ -207,7 +207,7 @@ REFUSED_G = {
     "G33.1": "rigid tapping (read with --dialect linuxcnc)",
     "G38.2": "probing", "G38.3": "probing", "G38.4": "probing", "G38.5": "probing",
     "G41.1": "dynamic cutter radius compensation", "G42.1": "dynamic cutter radius compensation",
-    "G43.1": "tool length offset", "G43.2": "tool length offset",
+    "G43.1": "dynamic tool length offset (LinuxCNC's read with --dialect linuxcnc)", "G43.2": "tool length offset",
     "G50": "scaling off / lathe coordinate setting (dialect-dependent)", "G50.1": "mirror off",
     "G51": "scaling", "G51.1": "mirror",
     "G54.2": ("dynamic fixture offset: the offset follows the rotary axes from a controller table that no file read "
@@ -221,8 +221,9 @@ REFUSED_G = {
     "G68.2": "tilted work plane", "G70": UNITS_OR_CYCLE.format(what="inch"), "G71": UNITS_OR_CYCLE.format(what="mm"), "G72": "lathe cycle",
     "G73": "canned cycle (drilling cycles are read by compensate on chains with X Y Z: --machine mill-xyz)",
     "G74": "canned cycle (as G73)",
-    "G75": "canned cycle", "G76": "lathe threading (spindle-synchronised passes: not interpretable exactly) or mill "
-                                  "fine boring (kept on chains with X Y Z with --dialect fanuc/haas/siemens-iso)",
+    "G75": "canned cycle", "G76": "lathe threading (LinuxCNC's read on a lathe with --dialect linuxcnc and "
+                                  "--expand-cycles; Fanuc/Haas passes not interpretable exactly) or mill fine boring "
+                                  "(kept on chains with X Y Z with --dialect fanuc/haas/siemens-iso)",
     **{f"G{k}": "canned cycle (as G73)" for k in range(81, 90)},
     "G87": "back boring cycle (kept on chains with X Y Z with --dialect fanuc/siemens-iso)",
     "G88": "boring cycle with a manual retract (kept on chains with X Y Z with --dialect fanuc/siemens-iso)",

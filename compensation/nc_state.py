@@ -404,6 +404,7 @@ class _Controller:
         # (never machine zero: --work-offsets machine says so explicitly; refuse_unknown_frames refuses the rest)
         self.system, self.tool, self.cutter = "G54", None, None
         self.used_systems, self.used_tools = set(), set()
+        self.dynamic = []  # the summary's line per G43.1 (dynamic_length)
         self.g92, self.g92_stored = np.zeros(len(words)), np.zeros(len(words))  # G92 offset: added to every system
 
     def offset(self) -> np.ndarray:
@@ -482,6 +483,15 @@ class _Controller:
         if value is not None:
             self.used_tools.add(value)
 
+    def dynamic_length(self, value, line, where) -> None:
+        """LinuxCNC ``G43.1`` (:func:`compensation.gcode_state.dynamic_length`, ``value`` {axis: mm}): the active
+        tool's offsets replaced along the axes given (the others kept; none active: 0), as a tool of its own."""
+        on, key = self.tool is not None, f"G43.1 line {line + 1}"
+        self.tooltab[key] = value.get("Z", self.tooltab[self.tool] if on else 0.0)
+        self.tool_x[key] = value.get("X", self.tool_x.get(self.tool, 0.0) if on else 0.0)
+        self.tool = key
+        self.dynamic.append(f"line {line + 1}: Z {self.tooltab[key]:g}" + (f", X {self.tool_x[key]:g}" * self.lathe()))
+
     def select_cutter(self, value, where, nose: bool = False) -> None:  # nose: a T register's (ttoo_lathe)
         if value is not None and not np.isfinite(self.radii.get(value, np.nan)):
             if nose:
@@ -536,6 +546,8 @@ class _Controller:
                   "nose": lambda v, w: self.select_cutter(v, w, nose=True)}
         if kind in select:
             select[kind](value, where)
+        elif kind == "tool-dynamic":
+            self.dynamic_length(value, line, where)
         elif kind.startswith("g10-"):
             self.g10(kind, value, where)
             self.check_active(where)
@@ -573,6 +585,7 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
              "work_systems_used": sorted(c.used_systems),
              "tool_table": tools.source if tools else None,
              "tools_used": {int(t): float(c.tooltab[t]) for t in sorted(c.used_tools)}}
+    notes.update({"dynamic_tool_lengths_mm": c.dynamic} if c.dynamic else {})  # G43.1: the offsets the program set
     notes["offsets_mm_deg"] = {s: [float(v) for v in _offset_vector(c.table.get(s, {}), words)]
                                for s in sorted(c.used_systems)}
     notes["g53_lines"] = [e[0] + 1 for e in events if e[2] == "g53"]
@@ -600,7 +613,7 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
         notes["tool_x_used"] = {int(t): float(c.tool_x.get(t, 0.0)) for t in sorted(c.used_tools)}
     return ProgramFrames(np.array(first, dtype=np.int64), np.array(offs).reshape(len(first), len(words)),
                          np.array(tls, dtype=float), notes, np.array(rads, dtype=float),
-                         np.array(txs, dtype=float) if c.lathe() and c.used_tools else None,
+                         np.array(txs, dtype=float) if c.lathe() and (c.used_tools or c.dynamic) else None,
                          rots if np.any(rots != 0.0) else None)
 
 

@@ -1,5 +1,6 @@
-"""Fanuc/Haas lathe threading: ``G32`` thread cutting compensated exactly, ``G92`` (thread cutting cycle) written as
-its passes' moves with ``--expand-cycles``, ``G76`` refused.
+"""Lathe threading: Fanuc/Haas ``G32`` thread cutting and LinuxCNC ``G33`` compensated exactly, ``G92`` (thread cutting
+cycle) and LinuxCNC's ``G76`` (:mod:`compensation.nc_g76`) written as their passes' moves with ``--expand-cycles``,
+Fanuc/Haas ``G76`` refused.
 
 Rules read (Fanuc 0i-TF operator's manual, G-code system A, "thread cutting (G32)", "thread cutting cycle (G92)",
 "multiple threading cycle (G76)"; Haas lathe operator's manual, "G32 Thread Cutting (Group 01)", "G76 Threading
@@ -16,8 +17,9 @@ Cycle, Multiple Pass"):
   Z; the thread chamfer at the end of operation 2 has the control's amount (parameter 5130), written here as none;
   modal: a following line with X alone is one more pass (Z and F kept). ``R``
   (taper), ``U``/``W`` and Haas' G92 (its ``I`` taper and M23 chamfer-out) are not read here (refused).
-- ``G76``: the passes (depths Δd·√n, the infeed along the flank, the chamfer r) are the control's: refused in
-  both modes (post the passes as G32 or G92 lines).
+- Fanuc/Haas ``G76``: the passes (depths Δd·√n, the infeed along the flank, the chamfer r) are the control's:
+  refused in both modes (post the passes as G32 or G92 lines). LinuxCNC's ``G76`` is defined in its interpreter's
+  source: read (:mod:`compensation.nc_g76`).
 
 Compensation (:func:`lead_texts`): the machine's true tool position is the commanded one plus the error there, so a
 synchronised piece from compensated A' to B' travels the programmed A to B on the true machine while the control
@@ -210,8 +212,9 @@ def restore_feed(lines: list, text: str, between) -> list:
 class ThreadExpansion(LatheExpansion):
     """G92 passes written as the control's moves (:func:`expand_threading`; ``count``: the passes)."""
 
-    WHAT = ("lathe G92 thread cutting passes written as the controller's moves ({n}: G0 X, G32 Z in compensated "
-            "pieces each with its own F, G0 X and G0 Z back to the start point)")
+    WHAT = ("lathe threading cycles written as the controller's moves ({n}: a G92 pass as G0 X, G32 Z in compensated "
+            "pieces each with its own F, G0 X and G0 Z back to the start point; a LinuxCNC G76 as its passes' G0 moves "
+            "and G33 pieces each with its own K)")
 
 
 # ---------------------------------------------------------------------------- G92 / G76 on the reader's lines
@@ -289,28 +292,34 @@ def _g92_pass(words, idx, st, ax, code) -> str:
 
 
 def refuse_kept(path, events) -> None:
-    """Refuse (InputError) a G92 pass left as a cycle (no ``--expand-cycles``): every pass starts from the one point A
-    the cycle rapids from along X, whose compensation cannot be each pass's start's (the error there differs with the
-    pass's depth X: the passes' phases would differ), and one F for the whole pass cannot give the true lead F where
-    the error is not linear along the thread."""
+    """Refuse (InputError) a G92 pass or a LinuxCNC G76 left as a cycle (no ``--expand-cycles``): every pass starts
+    from the one point the cycle rapids from along X, whose compensation cannot be each pass's start's (the error there
+    differs with the pass's depth X: the passes' phases would differ), and one lead (F, P) for the whole pass cannot
+    give the true lead where the error is not linear along the thread."""
     from errormap.io import InputError
     for line, col, _, _, code in (e for e in events if e[2] == "lathe-thread"):
+        lead, cut = ("P", "G33 pieces, each with its own K") if code == "G76" else \
+            ("F", "G32 pieces, each with its own F")
         raise InputError(f"{path}: line {line + 1}, column {col}: '{code}' ({THREADING[code]}) kept as a cycle: its "
-                         "passes start from one point whose compensation cannot be each pass's, and one F cannot give "
-                         "the true lead along the thread; use --expand-cycles (each pass written as G0 and compensated "
-                         "G32 pieces, each with its own F)")
+                         f"passes start from one point whose compensation cannot be each pass's, and one {lead} cannot "
+                         "give the true lead along the thread; use --expand-cycles (each pass written as G0 and "
+                         f"compensated {cut})")
 
 
 def expand_threading(prog, path, reparse):
-    """``prog`` with every G92 pass written as the moves the control makes (``--expand-cycles``): ``G0 X`` to the
-    pass's X, ``G32 Z F`` to its end, ``G0 X`` back to the start point's X, ``G0 Z`` back to its Z, absolute, in the
-    program's units (X as the program writes it: diameter or radius). ``reparse(text)`` reads the expanded text;
-    ``prog`` itself where there is no G92."""
+    """``prog`` with every G92 pass and LinuxCNC G76 written as the moves the control makes (``--expand-cycles``): a
+    G92 pass as ``G0 X`` to the pass's X, ``G32 Z F`` to its end, ``G0 X`` back to the start point's X, ``G0 Z`` back
+    to its Z; a G76 as its passes (:func:`compensation.nc_g76.g76_lines`); absolute, in the program's units (X as the
+    program writes it: diameter or radius). ``reparse(text)`` reads the expanded text; ``prog`` itself where there is
+    none."""
+    from .nc_g76 import g76_lines
     passes = {e[0]: e for e in prog.events if e[2] == "lathe-thread"}
     if not passes:
         return prog
-    return expand_lines(prog, path, reparse, passes, lambda i, src: _pass_lines(prog.lines[i], passes[i], src(i)),
-                        ThreadExpansion)
+
+    def lines_of(i, src):
+        return (g76_lines if passes[i][4] == "G76" else _pass_lines)(prog.lines[i], passes[i], src(i))
+    return expand_lines(prog, path, reparse, passes, lines_of, ThreadExpansion)
 
 
 def _pass_lines(line, e, src) -> tuple:

@@ -65,6 +65,20 @@ def _field(truth):
     return lathe, ChainField(lathe, ChainElementSet.load(truth, lathe))
 
 
+def checked(truth, p_src, p_out, lead_mm):
+    """``(programmed compensated moves, TRUE lead error per written piece, TRUE start Z per pass)`` of a written
+    thread ``p_out`` against its program ``p_src`` (module docstring), asserting every programmed point reached within
+    :data:`TOL_POINT_UM` and every piece's TRUE lead ``lead_mm`` within LEAD_TOL_REL."""
+    lathe, field = _field(truth)
+    m_src = [m for m in p_src.moves if m.compensate]
+    errs, missed = lathe_points_reached(field, lathe, m_src, [m for m in p_out.moves if m.compensate],
+                                        (0.0, PART_Z_MM), TOL_POINT_UM)
+    assert missed is None and len(errs) == len(m_src) and max(errs) <= TOL_POINT_UM
+    lead_err, starts = true_leads(field, lathe, p_out.moves, (0.0, PART_Z_MM), lead_mm)
+    assert np.abs(lead_err).max() <= LEAD_TOL_REL
+    return m_src, lead_err, starts
+
+
 def test_g33_passes_split_each_piece_true_lead_k_and_passes_in_phase(tmp_path):
     rc, src, written, truth = _compensate(tmp_path, G33_PASSES)
     assert rc == 0
@@ -72,16 +86,11 @@ def test_g33_passes_split_each_piece_true_lead_k_and_passes_in_phase(tmp_path):
     bare = [ln for ln, c in zip(p_out.lines, p_out.classes) if c != "move" and not ln.startswith("(volcomp:")]
     assert [ln for ln, c in zip(p_src.lines, p_src.classes) if c != "move"] == bare
     assert not any("C" in ln.split("(")[0].upper() for ln in p_out.lines if not ln.startswith("("))
-    lathe, field = _field(truth)
-    m_src = [m for m in p_src.moves if m.compensate]
+    m_src, lead_err, starts = checked(truth, p_src, p_out, K_MM)
     assert sum(m.lead is not None for m in m_src) == 4 and sum(m.kind == "rapid" for m in m_src) == 3  # pass starts
-    errs, missed = lathe_points_reached(field, lathe, m_src, [m for m in p_out.moves if m.compensate],
-                                        (0.0, PART_Z_MM), TOL_POINT_UM)
-    assert missed is None and len(errs) == len(m_src) and max(errs) <= TOL_POINT_UM
-    lead_err, starts = true_leads(field, lathe, p_out.moves, (0.0, PART_Z_MM), K_MM)
     assert len(lead_err) > 4  # split in pieces (the error is not linear along 35 mm)
-    assert np.abs(lead_err).max() <= LEAD_TOL_REL
     assert len(starts) == 3 and np.ptp(starts) * 1e3 <= TOL_POINT_UM  # one TRUE start Z: the passes in phase
+    lathe, field = _field(truth)
     unc_err, unc_starts = true_leads(field, lathe, p_src.moves, (0.0, PART_Z_MM), K_MM)
     assert np.abs(unc_err).max() > 10 * LEAD_TOL_REL  # the truth bends the lead: the check can fail
     out = written.read_text().splitlines()

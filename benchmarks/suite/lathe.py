@@ -30,12 +30,14 @@ residual judged here, not by the compensator: the true machine driven to the wri
 (mean over one turn) beside the programmed contour point that move reaches (``gcode_corpus.lathe_points_reached``,
 the corpus count's lathe check); beside it the program as written (uncompensated) at the same points.
 
-Threading (Fanuc G32, compensation/nc_thread.py): :data:`THREAD` on ``lathe-xzc``, per seed a truth
-``ChainElementSet.random(lathe, seed, 10.0, 11)`` that is also the model, compensated by default. Judged here: the
-TRUE lead of every written G32 piece (:func:`true_leads`: written F' × true travel / commanded travel along the lead
-axis, the tip mean over one turn) against the programmed F, the TRUE position at the programmed points
-(``lathe_points_reached``) and the spread of the passes' TRUE start Z (the thread's phase between passes); beside
-each, the program as written (uncompensated) on the same truth.
+Threading (Fanuc G32, compensation/nc_thread.py; LinuxCNC G76 with ``--expand-cycles``, compensation/nc_g76.py):
+:data:`THREAD` and :data:`THREAD_G76` on ``lathe-xzc``, per seed a truth ``ChainElementSet.random(lathe, seed, 10.0,
+11)`` that is also the model, compensated by default. Judged here: the TRUE lead of every written G32 (G33) piece
+(:func:`true_leads`: written F' × true travel / commanded travel along the lead axis, the tip mean over one turn)
+against the programmed F (P), the TRUE position at the programmed points
+(``lathe_points_reached``) and the spread of the passes' TRUE start Z less their programmed start Z (the thread's
+phase between passes; a G76's passes start shifted by its compound slide); beside each, the program as written
+(uncompensated; a G76 as its expansion) on the same truth.
 
 Grooving cycles (Fanuc G74/G75, compensation/nc_groove.py): tests/test_lathe_grooving.py's programs on ``lathe-xzc``,
 per seed a truth ``ChainElementSet.random(lathe, seed, 10.0, 11)`` that is also the model: a G75 groove series (5
@@ -100,15 +102,17 @@ TOL_POINT_UM = 1.0
 """A programmed contour point is reached by the first later written move whose TRUE tip is this close to it."""
 
 
-def _compensate_steps(d: Path, extra=(), out: str | None = None) -> tuple[int, str, Path]:
-    """``volcomp compensate`` of ``d/p.nc`` (STEPS, THREAD, the grooving programs) with the truth in ``d`` as model and
-    truth into ``d/out`` (``out-expand`` with ``extra``; ``out`` names another): (rc, last stderr line, output)."""
+def _compensate_steps(d: Path, extra=(), out: str | None = None, dialect: str = "fanuc") -> tuple[int, str, Path]:
+    """``volcomp compensate`` of ``d/p.nc`` (STEPS, THREAD, the grooving programs; ``dialect`` "fanuc" with
+    ``--lathe-x diameter``, or "linuxcnc") with the truth in ``d`` as model and truth into ``d/out`` (``out-expand``
+    with ``extra``; ``out`` names another): (rc, last stderr line, output)."""
     from compensation.app.cli import main
     err, out = io.StringIO(), out or ("out-expand" if extra else "out")
+    x_words = ["--lathe-x", "diameter"] if dialect != "linuxcnc" else []
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
         rc = main(["compensate", str(d / "p.nc"), "--machine", "lathe-xzc", "--model", str(d / "truth.json"),
-                   "--truth", str(d / "truth.json"), "--method", "exact", "--dialect", "fanuc", "--lathe-x",
-                   "diameter", "--out", str(d / out), "--work-offsets", str(d / "off.csv"), "--tool-table",
+                   "--truth", str(d / "truth.json"), "--method", "exact", "--dialect", dialect, *x_words,
+                   "--out", str(d / out), "--work-offsets", str(d / "off.csv"), "--tool-table",
                    str(d / "tools.csv"), *extra])
     lines = err.getvalue().strip().splitlines()
     return rc, lines[-1] if lines else "", d / out / "p.nc"
@@ -191,6 +195,11 @@ THREAD = ("%\nO0100\nG21 G18 G40 G99\nT0101\nG97 S800 M03\nG00 X40. Z5.\nX29.4\n
 """An M30x1.5 thread in three Fanuc G32 passes (the second's lead modal, the third two consecutive G32 blocks), then
 a feed move with its own F and one without (tests/test_lathe_threading.py reads the same program)."""
 THREAD_LEAD_MM = 1.5
+THREAD_G76 = ("(M20x2.5 outside thread, LinuxCNC G76, diameter mode)\nG21 G18 G90 G7\nG54\nS400 M3\nG0 X22 Z5\n"
+              "G76 P2.5 Z-30 I-2 J0.6 K3.068 R1.5 Q29.5 H1\nG0 X40 Z10\nG1 X38 F100\nM5\nM2\n")
+"""An M20x2.5 thread by LinuxCNC's G76 (compensation/nc_g76.py; tests/test_lathe_g76.py): crest Ø20, full depth
+1.534 mm, first depth 0.3 mm, degression 1.5 (11 passes), 29.5° compound slide, one spring pass: 13 passes."""
+G76_LEAD_MM = 2.5
 
 
 def true_leads(field, lathe, moves, zero_xz_mm, lead_mm: float) -> tuple:
@@ -216,41 +225,51 @@ def true_leads(field, lathe, moves, zero_xz_mm, lead_mm: float) -> tuple:
     return true / revs / lead_mm - 1.0, a[first, 1]
 
 
-def threading(seed: int, d: Path) -> dict:
-    """One truth seed: THREAD compensated (default) with the truth as the model; TRUE lead error (relative, max over the
-    pieces) and TRUE position error at the programmed points (μm, max), beside the program as written."""
+def threading(seed: int, d: Path, g76: bool = False) -> dict:
+    """One truth seed: THREAD (``g76``: THREAD_G76, with ``--expand-cycles``) compensated with the truth as the model;
+    TRUE lead error (relative, max over the pieces), TRUE position error at the programmed points (μm, max) and the
+    spread of the passes' TRUE start Z less their programmed start Z (μm), beside the program as written (a G76's as
+    its expansion reads)."""
     from compensation.turning import parse_lathe_program
     from errormap.chain_field import ChainField
-    lathe, els = _seeded(seed, d, THREAD)
-    rc, err, written = _compensate_steps(d)
+    lathe, els = _seeded(seed, d, THREAD_G76 if g76 else THREAD)
+    dialect, lead_mm, x_words = ("linuxcnc", G76_LEAD_MM, None) if g76 else ("fanuc", THREAD_LEAD_MM, "diameter")
+    rc, err, written = _compensate_steps(d, ("--expand-cycles",) if g76 else (), dialect=dialect)
     assert rc == 0, f"seed {seed}: the thread was refused: {err}"
-    read = lambda f: parse_lathe_program(f, lathe, "keep", None, "fanuc", "diameter")[0].moves  # noqa: E731
-    src, out = read(d / "p.nc"), read(written)
+    read = lambda f, c: parse_lathe_program(f, lathe, "keep", None, dialect, x_words, cycles=c)[0].moves  # noqa: E731
+    src, out = read(d / "p.nc", "expand" if g76 else "keep"), read(written, "keep")
     field, zero = ChainField(lathe, els), (0.0, PART_Z_MM)
     m_src = [m for m in src if m.compensate]
     errs, missed = lathe_points_reached(field, lathe, m_src, [m for m in out if m.compensate], zero, TOL_POINT_UM)
-    assert missed is None, f"seed {seed}: THREAD line {missed} reached by no written move"
+    assert missed is None, f"seed {seed}: thread line {missed} reached by no written move"
     unc, _ = lathe_points_reached(field, lathe, m_src, m_src, zero, np.inf)
-    lead, starts = true_leads(field, lathe, out, zero, THREAD_LEAD_MM)
-    lead_unc, starts_unc = true_leads(field, lathe, src, zero, THREAD_LEAD_MM)
+    programmed = np.array([m.start[1] for n, m in enumerate(src) if m.lead is not None and src[n - 1].lead is None])
+    lead, starts = true_leads(field, lathe, out, zero, lead_mm)
+    lead_unc, starts_unc = true_leads(field, lathe, src, zero, lead_mm)
     return {"lead": float(np.abs(lead).max()), "lead_unc": float(np.abs(lead_unc).max()), "pos": max(errs),
-            "pos_unc": max(unc), "phase": float(np.ptp(starts)) * 1e3, "phase_unc": float(np.ptp(starts_unc)) * 1e3}
+            "pos_unc": max(unc), "phase": float(np.ptp(starts - programmed)) * 1e3,
+            "phase_unc": float(np.ptp(starts_unc - programmed)) * 1e3}
 
 
 def threading_figures(seeds) -> list:
-    """The threading figures (module docstring) over ``seeds``: maxima over the seeds."""
-    rows = over_seeds(threading, seeds)
-    mx = lambda k: float(max(r[k] for r in rows))  # noqa: E731
-    what = "Fanuc G32 thread M30x1.5, 3 passes, truth as the model"
-    return [{"what": f"{what}: TRUE lead error of every written G32 piece (max over pieces and seeds)",
-             "value": mx("lead") * THREAD_LEAD_MM * 1e3, "unit": "μm/rev", "residual": "true",
-             "anchor": "uncompensated (F as programmed)", "anchor_value": mx("lead_unc") * THREAD_LEAD_MM * 1e3},
-            {"what": f"{what}: TRUE position at the programmed points (pass starts, G32 ends; max over seeds)",
-             "value": mx("pos"), "unit": "μm", "residual": "true", "anchor": "uncompensated",
-             "anchor_value": mx("pos_unc")},
-            {"what": f"{what}: spread of the passes' TRUE start Z (the thread's phase; max over seeds)",
-             "value": mx("phase"), "unit": "μm", "residual": "true", "anchor": "uncompensated",
-             "anchor_value": mx("phase_unc")}]
+    """The threading figures (module docstring) over ``seeds``: maxima over the seeds, the G32 thread and the G76."""
+    figs = []
+    for g76, what, lead_mm, word in (
+            (False, "Fanuc G32 thread M30x1.5, 3 passes, truth as the model", THREAD_LEAD_MM, "G32"),
+            (True, "LinuxCNC G76 thread M20x2.5, 13 passes (29.5° compound, R1.5, H1), --expand-cycles, truth as the "
+                   "model", G76_LEAD_MM, "G33")):
+        rows = over_seeds(lambda s, d: threading(s, d, g76), seeds)
+        mx = lambda k: float(max(r[k] for r in rows))  # noqa: E731
+        figs += [{"what": f"{what}: TRUE lead error of every written {word} piece (max over pieces and seeds)",
+                  "value": mx("lead") * lead_mm * 1e3, "unit": "μm/rev", "residual": "true",
+                  "anchor": "uncompensated (lead as programmed)", "anchor_value": mx("lead_unc") * lead_mm * 1e3},
+                 {"what": f"{what}: TRUE position at the programmed points (pass starts, {word} ends; max over seeds)",
+                  "value": mx("pos"), "unit": "μm", "residual": "true", "anchor": "uncompensated",
+                  "anchor_value": mx("pos_unc")},
+                 {"what": f"{what}: spread of the passes' TRUE start Z less their programmed start Z (the thread's "
+                          "phase; max over seeds)", "value": mx("phase"), "unit": "μm", "residual": "true",
+                  "anchor": "uncompensated", "anchor_value": mx("phase_unc")}]
+    return figs
 
 
 def grooving_cycle(seed: int, d: Path) -> dict:
@@ -392,7 +411,8 @@ TITLE = "Lathe (`lathe-xzc`): identification from sweeps and a turning program c
 DATA = ("simulated `lathe-xzc` (`volcomp simulate --seed S`), sweeps at 2 μm, a G18 turning program with C moves; "
         "seeds 0–2 (quick: seed 0, no volume-grid figure); tool offsets: LinuxCNC two-tool program, ±10 μm/μrad "
         "truths, seeds 0–4 (quick: seed 0); contour cycles: Fanuc G71/G70 stepped shaft, ±10 μm/μrad truths as "
-        "the model, seeds 0–19 (quick: 0–2); threading: Fanuc G32 M30x1.5 in 3 passes, grooving: Fanuc G75 "
+        "the model, seeds 0–19 (quick: 0–2); threading: Fanuc G32 M30x1.5 in 3 passes and LinuxCNC G76 M20x2.5 "
+        "in 13, grooving: Fanuc G75 "
         "groove series and one-plunge G75, both on the contour cycles' truths and seeds")
 
 
