@@ -8,13 +8,16 @@ import csv
 import io
 import re
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from errormap.io import InputError, atomic_write
 
-from .gcode import GProgram, fmt as _fmt
 from .gcode_spline import spline_extent_mm
+
+if TYPE_CHECKING:  # the G-code reader (numba kernels) loads where a program is written, not with the defaults
+    from .gcode import GProgram
 
 TARGET_COLUMNS = ("px_mm", "py_mm", "pz_mm")
 DECIMALS_MM = 6   # 1 nm
@@ -108,6 +111,7 @@ def check_move_extent(program: GProgram, machine, cols=(0, 1), ends: bool = True
 def _render_csv(table, replace: dict) -> str:
     """The CSV ``table`` with the columns of ``replace`` (name -> (values, decimals)) rewritten: a plain CSV,
     header first (its provenance goes to the sidecar: :func:`compensated_sidecar`)."""
+    from .gcode import fmt as _fmt
     buf = io.StringIO(newline="")
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(table.names)
@@ -163,6 +167,7 @@ def compensated_sidecar(table, out_path, comments=()) -> str:
 
 def write_axes_gcode(path, axes, feed_mm_min: float = 200.0, header=()) -> Path:
     """Write axis commands as a plain G-code program (G21 G90, one ``G1 X Z A`` per point), atomically."""
+    from .gcode import fmt as _fmt
     axes = np.asarray(axes, dtype=float)
     out = [f"({h})\n" for h in header] + ["G21 G90\n"]
     for k, (x, z, a) in enumerate(axes):

@@ -13,7 +13,6 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from errormap.chain_kernel import inverse
 
 LEAD_LAWS = ("linear-helix", "linear-lead")
 HANDS = ("right", "left")
@@ -101,6 +100,7 @@ class FlutePath:
 
     def axes(self, machine) -> np.ndarray:
         """Nominal axis commands (x_mm, z_mm, a_deg) of the targets, A unwrapped from ``a_start_deg``."""
+        from errormap.chain_kernel import inverse
         return inverse(machine, self.targets_mm, unwrap=True, a_start_deg=self.settings.a_start_deg)
 
 

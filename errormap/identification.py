@@ -21,7 +21,7 @@ from .machine_tool import AXIS_WORDS, MachineTool
 from .chain_elements import ChainElementSet
 from .chain_normal import BlockLayout, BlockNormal, Undecided
 from .chain_sweeps import body_chain, park_axes, swept_words
-from .sweeps import Sweeps
+from .sweeps import GAUGES, Sweeps  # GAUGES: documented here, kept with the sweeps for the CLI's choices
 from .transforms import apply, skew
 
 UM = 1e-3     # mm per μm
@@ -33,7 +33,6 @@ TURN_TOL_DEG = 1e-6
 RANK_TOL = 1e-9
 """A pivoted-QR diagonal below this fraction of the largest (column-scaled Jacobian) is an unobservable direction."""
 COV_FORMAT = "volcomp-chain-covariance/1"
-GAUGES = ("first-station", "reference-line", "station-mean")
 LEVERAGE_FLOOR = 1e-6
 """A ball coordinate the fit reproduces exactly (leverage within this of 1) has no residual to draw from."""
 

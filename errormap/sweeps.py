@@ -19,6 +19,9 @@ REQUIRED_COLUMNS = ("axis", "station", "command", "target", "x_mm", "y_mm", "z_m
 OPTIONAL_COLUMNS = ("direction", "time_s", "temp_c")
 SWEEP_FORMAT = "volcomp-sweeps/1"
 MAX_STATION = 100_000  # station numbers count positions along one stroke; more is a typing mistake
+GAUGES = ("first-station", "reference-line", "station-mean")
+"""The machine-frame gauges one set-up's sweeps are identified in (:mod:`errormap.identification`; here, beside the
+file they are read from, so that ``volcomp identify`` lists them without loading the identification's scipy)."""
 
 
 def swept_words(machine: MachineTool) -> tuple:

@@ -19,7 +19,7 @@ import dataclasses
 from dataclasses import dataclass, field
 
 from ..batch import CHUNK_POINTS
-from ..gcode import DEFAULT_RAPIDS
+from ..gcode_words import DEFAULT_RAPIDS
 from ..pathio import DEFAULT_ARC_TOLERANCE_UM
 from ..toolpath import FLUTE_DEFAULTS, runs_flute
 from .validate import UsageError

@@ -13,7 +13,6 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-import torch
 from scipy.linalg import svd
 from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
@@ -22,6 +21,7 @@ from ..settings import keep_settings
 from ..io import InputError
 from ..threads import limit_threads
 from ..transforms import skew
+from .calibration_file import LAMBDA_RULES
 from .hexapod import KinematicsError, forward_kinematics, inverse_kinematics, workspace_poses
 from .machine_file import PKM
 from .poses import PoseData, check_pose_set
@@ -34,6 +34,7 @@ from .pose_model import (machine_from_vector, parameter_names, parameter_vector,
 # ---------------------------------------------------------------------------------------------
 
 def _constraint_single(x, r, q, R0, tool, k: int, rotate: bool):
+    import torch
     base = r[:3 * k].reshape(k, 3)
     plat = r[3 * k:6 * k].reshape(k, 3)
     off = r[6 * k:7 * k]
@@ -58,6 +59,7 @@ def pose_jacobian(machine: PKM, q: np.ndarray, tip_mm: np.ndarray, platform2base
     ``q`` (shape (n, 3), (n, 3, 3)). Returns shape (n, d, 8k): ``d = 6`` for the hexapod (tip, then
     the small rotation vector in the base frame, rad), 3 for the tripod.
     """
+    import torch  # here, not with the module: `volcomp calibrate` checks its inputs before paying for torch
     k = machine.n_legs
     rotate = machine.kind == "hexapod"
     d = 6 if rotate else 3
@@ -162,7 +164,7 @@ class PKMCalibrator:
     values), ``progress`` (callable taking a message, or None).
     """
 
-    RULES = ("morozov", "gcv", "lcurve")
+    RULES = LAMBDA_RULES
 
     def __init__(self, machine: PKM, estimate_scales: bool = True, register: bool = True,
                  noise_um: float | None = None, tau: float = 1.0, lever_mm: float | None = None,

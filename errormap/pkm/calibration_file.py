@@ -3,17 +3,12 @@
 ``model.json``; read back as the identified machine by ``compensation.model_file.read_model``."""
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
 
-from scipy.spatial.transform import Rotation
-
-
-if TYPE_CHECKING:
-    from .calibration import CalibrationResult
-
-
-def calibration_to_dict(result: CalibrationResult) -> dict:
-    """The machine-readable part of ``model.json``'s ``calibration`` section (see docs/explanation/parallel-kinematics.md)."""
+def calibration_to_dict(result) -> dict:
+    """The machine-readable part of ``model.json``'s ``calibration`` section (see
+    docs/explanation/parallel-kinematics.md) of ``result``, a :class:`errormap.pkm.calibration.CalibrationResult`
+    (not imported here: the calibrator imports this module)."""
+    from scipy.spatial.transform import Rotation  # here: every model reader imports this module's format name
     rot = Rotation.from_matrix(result.frame_rotation)
     m = result.machine
     return {
@@ -53,3 +48,6 @@ CALIBRATION_FORMAT = "volcomp-pkm-calibration/1"
 """The ``format`` key of the calibration document (the section of ``model.json``, or an older bare
 ``calibration.json``, recognised by it whatever its name; files written before the key existed are recognised by
 their ``kind`` and ``identified_machine`` keys)."""
+LAMBDA_RULES = ("morozov", "gcv", "lcurve")
+"""The rules that choose the Tikhonov λ (:class:`errormap.pkm.calibration.PKMCalibrator`), as the document's
+``lambda_rule`` names them (here, with the format, so that ``volcomp calibrate`` lists them without the solver)."""

@@ -13,7 +13,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
-from scipy.stats import f as f_dist
 
 from .hexapod import forward_kinematics
 from .machine_file import PKM
@@ -173,6 +172,7 @@ def scan_terms(nominal: PKM, q: np.ndarray, leg_res_mm: np.ndarray, seed=0,
     the F statistic and its p-value, and whether it passes (p < ``LOOP_ALPHA`` / number of candidates and a
     cross-validated gain >= ``LOOP_MIN_CV_GAIN``).
     """
+    from scipy.stats import f as f_dist  # scipy.stats (~0.5 s to import) loads for the F test, not with the module
     n, k = leg_res_mm.shape
     folds = np.random.default_rng(seed).permutation(n) % LOOP_FOLDS
     if rigid is None:

@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import brentq
 
 from ..machine_checks import MachineFileError, check_array, check_known_keys, check_number, check_table, optional_table
 
@@ -34,6 +33,7 @@ def pair_angle_from_side_ratio(ratio: float) -> float:
 
     Short side subtends ``phi``, long side ``120 - phi``: ``sin(phi/2) / sin((120-phi)/2) = ratio``.
     """
+    from scipy.optimize import brentq  # here: every machine file is parsed through this module's registry entry
     if not 0.0 < ratio < 1.0:
         raise ValueError(f"side ratio must be in (0, 1), got {ratio}")
     f = lambda phi: np.sin(np.radians(phi) / 2) - ratio * np.sin(np.radians(120.0 - phi) / 2)

@@ -16,12 +16,11 @@ import argparse
 from pathlib import Path
 
 from errormap.machine import MachineFileError, builtin_machine_path, load_machine
-from errormap.pkm.calibration import PKMCalibrator
+from errormap.pkm.calibration_file import LAMBDA_RULES
 
 from compensation.app.validate import UsageError
 
 from ..families import family_of
-from ..workflows.calibration import CalibrationSettings, run_calibration
 
 
 def register(subparsers):
@@ -51,7 +50,7 @@ def register(subparsers):
     pkm.add_argument("--no-register", action="store_true", help="the instrument frame is the machine frame")
     pkm.add_argument("--lever-mm", type=float, default=None, help="weight of orientation residuals (mm per rad; "
                      "default: estimated from the data, position noise / orientation noise)")
-    pkm.add_argument("--lambda-rule", choices=PKMCalibrator.RULES, default=None,
+    pkm.add_argument("--lambda-rule", choices=LAMBDA_RULES, default=None,
                      help="choice of the Tikhonov lambda: GCV (default), Morozov's discrepancy principle (delta from "
                           "--noise-um or estimated by GCV), or the L-curve corner")
     pkm.add_argument("--compare-rules", action="store_true",
@@ -103,6 +102,7 @@ def run_parallel(machine, args) -> int:
     baseline beside them."""
     if args.scales and args.no_scales:
         raise UsageError("--scales and --no-scales contradict each other (scales are identified by default)")
+    from ..workflows.calibration import CalibrationSettings, run_calibration  # the solver and figures: to run
     settings = CalibrationSettings(
         poses=args.poses, check=args.check, holdout=args.holdout, noise_um=args.noise_um, scales=not args.no_scales,
         register=not args.no_register, loop=not args.no_loop, lever_mm=args.lever_mm, seed=args.seed,

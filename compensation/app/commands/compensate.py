@@ -22,10 +22,9 @@ from compensation.app.validate import UsageError, one_line
 from ..families import family_of, say_read_as
 from ..options import add_cluster_options, add_condition_options, add_units_option, cluster_settings, conditions_from_args
 from ..workflows.cluster import EXIT_CLUSTER, ClusterError
-from ..workflows.compensate import CompensateSettings, compensate_files, print_refusals
 from ... import guards
 from ...fields import FAILED_VERDICT
-from ...gcode import BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, RAPIDS_CHOICES
+from ...gcode_words import BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, RAPIDS_CHOICES
 from ...dialects import DIALECT_NAMES
 from ...nc_subfiles import SubprogramFiles
 from ...nc_state import read_tool_table, read_work_offsets
@@ -150,6 +149,7 @@ def parse_max_segment(text):
 
 def settings_of(args) -> "CompensateSettings":
     """The options of ``compensate`` as its workflow's :class:`~compensation.app.workflows.compensate.CompensateSettings`."""
+    from ..workflows.compensate import CompensateSettings  # the G-code reader's kernels load to run, not to parse
     return CompensateSettings(method=args.method, model=args.model, out_dir=Path(args.out), force=args.force,
                               allow=parse_allow(args.allow), rapids=args.rapids, block_delete=args.block_delete,
                               arc_tolerance_um=args.arc_tolerance_um, units=args.units, truth=args.truth,
@@ -191,6 +191,7 @@ def run(args) -> int:
                                                                        args.force))
     if args.method is None:
         raise UsageError("the following arguments are required: --method")
+    from ..workflows.compensate import compensate_files, print_refusals
     settings = settings_of(args)
     run_ = on_executor(args, lambda ex: compensate_files(args.files, machine, settings, executor=ex))
     if isinstance(run_, int):

@@ -16,14 +16,14 @@ from compensation.app.validate import UsageError
 
 from ..families import family_of
 from ..options import add_flute_arguments, add_method_arguments, flute_from_args, parse_methods
-from ..workflows.demo import DEMO_GA_BUDGET_S, DemoSettings, run_demo
+from ..workflows.compare import DEMO_GA_BUDGET_S
 from ...toolpath import check_in_strokes
 
 DEFAULT_TRAIN_ITER = default_max_iter(DEFAULT_PHYSICS)  # as `volcomp train`'s default (training.DEFAULT_PHYSICS)
 # LM iterations without a better max |error| on the 5,000 off-grid selection points before the demo stops
 # training (the kept iterate is the best one, as in `volcomp train`; measured in docs/decisions/020-benchmark-notebook.md)
 DEFAULT_DEMO_TRAIN_PATIENCE = 100
-DEFAULT_DEMO_GA_BUDGET_S = DEMO_GA_BUDGET_S  # one constant, in the workflow's settings
+DEFAULT_DEMO_GA_BUDGET_S = DEMO_GA_BUDGET_S  # one constant, the workflow's settings' default
 
 
 def register(sub):
@@ -53,6 +53,7 @@ def register(sub):
 
 
 def run(args) -> int:
+    from ..workflows.demo import DemoSettings, run_demo  # the pipeline's libraries (numba, MLflow) load to run it
     t_start = time.perf_counter()
     methods = parse_methods(args.methods)
     machine = load_machine(args.machine)   # None: the built-in default machine

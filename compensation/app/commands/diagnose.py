@@ -88,10 +88,7 @@ def _run_checks(args) -> int:
     """CHECKS against an element set on a machine tool (a chain file, or a grinder file through its chain):
     the closed loop (:func:`compensation.app.workflows.measurement.diagnose_chain`) and its page."""
     from compensation.app.families import family_of, say_read_as
-    from compensation.app.workflows.measurement import diagnose_chain, diagnosis_lines
-    from compensation.app.reports.chain_diagnosis import write_chain_diagnosis_page
     from compensation.fields import resolve_model
-    from compensation.model_file import read_model
     if args.model is None:
         raise UsageError("CHECKS needs --model (the element set of `volcomp identify`, or a trained network)")
     machine = load_machine(args.machine)  # None: the built-in default machine
@@ -99,6 +96,10 @@ def _run_checks(args) -> int:
     fam.target("diagnose")   # an arm or a parallel machine: calibrate --check (the registry's gap)
     fam.refuse_unsupported("diagnose", args)
     src = resolve_model(args.model)
+    # the model is there: the loop's libraries (scipy, numba, MLflow) load now, not for a refusal
+    from compensation.app.workflows.measurement import diagnose_chain, diagnosis_lines
+    from compensation.app.reports.chain_diagnosis import write_chain_diagnosis_page
+    from compensation.model_file import read_model
     model = read_model(args.model, machine, args.tracking_uri, source=src)   # the one reader: what the model holds
     if model.network is not None and model.elements is None:   # a network: identified + effects, the retrain
         src = resolve_model(model.network) if model.network != src.spec else src
@@ -156,8 +157,6 @@ def _run_checks(args) -> int:
 
 
 def run(args) -> int:
-    from compensation.app.workflows.drift import run_drift
-    from errormap.diagnosis.drift_models import DriftSelector
     if (args.checks is None) == (args.drift is None):
         raise UsageError("give either CHECKS (with --model) or --drift LOG")
     if args.drift is not None:
@@ -166,6 +165,8 @@ def run(args) -> int:
         if given:   # never ignored silently: a drift log is channels over time, no machine or model is involved
             raise UsageError(f"{', '.join(given)}: not used by --drift (a drift log's channels need no machine "
                              "or model); leave it out")
+        from compensation.app.workflows.drift import run_drift
+        from errormap.diagnosis.drift_models import DriftSelector
         print(f"modelling drift log {args.drift} ...", file=sys.stderr)
         sel = DriftSelector(fit_fraction=args.fit_fraction, subset_kw={"alpha": args.alpha}, deploy=args.deploy)
         summary, paths = run_drift(args.drift, args.out, sel, time_unit=args.time_unit, units=args.units)

@@ -4,18 +4,13 @@ from __future__ import annotations
 
 import sys
 
-from errormap.chain_elements import ChainElementSet
 from errormap.estimators import Identification
-from errormap.identification import GAUGES
 from errormap.machine import load_machine
-from errormap.sweeps import read_sweeps
+from errormap.sweeps import GAUGES, read_sweeps
 from errormap.uncertainty import uncertainty_lines
 
 from ..families import family_of, say_read_as
-from ..reports.identification import iso_summary_lines, plot_chain_elements
 from ..validate import UsageError
-from ..workflows.identification import identify_chain_files
-from ..workflows.measurement import truth_in_gauge
 
 
 def register(sub):
@@ -81,8 +76,15 @@ def run(args) -> int:
     if args.truth and not args.plot:   # never read and ignored
         raise UsageError("--truth is overlaid on the plots: give --plot PREFIX too")
     boot = _bootstrap(args)
-    truth = ChainElementSet.load(args.truth, machine) if args.truth else None
+    truth = None
+    if args.truth:
+        from errormap.chain_elements import ChainElementSet
+        truth = ChainElementSet.load(args.truth, machine)
     sweeps = read_sweeps(args.sweeps, machine)
+    # the inputs are read: the identification's scipy and the figures load now, not for a refusal
+    from ..reports.identification import iso_summary_lines, plot_chain_elements
+    from ..workflows.identification import identify_chain_files
+    from ..workflows.measurement import truth_in_gauge
     say_read_as(machine)   # a kind = "grinder" file read as its chain, said once the inputs are read
     print(f"identifying {machine.name} from {', '.join(args.sweeps)} ...", file=sys.stderr)
     res, el_path, cov_path, report = identify_chain_files(machine, args.sweeps, args.out, report=args.report,

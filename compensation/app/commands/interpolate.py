@@ -13,15 +13,10 @@ from pathlib import Path
 
 from errormap.io import InputError
 from errormap.machine import builtin_machine_path, load_machine
-from errormap.pkm.hexapod import KinematicsError
-
-from compensation.model_file import read_model
-from compensation.pkm_interpolation import builtin_path, contour_step_mm, leg_program, read_waypoints
 
 from compensation.app.validate import UsageError
 
 from ..families import family_of
-from ..reports.tripod_sensitivity import plot_tripod_sensitivity
 
 
 def register(subparsers):
@@ -47,10 +42,15 @@ DEFAULT_MACHINE = "hexapod"
 
 def _calibrated(given, machine):
     """The identified machine of the calibration ``given`` (a model file, or the folder ``calibrate`` wrote it in)."""
+    from compensation.model_file import read_model
     return read_model(given, machine, family="parallel").calibration
 
 
 def run(args) -> int:
+    # the kinematics (scipy) and the figures load to run the command, not to build its parser
+    from compensation.pkm_interpolation import builtin_path, contour_step_mm, leg_program, read_waypoints
+    from errormap.pkm.hexapod import KinematicsError
+    from ..reports.tripod_sensitivity import plot_tripod_sensitivity
     machine = load_machine(args.machine or builtin_machine_path(DEFAULT_MACHINE))
     family = family_of(machine)
     family.target("interpolate")   # a parallel machine's leg commands: refused on other families, naming their path

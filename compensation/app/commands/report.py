@@ -16,13 +16,11 @@ from errormap.machine import load_machine
 
 from compensation.app.validate import UsageError
 
-from ...evaluate import load_truth
 from ...fields import CHAIN_MODEL_FORMAT, FAILED_VERDICT, MODEL_FORMAT, check_verdict, resolve_model
 from ...model_file import read_model
 from ...nc_state import read_work_offsets
 from ..families import family_of, refuse_model_family
 from ..options import add_flute_arguments, add_method_arguments, add_units_option, flute_from_args, parse_methods
-from ..reports.methods import print_table, write_report
 from ..workflows.compare import compare_methods
 from ...toolpath import check_in_strokes
 
@@ -155,6 +153,8 @@ def run(args) -> int:
     if missing:
         raise UsageError(f"{', '.join(missing)}: required to compare methods on a path (or give RUN, a diagnose "
                          "--machine folder)")
+    from ...evaluate import load_truth  # the chain's kernels (numba) and the report's figures load to run
+    from ..reports.methods import print_table, write_report
     methods = parse_methods(args.methods)
     machine = load_machine(args.machine)   # None: the built-in default machine
     family = family_of(machine)

@@ -17,17 +17,19 @@ from types import SimpleNamespace
 
 import numpy as np
 
-
+# the evaluation and the exact solver (numba kernels, scipy) load in the functions that run them, so that
+# the commands' defaults below (read when ``volcomp report``/``demo`` build their options) cost nothing
 from ...batch import CHUNK_POINTS, GA_METHODS, solve_batch
-from ...evaluate import RESIDUAL_DEFINITIONS, method_metrics, residual_metrics, true_residual_um
 from ...pathio import align_turns
 from ...solvers import METHODS, solver_spec
-from ...solvers.chain_exact import target_axes_of
 from ...solvers.threads import small_batch_threads
 
 REPORT_FORMAT = "volcomp-report/1"
 GA_PROBE_POINTS = 3        # points timed to estimate the per-point GA cost
 DEFAULT_GA_BUDGET_S = 120.0
+DEMO_GA_BUDGET_S = 5.0  # the per-point PyGAD GA (0.5–1 s a point, one core): a sample of the path, said so
+"""The demo's per-point GA budget (s): ``volcomp demo``'s default and its --help, from this one name (here, beside
+the comparison's default, so that the command reads it without loading the demo's workflow)."""
 
 
 @dataclass
@@ -67,6 +69,7 @@ class Comparison:
     columns: tuple = ()
 
     def metrics(self) -> dict:
+        from ...evaluate import RESIDUAL_DEFINITIONS
         return {"format": REPORT_FORMAT, "residuals": dict(RESIDUAL_DEFINITIONS),
                 "methods": {k: r.metrics for k, r in self.runs.items()},
                 "uncompensated": self.baseline, **self.info}
@@ -118,6 +121,8 @@ def compare_methods(field_, targets_mm, machine, methods=METHODS, truth=None, ga
     as fit in ``ga_budget_s`` seconds (all of them if they fit). ``seed`` goes to the
     stochastic solvers; ``solver_options`` maps method -> extra keyword options.
     """
+    from ...evaluate import method_metrics, residual_metrics, true_residual_um
+    from ...solvers.chain_exact import target_axes_of
     log = sys.stderr if log is None else log
     targets_mm = np.asarray(targets_mm, dtype=float)
     n = targets_mm.shape[0]

@@ -29,14 +29,10 @@ from compensation.app.validate import UsageError
 
 from ...evaluate import load_truth
 from ..reports.methods import print_table, write_report
-from .compare import compare_methods
+from .compare import DEMO_GA_BUDGET_S, compare_methods
 from .compensate import kernel_modules
 from .measurement import simulate_chain
 from .simulate import summary_lines
-
-
-DEMO_GA_BUDGET_S = 5.0  # the per-point PyGAD GA (0.5–1 s a point, one core): a sample of the path, said so
-"""The demo's per-point GA budget (s): ``volcomp demo``'s default and its --help, from this one name."""
 
 
 @dataclass
