@@ -292,7 +292,7 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     blocks read as moves (:mod:`compensation.nc_contour`), its grooving cycles and threading read
     (:mod:`compensation.nc_groove`, :mod:`compensation.nc_thread`)."""
     cs = st.contours
-    if _LCNC_G76.search(body) and getattr(st.dialect, "name", None) == "linuxcnc" and lathe_words(ax.words):
+    if getattr(st.dialect, "name", None) == "linuxcnc" and lathe_words(ax.words) and _LCNC_G76.search(body):
         try:
             bd, words, _ = tokenize(body)
         except _Refuse:

@@ -31,6 +31,7 @@ import math
 import numpy as np
 
 from .gcode_state import MM_PER_INCH, _Refuse
+from .nc_contour import _word_text
 
 LETTERS = frozenset("NGPZIJKRQHEL")
 """Words a G76 line may hold here (module docstring)."""
@@ -164,7 +165,6 @@ def g76_lines(line, e, src) -> tuple:
     expand_threading`): its moves (:func:`passes`) in absolute X Z of the program's units (X as the program writes
     it), each G33 with its lead K (the main cut's as P is written); ``src`` the line's origin entry (its source line
     first)."""
-    from .nc_contour import _word_text
     cut, p_mm, p_text, inch, diameter = e[3]
     unit = MM_PER_INCH if inch else 1.0
     ending = line[len(line.rstrip("\r\n")):] or "\n"

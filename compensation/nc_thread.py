@@ -40,6 +40,7 @@ import numpy as np
 
 from .gcode_state import MM_PER_INCH, _Refuse
 from .nc_contour import LatheExpansion, _word_text, expand_lines
+from .nc_g76 import g76_lines
 
 THREADING = {"G32": "thread cutting", "G92": "thread cutting cycle", "G76": "multiple threading cycle"}
 """Fanuc/Haas lathe threading codes (Fanuc 0i-TF G-code system A, Haas lathe manual)."""
@@ -312,7 +313,6 @@ def expand_threading(prog, path, reparse):
     to its Z; a G76 as its passes (:func:`compensation.nc_g76.g76_lines`); absolute, in the program's units (X as the
     program writes it: diameter or radius). ``reparse(text)`` reads the expanded text; ``prog`` itself where there is
     none."""
-    from .nc_g76 import g76_lines
     passes = {e[0]: e for e in prog.events if e[2] == "lathe-thread"}
     if not passes:
         return prog
