@@ -291,10 +291,10 @@ def detect_dialect(text: str) -> tuple:
     return name, what
 
 
-ROUGHING = ("a lathe roughing cycle (contour in an o-subroutine named by Q; P, D, J, L words of remapped configurations): "
-            "not read here (a Fanuc or Haas lathe's is); post the passes as G1/G2/G3")
-FINISHING = ("a lathe finishing cycle (contour in an o-subroutine named by Q): not read here; post the contour as "
-             "G1/G2/G3")
+ROUGHING = ("a lathe roughing cycle (contour in an o-subroutine named by Q): read on a lathe (a machine with X and Z, "
+            "no Y: compensation.nc_g7x), not on this machine; post the passes as G1/G2/G3")
+FINISHING = ("a lathe finishing cycle (contour in an o-subroutine named by Q): read on a lathe (a machine with X and "
+             "Z, no Y: compensation.nc_g7x), not on this machine; post the contour as G1/G2/G3")
 BOLT_HOLES = ("a hole pattern whose positions the control computes, each drilled by the canned cycle in force: not "
               "read; --expand-cycles does not apply; post each hole's X Y")
 LATHE_G7X = {"G70": f"finishing cycle: {FINISHING}", "G71": f"stock removal along Z: {ROUGHING}",
@@ -303,9 +303,10 @@ G7X = {("linuxcnc", None): LATHE_G7X,
        ("haas", False): {"G70": f"bolt hole circle: {BOLT_HOLES}", "G71": f"bolt hole arc: {BOLT_HOLES}",
                          "G72": f"bolt holes along an angle: {BOLT_HOLES}"}}
 """``G70``-``G72`` by dialect and machine (lathe: True) where they are refused: Haas mill manual (G70 bolt hole
-circle, G71 bolt hole arc, G72 bolt holes along an angle), LinuxCNC 2.9 (G70 finishing, G71 roughing, G72 facing, on
-any machine; the contour is a subroutine). A Fanuc or Haas lathe's G70-G73 with their contour blocks in the program
-are read by :mod:`compensation.nc_contour`. Elsewhere the generic two-reading message."""
+circle, G71 bolt hole arc, G72 bolt holes along an angle), LinuxCNC 2.9 (G70 finishing, G71 roughing, G72 facing,
+on a machine that is not a lathe; on a lathe :mod:`compensation.nc_g7x` reads them, the contour a subroutine). A Fanuc
+or Haas lathe's G70-G73 with their contour blocks in the program are read by :mod:`compensation.nc_contour`.
+Elsewhere the generic two-reading message."""
 
 
 def g7x_refusal(code: str, current: str, lathe: bool) -> str | None:

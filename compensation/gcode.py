@@ -107,7 +107,7 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
             raise plain_refusal from None
     try:
         prog = _parse_data(path, expanded.text.encode("latin-1"), rapids, block_delete, fast, ax, dia, evidence,
-                           lathe_x, tables)
+                           lathe_x, tables, dict(expanded.contours))
     except InputError as exc:
         raise expanded.relocate(exc) from None
     prog.expanded = expanded
@@ -126,12 +126,14 @@ def _g80_noted(prog: GProgram, line_end: str = "\n") -> GProgram:
 
 
 def _parse_data(path: Path, data: bytes, rapids, block_delete, fast: bool, ax: AxisWords, dia,
-                evidence: str, lathe_x: str | None = None, tables: tuple | None = None) -> GProgram:
+                evidence: str, lathe_x: str | None = None, tables: tuple | None = None, contours=None) -> GProgram:
+    """The reader of ``data`` (block-wise where it applies, else per line); ``contours`` the LinuxCNC G70-G72
+    contours by line (:attr:`compensation.nc_expand.Expanded.contours`; the per-line reader reads those cycles)."""
     replay = None if tables is None else (lambda: FrameReplay(path, ax.words, *tables))
     prog = _parse_blockwise(path, rapids, block_delete, data, ax, dia, lathe_x, replay) if (
         fast and _bulk_words(ax)) else None
     if prog is None or any(m.synced for m in prog.table.objects):  # a synchronised move (G33) makes the rapid before
-        prog = _parse_lines(path, rapids, block_delete, data, ax, dia, lathe_x, replay)  # it compensated: per line
+        prog = _parse_lines(path, rapids, block_delete, data, ax, dia, lathe_x, replay, contours)  # G33: per line
     prog.dialect, prog.dialect_evidence = dia.name, evidence
     return prog
 
@@ -160,12 +162,14 @@ def _lathe_x(dia, lathe_x) -> tuple:
     return lx, lx == "diameter"
 
 
-def _parse_lines(path, rapids, block_delete, data: bytes, ax: AxisWords, dia, lathe_x=None, replay=None) -> GProgram:
+def _parse_lines(path, rapids, block_delete, data: bytes, ax: AxisWords, dia, lathe_x=None, replay=None,
+                 contours=None) -> GProgram:
     """The per-line reader (the reference). ``replay``: None, or a maker of the
     :class:`compensation.nc_state.FrameReplay` that places a ``G53`` move's end (:func:`parse_program`'s ``tables``)."""
     lines = split_lines(data.decode("latin-1"))
     st = _State(len(ax.words))
     st.replay = replay() if replay is not None else None
+    st.g7x_contours = contours or {}
     st.dialect, st.lathe_x, st.diameter = dia, *_lathe_x(dia, lathe_x)
     classes, moves = [], []
     for idx, line in enumerate(lines):
@@ -177,7 +181,7 @@ def _parse_lines(path, rapids, block_delete, data: bytes, ax: AxisWords, dia, la
         classes.append(cls)
         if move is not None:
             moves.append(move)
-    if not any(m.compensate for m in moves) and not any(e[2] == "lathe-thread" for e in st.events):  # G92: expanded
+    if not any(m.compensate for m in moves) and not any(e[2] in ("lathe-thread", "lathe-g7x") for e in st.events):
         raise _no_motion(path, ax)
     return GProgram(path, lines, classes, moves, rapids, block_delete, axis_words=ax, events=tuple(st.events),
                     g80_line=st.g80_line)

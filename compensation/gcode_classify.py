@@ -15,6 +15,7 @@ from .nc_groove import groove_line
 from .nc_contour import applies as contour_reading
 from .nc_flow import TRACKED_NAMES
 from .nc_g76 import g76_line
+from .nc_g7x import g7x_line
 from .nc_thread import feed_word_seen, g32_move, g33_move, thread_line
 from .nc_state import lathe_words
 from .gcode_spline import nurbs_end, nurbs_line, spline_move, spline_points, spline_segments
@@ -57,6 +58,7 @@ class _State:
         self.thread = None         # a modal G92 thread cutting cycle in force (compensation.nc_thread)
         self.thread_lead = None    # (value, text) of the lead a G32 without F takes (compensation.nc_thread)
         self.last_move = None      # the last move read (a G32's start: compensation.nc_thread.g32_move)
+        self.g7x_contours = {}     # LinuxCNC G70-G72 contours by line (compensation.nc_expand.Expanded.contours)
 
 
 def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=None,
@@ -285,6 +287,8 @@ def _grbl_system(body: str, st: _State, ax: AxisWords) -> str:
 
 _LCNC_G76 = re.compile(r"[gG]\s*0*7\s*6(?![\d.])")
 """A line that may hold LinuxCNC's G76 (read by :func:`compensation.nc_g76.g76_line` on a lathe)."""
+_LCNC_G7X = re.compile(r"[gG]\s*0*7\s*[012]")
+"""A line that may hold LinuxCNC's G70-G72 (read by :func:`compensation.nc_g7x.g7x_line` on a lathe)."""
 
 
 def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
@@ -300,6 +304,15 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
         if words and g76_line(words, idx, st, ax) == "state":  # LinuxCNC's G76 (compensation.nc_g76)
             if bd:
                 raise _Refuse(body.index("/") + 1, "block delete '/' on a G76 line: not read; remove it")
+            return "state", None
+    if getattr(st.dialect, "name", None) == "linuxcnc" and lathe_words(ax.words) and _LCNC_G7X.search(body):
+        try:
+            bd, words, _ = tokenize(body)
+        except _Refuse:
+            words = ()  # the line's own reading names what it holds
+        if words and g7x_line(words, idx, st, ax) == "state":  # LinuxCNC's G70-G72 (compensation.nc_g7x)
+            if bd:
+                raise _Refuse(body.index("/") + 1, "block delete '/' on a G7x cycle line: not read; remove it")
             return "state", None
     if cs.pending is None and cs.active is None and not contour_reading(st, ax):
         return _classify_words(body, idx, st, rapids, block_delete, ax)  # not a Fanuc/Haas lathe: no cycle to read

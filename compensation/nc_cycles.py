@@ -209,7 +209,7 @@ def expand_cycles(text: str, path, mode: str, dialect: str | None = None, inner=
     if inner is not None:
         origin = [(inner.origin[s - 1][0], v and inner.origin[s - 1][1], inner.origin[s - 1][2]) for s, v, _ in origin]
     return CycleExpansion("".join(out), tuple(origin), dialect or "rs274", str(path), getattr(inner, "files", ()),
-                          mode, holes, spans, [ln.rstrip("\r\n") for ln in lines], inner)
+                          mode=mode, holes=holes, spans=spans, source=[ln.rstrip("\r\n") for ln in lines], inner=inner)
 
 
 def _codes(words) -> list:

@@ -22,7 +22,7 @@ from .nc_modal import ModalTracker
 from .nc_polar import has_polar, polar_cuts
 from .nc_flow import PREDEFINED_READ
 from .nc_flow import (MAX_CALL_DEPTH,  # noqa: F401  (re-exported: the documented call-depth bound)
-                      _Frame, _Return, assign, call_statement, evaluate, o_statement)
+                      _Frame, _Return, _spliced, assign, call_statement, evaluate, g7x_contour, o_statement)
 
 MAX_EXECUTED_LINES = 2_000_000
 """Executed source lines (every pass of a loop counts): more is refused as an endless loop."""
@@ -50,6 +50,8 @@ _LCNC_KEY_ORDER = ("sub", "endsub", "call", "do", "while", "repeat", "if", "else
 taking the first of these, in this order, that the text starts with (``interp_read.cc`` ``read_o``): so
 ``else if`` is ``elseif`` and ``end sub`` is ``endsub``; letters left after the keyword stop the controller
 ("Unexpected character after O-word": only ``[arguments]`` and comments may follow)."""
+_G7X_MARK = re.compile(r"[gG]\s*0*7\s*[012]")
+"""A plain line that may hold LinuxCNC's G70-G72 (its contour recorded: :func:`compensation.nc_flow.g7x_contour`)."""
 FUNCS = ("ABS", "ACOS", "ASIN", "ATAN", "COS", "EXP", "FIX", "FUP", "ROUND", "LN", "SIN", "SQRT", "TAN", "EXISTS")
 _PREC = {"**": 4, "*": 3, "/": 3, "MOD": 3, "+": 2, "-": 2, "EQ": 1, "NE": 1, "GT": 1, "GE": 1, "LT": 1, "LE": 1,
          "AND": 0, "OR": 0, "XOR": 0}
@@ -80,6 +82,10 @@ class Expanded:
     files: tuple = ()
     """``(first line, path, sha256)`` of each subprogram file read (:mod:`compensation.nc_subfiles`): source lines from
     ``first line`` (1-based, in the numbering of ``origin``) on are that file's, from its line 1."""
+    contours: tuple = ()
+    """``(output line (0-based), ((source line, text), ...))`` for each LinuxCNC ``G70``-``G72`` line written: the
+    lines of the o-subroutine its Q names, values evaluated (:func:`compensation.nc_flow.g7x_contour`), which the
+    cycle reads without running them (:mod:`compensation.nc_g7x`)."""
 
     def at(self, src: int) -> tuple:
         """``(path, line)`` of a source line in the numbering of ``origin``."""
@@ -547,7 +553,7 @@ class _Machine:
         polar = has_polar(text)
         self.dialect = dialect or _detect(self.stmts) or ("linuxcnc" if polar else None)
         self.glob, self.gnamed = {}, {}
-        self.out, self.origin = [], []
+        self.out, self.origin, self.contours = [], [], []
         self.executed, self.calls = 0, ()
         self.modal = ModalTracker() if _M7X_BYTES.search(text.lower().encode("latin-1")) else None
         follow = state is not None and (PREDEFINED_READ.search(text) or polar)
@@ -649,7 +655,8 @@ class _Machine:
         last = max((i for i, ln in enumerate(self.lines[:self.n_main]) if ln.strip()), default=None)
         if last is not None and self.lines[last].strip() == "%" and (not self.origin or self.origin[-1][0] != last + 1):
             self._emit(last)
-        return Expanded("".join(self.out), tuple(self.origin), self.dialect or "unknown", self.path, tuple(self.files))
+        return Expanded("".join(self.out), tuple(self.origin), self.dialect or "unknown", self.path, tuple(self.files),
+                        tuple(self.contours))
 
     def _tick(self, i):
         self.executed += 1
@@ -670,6 +677,13 @@ class _Machine:
                         self._emit(pc)
                         raise _Stop
                     seen_percent = True
+                if self.dialect == "linuxcnc" and _G7X_MARK.search(self.lines[pc]):
+                    try:
+                        code = _code_of(self.lines[pc].rstrip("\r"))
+                        words = _parse_words(_Parser(code), code, code, 0, None)[2]
+                    except _Refuse:
+                        words = ()  # the reader names what the line holds
+                    g7x_contour(self, pc, words, {})
                 self._emit(pc)
                 if s[1]:
                     raise _Stop
@@ -690,20 +704,13 @@ class _Machine:
             return call_statement(self, pc, call, words, vals, fr)
         if words:
             body = self.lines[pc].rstrip("\r")
-            cuts = [(a, b, "") for _, _, a, b in assigns]
-            cuts += [(w[1] + 1, w[2], _fmt(vals[id(w)], pc, w[1] + 1, self)) for w in words
-                     if w[3] is not None and w[0] not in "@^"]
+            cuts = self._cuts(pc, words, assigns, vals)
             polar, more = polar_cuts(self, pc, body, words, lambda w: vals[id(w)] if w[3] is not None else w[4],
                                      lambda v, col: _fmt(v, pc, col, self))
             cuts += polar
+            g7x_contour(self, pc, words, vals)
             if cuts:
-                out, at = [], 0
-                for a, b, rep in sorted(cuts):
-                    out.append(body[at:a])
-                    out.append(rep)
-                    at = b
-                out.append(body[at:])
-                self._emit(pc, "".join(out))
+                self._emit(pc, _spliced(body, cuts))
             else:
                 self._emit(pc)
             for text in more:  # a G91 polar canned cycle's further holes (compensation.nc_polar)
@@ -711,6 +718,13 @@ class _Machine:
         if ends:
             raise _Stop
         return pc + 1
+
+    def _cuts(self, pc, words, assigns, vals) -> list:
+        """``[(start, end, text)]``: the spans of a line's parameter settings (removed) and its words' expressions
+        (their values written)."""
+        cuts = [(a, b, "") for _, _, a, b in assigns]
+        return cuts + [(w[1] + 1, w[2], _fmt(vals[id(w)], pc, w[1] + 1, self)) for w in words
+                       if w[3] is not None and w[0] not in "@^"]
 
     def _do_then(self, pc, s, fr):
         if self._truth(s[2], pc, fr):

@@ -347,6 +347,51 @@ def _load_sub(m, pc, col, name):
                               "file holds its own subroutine)")
 
 
+# ---------------------------------------------------------------------------- LinuxCNC G70-G72 contours
+G7X = (70, 71, 71.1, 71.2, 72, 72.1, 72.2)
+"""LinuxCNC's lathe cycles whose contour is a subroutine (:mod:`compensation.nc_g7x`)."""
+
+
+def g7x_contour(m, pc, words, vals):
+    """On a LinuxCNC ``G70``-``G72`` line with Q (``m`` the running ``nc_expand._Machine``): the lines of the
+    subroutine o<Q> recorded (:attr:`compensation.nc_expand.Expanded.contours`) for the line about to be written,
+    each a motion line with its values evaluated in a fresh call's parameters (the cycle reads them,
+    ``interp_g7x.cc``, without running them); refused: a subroutine line that sets a parameter, calls, branches or
+    ends the program (what the cycle would run of it is not read here)."""
+    value = lambda w: w[4] if w[3] is None else vals[id(w)]  # noqa: E731
+    if m.dialect != "linuxcnc" or not any(w[0] == "G" and round(value(w), 1) in G7X for w in words):
+        return
+    q = next((w for w in words if w[0] == "Q"), None)
+    name = None if q is None else str(int(math.floor(value(q) + 0.5)))  # the interpreter's lround (Q > 0)
+    span = m.subs.get(name)
+    if span is None or span[0] > pc:  # LinuxCNC knows a subroutine once it has read its definition
+        return  # the reader refuses the cycle: no contour
+    lines, fr = [], _Frame(f"o{name}")
+    for j in range(span[0], span[1] - 1):
+        s = m.stmts[j]
+        if s[0] == "plain" and not s[1]:
+            lines.append((j + 1, m.lines[j].rstrip("\r")))
+        elif s[0] == "words" and not s[3] and s[4] is None and not s[5] and all(w[0] not in "@^" for w in s[2]):
+            got = {id(w): evaluate(m, w[3], j, fr, True) for w in s[2] if w[3] is not None}
+            lines.append((j + 1, _spliced(m.lines[j].rstrip("\r"), m._cuts(j, s[2], (), got))))
+        else:
+            col = s[3][0][2] + 1 if s[0] == "words" and s[3] else s[5] if s[0] == "o" else None
+            raise m._err(j, col, f"in o{name}, the contour of the G7x cycle on {m._at(pc)}: the cycle reads its "
+                                 "subroutine's lines without running them; only motion lines (values and expressions) "
+                                 "are read there, not a parameter setting, a call, control flow or a program end")
+    m.contours.append((len(m.out), tuple(lines)))
+
+
+def _spliced(body: str, cuts: list) -> str:
+    """``body`` with each span ``(start, end)`` of ``cuts`` replaced by its text."""
+    out, at = [], 0
+    for a, b, rep in sorted(cuts):
+        out.append(body[at:a])
+        out.append(rep)
+        at = b
+    return "".join(out) + body[at:]
+
+
 # ---------------------------------------------------------------------------- LinuxCNC O-codes
 def o_statement(m, pc, s, fr):
     _, label, name, kw, args, col = s

@@ -21,6 +21,7 @@ from errormap.io import InputError
 from .evaluate import gradient_norm
 from .gcode import AxisWords, GProgram, parse_program, tokenize
 from .nc_contour import expand_finishing, refuse_open
+from .nc_g7x import expand_g7x, refuse_kept as refuse_kept_g7x
 from .nc_groove import expand_grooves, refuse_kept as refuse_kept_groove
 from .nc_thread import expand_threading, refuse_kept as refuse_kept_thread
 
@@ -140,7 +141,8 @@ def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe
 
 def _read(path, cycles, **kw) -> GProgram:
     """:func:`compensation.gcode.parse_program` of a lathe program (``kw``), its G70 lines, G92 passes and G74/G75
-    cycles expanded where ``cycles`` is ``"expand"`` (:func:`compensation.nc_contour.expand_finishing`,
+    cycles and LinuxCNC G70-G72 expanded where ``cycles`` is ``"expand"`` (:func:`compensation.nc_g7x.expand_g7x`,
+    :func:`compensation.nc_contour.expand_finishing`,
     :func:`compensation.nc_thread.expand_threading`, :func:`compensation.nc_groove.expand_grooves`); kept, a G92
     refused (:func:`compensation.nc_thread.refuse_kept`) and a G74/G75 of several columns refused
     (:func:`compensation.nc_groove.refuse_kept`)."""
@@ -149,12 +151,14 @@ def _read(path, cycles, **kw) -> GProgram:
         try:  # refused on the program's flat lines, named at the source line
             refuse_kept_thread(path, prog.events)  # a G92 kept as a cycle (compensation.nc_thread)
             refuse_kept_groove(path, prog.events)  # a G74/G75 of several columns: only as its moves
+            refuse_kept_g7x(path, prog.events)  # a LinuxCNC G70-G72: only as its moves (compensation.nc_g7x)
         except InputError as exc:
             raise (prog.expanded.relocate(exc) if prog.expanded is not None else exc) from None
         return prog
     refuse_open(path, prog.events)
     kw.pop("subprograms", None)  # the flat text: its calls are expanded already
     reparse = lambda text: parse_program(path, data=text.encode("latin-1"), **kw)  # noqa: E731
+    prog = expand_g7x(prog, path, reparse)  # first: the flat text read again holds no contour for them
     return expand_grooves(expand_threading(expand_finishing(prog, path, reparse), path, reparse), path, reparse)
 
 

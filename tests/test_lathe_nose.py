@@ -130,7 +130,7 @@ def test_the_same_register_again_and_a_change_after_g40_are_read(tmp_path):
     ("haas", True, "line 4, column 1: the G71 on line 3 names its contour's first block N10: that block must "
                    "follow the cycle line"),  # read by compensation.nc_contour: tests/test_lathe_contour_cycles.py
     ("fanuc", True, "line 4, column 1: the G71 on line 3 names its contour's first block N10"),
-    ("linuxcnc", True, "'G71' on linuxcnc: stock removal along Z: a lathe roughing cycle"),
+    ("linuxcnc", True, "line 3, column 5: 'P10' on a G71 line: only Q X Z D I R are read there"),  # nc_g7x
     ("haas", False, "'G71' on a haas mill: bolt hole arc: a hole pattern whose positions the control computes"),
 ])
 def test_g71_is_refused_saying_why_in_that_dialect(tmp_path, dialect, lathe, what):

@@ -103,13 +103,13 @@ def test_g92_refusals_name_line_column_word_and_option(tmp_path, offsets, text, 
 
 def test_a_lathe_program_without_c_is_refused_for_its_own_word_not_for_c(tmp_path):
     """A turning program with no C word is read with X and Z: its refusal names its own word (here the
-    G72 facing cycle), not the C it never uses."""
+    G72 facing cycle's P, a word it does not read: compensation/nc_g7x.py), not the C it never uses."""
     from compensation.turning import parse_lathe_program
     p = tmp_path / "face.ngc"
     p.write_text("G18 G21 G90\nG0 X30 Z5\nS800 M3\nG1 X20 Z0 F0.2\nG72 X0 Z-2 P1 Q2\nM5\nM2\n")
     with pytest.raises(InputError) as err:
         parse_lathe_program(p, load_machine("lathe-xzc"), "keep", None, "linuxcnc")
-    assert str(err.value).startswith(f"{p}: line 5, column 1: 'G72'"), str(err.value)
+    assert str(err.value).startswith(f"{p}: line 5, column 12: 'P1' on a G72 line"), str(err.value)
 
 
 # ---------------------------------------------------------------------------- G33, G33.1, G4 with motion

@@ -1,0 +1,157 @@
+"""LinuxCNC's lathe cycles G70 (finishing) and G71/G72 (roughing) whose contour is the o-subroutine Q names
+(compensation/nc_g7x.py, compensation/nc_g7x_path.py): read exactly, written with ``--expand-cycles`` as the moves
+LinuxCNC's interpreter makes, each compensated point by point; refused kept. Programs written here from the LinuxCNC
+G-code reference ("G70 Lathe finishing cycle": ``G70 Q- X- Z- D- E- P-``; "G71 G72 Lathe roughing cycles":
+``G71 Q- X- Z- D- I- R-``), not copied.
+
+The expected moves are computed here from the cycles' rules, for a turned step (a Z line at radius ``A`` from the
+start's Z to ``ZF``, then a face up to the start's X), independently of the reader:
+
+- G70: passes k = P … 1 at distance (k − 1)(D − E)/P + E from the contour (interp_g7x.cc's ``do_g70``): at distance
+  δ the Z line lies at X = A + δ and the face at Z = ZF + δ, meeting there; each pass rapids to the start point, rapids
+  to the offset contour's first point, then feeds along it (the contour's G0 lines too);
+- G71: the contour offset by D; levels X = X0 − k·I (k = 0, 1, …) while above A + D, each a rapid to the level at the
+  start's Z, a feed along Z to the offset face (Z = ZF + D), a rapid escape by R in X and Z, a rapid back along Z to
+  the start's Z − R, a rapid down to the level; then a rapid to A + D, a feed along the offset Z line and up the face.
+
+The compensated program is checked on ``lathe-xzc`` with a seeded truth that is also the model
+(tests/test_lathe_g33.py's truth and part zero): every point of the expanded moves reached, in order, by a written
+move whose TRUE tip (mean over one turn) lies within :data:`test_lathe_g33.TOL_POINT_UM`; the lines that are not
+moves byte for byte. The arithmetic of compensation/nc_g7x_path.py was also compared, outside the test suite, with
+LinuxCNC's own interp_g7x.cc compiled on its own (1,800 random contours of lines and arcs, every cycle: the same moves
+within 3e-8 mm, the same refusals, and a refusal where the reference crashes)."""
+import numpy as np
+import pytest
+from test_lathe_g33 import LATHE, PART_Z_MM, TOL_POINT_UM, _compensate, _field
+
+from benchmarks.suite.gcode_corpus import lathe_points_reached
+from compensation.turning import parse_lathe_program
+from errormap.io import InputError
+from errormap.machine import load_machine
+
+TOL_WRITTEN_MM = 1e-6
+"""An expanded move's end equals the reference's within this: the written words' rounding (7 decimals: 0.5e-7 mm)
+with margin."""
+X0, Z0, A, ZF = 20.0, 2.0, 10.0, -20.0
+"""The start point (radius, Z mm), the step's radius and its face's Z."""
+STEP = ("(turned step, LinuxCNC G71 and G70)\nG21 G18 G90 G8\nG54\nS800 M3\nF200\n"
+        "O100 SUB\n  G0 X{a:g} (onto the contour)\n  G1 Z{zf:g} (along the step)\n  G1 X{x0:g}\nO100 ENDSUB\n"
+        "G0 X{x0:g} Z{z0:g}\n{cycle}\nG0 X40 Z10\nM5\nM2\n")
+
+
+def _program(cycle, x0=X0, a=A):
+    return STEP.format(a=a, zf=ZF, x0=x0, z0=Z0, cycle=cycle)
+
+
+def _read(path, cycles="expand"):
+    return parse_lathe_program(path, load_machine(LATHE), "keep", None, "linuxcnc", cycles=cycles)[0]
+
+
+def _moves(tmp_path, cycle, **kw):
+    src = tmp_path / "p.ngc"
+    src.write_text(_program(cycle, **kw))
+    prog = _read(src)
+    moves = prog.moves[1:-1]  # the G0 to the start before, the G0 after
+    return [(m.kind, m.end[0], m.end[1]) for m in moves]
+
+
+def _g70_reference(d, e, p):
+    out = []
+    for k in range(p, 0, -1):
+        delta = (k - 1) * (d - e) / p + e
+        out += [("rapid", X0, Z0), ("rapid", A + delta, Z0), ("linear", A + delta, ZF + delta),
+                ("linear", X0, ZF + delta)]
+    return out
+
+
+def _g71_reference(d, i, r):
+    out, x = [("rapid", X0, Z0)], X0
+    while x > A + d:
+        out += [("rapid", x, Z0), ("linear", x, ZF + d), ("rapid", x + r, ZF + d + r), ("rapid", x + r, Z0 - r),
+                ("rapid", x, Z0)]
+        x -= i
+    return out + [("rapid", A + d, Z0), ("linear", A + d, ZF + d), ("linear", X0, ZF + d)]
+
+
+def _same(got, ref):
+    assert [g[0] for g in got] == [r[0] for r in ref]
+    assert np.abs(np.array([g[1:] for g in got]) - np.array([r[1:] for r in ref])).max() <= TOL_WRITTEN_MM
+
+
+@pytest.mark.parametrize("d, e, p", [(0.0, 0.0, 1), (1.0, 0.0, 2), (1.5, 0.25, 3)])
+def test_g70_expanded_passes_are_the_reference_offsets(tmp_path, d, e, p):
+    _same(_moves(tmp_path, f"G70 Q100 X{X0} Z{Z0} D{d} E{e} P{p}"), _g70_reference(d, e, p))
+
+
+@pytest.mark.parametrize("d, i, r", [(0.5, 2.0, 0.5), (0.0, 3.0, 0.3), (0.25, 1.5, 0.0)])
+def test_g71_expanded_levels_are_the_reference_roughing(tmp_path, d, i, r):
+    got = _moves(tmp_path, f"G71 Q100 X{X0} Z{Z0} D{d} I{i} R{r}")
+    _same(got, _g71_reference(d, i, r))
+
+
+ARC = ("(turned shaft with a rounded shoulder, LinuxCNC G71 and G70)\nG21 G18 G90 G8\nG54\nS800 M3\nF150\n"
+       "O200 SUB\n  G0 X12\n  G1 Z-10\n  G1 X16 Z-14\n  G1 Z-25\n  G3 X19 Z-28 I0 K-3\n  G1 Z-40\n  G1 X24\n"
+       "O200 ENDSUB\nG0 X24 Z2\nG71 Q200 X24 Z2 D0.4 I1.5 R0.5\nG70 Q200 X24 Z2 D0.4 P2\nG0 X40 Z10\nM5\nM2\n")
+"""A shaft: X12 (radius) to Z-10, a taper to X16, a rounded shoulder (G3, radius 3) up to X19, a face to X24."""
+ARC_CONTOUR = [(12.0, 2.0, None), (12.0, -10.0, None), (16.0, -14.0, None), (16.0, -25.0, None),
+               (19.0, -28.0, (16.0, -28.0)), (19.0, -40.0, None), (24.0, -40.0, None)]
+"""The contour's points (X radius, Z mm; an arc's centre) as the reference reads it from O200."""
+
+
+def test_g70_last_pass_is_the_contour_with_its_arc(tmp_path):
+    src = tmp_path / "p.ngc"
+    src.write_text(ARC)
+    prog = _read(src)
+    last = prog.moves[-len(ARC_CONTOUR) - 2:-1]  # the last pass (distance 0), before the G0 after the cycle
+    assert [m.kind for m in last] == ["rapid", "rapid"] + ["linear"] * 3 + ["arc"] + ["linear"] * 2
+    assert np.allclose(last[0].end, (24.0, 2.0), rtol=0, atol=TOL_WRITTEN_MM)  # the start point
+    for m, (x, z, c) in zip(last[1:], ARC_CONTOUR):
+        assert np.allclose(m.end, (x, z), rtol=0, atol=TOL_WRITTEN_MM)
+        if c is not None:  # G18: the arc's u column is Z, its v column X
+            assert (m.arc["ju"], m.arc["jv"]) == (1, 0)
+            assert np.allclose((m.arc["vc"], m.arc["uc"]), c, rtol=0, atol=TOL_WRITTEN_MM)
+            assert abs(m.arc["r0"] - 3.0) <= TOL_WRITTEN_MM and abs(m.arc["r1"] - 3.0) <= TOL_WRITTEN_MM
+            assert abs(m.arc["sweep"] - np.pi / 2) <= 1e-9  # a quarter turn, as G3 from (16, -25) about (16, -28)
+
+
+def test_g71_g70_compensated_every_point_true(tmp_path):
+    rc, src, written, truth = _compensate(tmp_path, ARC, ("--expand-cycles",))
+    assert rc == 0
+    p_src, p_out = _read(src), _read(written, "keep")
+    lathe, field = _field(truth)
+    m_src = [m for m in p_src.moves if m.compensate]
+    assert len(m_src) > 20  # the roughing levels' cuts and both finishing passes (their rapids kept as written)
+    errs, missed = lathe_points_reached(field, lathe, m_src, [m for m in p_out.moves if m.compensate],
+                                        (0.0, PART_Z_MM), TOL_POINT_UM)
+    assert missed is None and len(errs) == len(m_src) and max(errs) <= TOL_POINT_UM
+    unc, _ = lathe_points_reached(field, lathe, m_src, m_src, (0.0, PART_Z_MM), 1e9)
+    assert max(unc) > 10 * TOL_POINT_UM  # the truth moves the programmed points: the check can fail
+    non_moves = [ln for ln, c in zip(p_out.lines, p_out.classes) if c != "move" and not ln.startswith("(volcomp:")]
+    assert non_moves == [ln for ln, c in zip(p_src.lines, p_src.classes) if c != "move"]
+
+
+@pytest.mark.parametrize("old,new,where", [
+    ("D0.5 I2 R0.5", "D0.5 I2 R0.5", "line 12, column 1: 'G71' (roughing cycle, contour o100) kept as a cycle"),
+    ("G21 G18 G90 G8", "G21 G18 G90 G7", "line 12, column 1: 'G71' (roughing cycle) in diameter mode G7"),
+    ("G21 G18 G90 G8", "G21 G17 G90 G8", "line 12, column 1: 'G71' (roughing cycle) in a plane other than G18"),
+    ("G0 X20 Z2", "G0 X20 Z2\nG91", "line 13, column 1: 'G71' (roughing cycle) under G91"),
+    ("Q100", "Q200", "line 12, column 5: 'Q200': no subroutine o200 defined before the G71"),
+    (" R0.5", " R0.5 F100", "line 12, column 30: 'F100' on a G71 line"),
+    (" R0.5", " R0.5 U1", "line 12, column 30: 'U1' on a G71 line"),
+    (" I2", " I0", "line 12, column 22: 'I0' on a G71 line: the depth of cut must be > 0"),
+    ("  G1 Z-20 (", "  G1 Z-20 F50 (",
+     "line 12, column 1: line 8 (the contour o100), column 11: 'F50' in a G7x contour"),
+    ("  G0 X10 (onto", "  X10 (onto",
+     "line 12, column 1: line 7 (the contour o100): the contour moves before it names"),
+    ("  G1 X20", "  G1 X20\n  #<a> = 3", "line 10, column 3: in o100, the contour of the G7x cycle on"),
+    ("  G1 X20", "  G1 X15 Z-10", "line 12, column 1: 'G71' (roughing cycle, contour o100): not computed as LinuxCNC "
+                                  "computes it: the reference's 'Not monotonic'"),
+])
+def test_g71_refusals_name_line_column_word(tmp_path, old, new, where):
+    src = tmp_path / "p.ngc"
+    src.write_text(_program("G71 Q100 X20 Z2 D0.5 I2 R0.5").replace(old, new, 1))
+    with pytest.raises(InputError) as exc:
+        _read(src, "keep" if "kept" in where else "expand")
+    assert where in str(exc.value), str(exc.value)
+    if "kept" in where:
+        assert "use --expand-cycles" in str(exc.value)
