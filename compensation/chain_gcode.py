@@ -45,8 +45,8 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
         solved = set()
     words = dataclasses.replace(words, kept=tuple(w for w in words.kept if w not in solved))
     from .gcode import MAX_PROGRAM_BYTES, _dialect_of, g80_note
-    from .tcp import attach, tcp_prepass
-    data, pre, name, evidence, dia = None, None, None, "", None
+    from .tcp import attach, flat_prepass
+    data, pre, name, evidence, dia, flat = None, None, None, "", None, None
     if Path(path).is_file() and Path(path).stat().st_size <= MAX_PROGRAM_BYTES:  # TCP and G93 words (compensation.tcp)
         raw, line_end = cr_line_ends(Path(path).read_bytes())
         try:
@@ -54,21 +54,24 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
             name = dia.name
         except InputError:
             name = None  # the reader refuses it with its own words
-        if name is not None:
-            data, pre = tcp_prepass(path, raw, name, machine)
+        if name is not None:  # a program with calls or parameters: the pre-pass reads its flat program
+            flat, data, pre = flat_prepass(path, raw, name, machine, subprograms)
     named = name if pre is not None and name != "rs274" else dialect  # the pre-pass blanked what recognised it
     if dialect == "auto" and name is not None and evidence.startswith("recognised"):
         named = name  # recognised once, above (its evidence kept below); none: auto (dialects.UNRECOGNISED)
     # read once: the pre-pass's bytes (the file's own where it found nothing); nothing recognised above is not looked
     # for again (blanking TCP words cannot add a dialect word)
-    prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=words,
-                         dialect=named, cycles=None if cycles is None else partial(cycle_pass, mode=cycles),
-                         data=data, found=(dia, evidence) if named == "auto" and dia is not None else None,
-                         tables=tables, subprograms=subprograms)
+    try:
+        prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=words,
+                             dialect=named, cycles=None if cycles is None else partial(cycle_pass, mode=cycles),
+                             data=data, found=(dia, evidence) if named == "auto" and dia is not None else None,
+                             tables=tables, subprograms=subprograms)
+    except InputError as exc:  # the flat program's lines named at the source
+        raise (flat.relocate(exc) if flat is not None else exc) from None
     if data is not None:
         prog.line_end = line_end  # the pre-pass's bytes: LF in place of a CR-only file's CR, read above
     if pre is not None:
-        attach(prog, pre)
+        attach(prog, pre, flat)
     if pre is not None or (dialect == "auto" and name is not None):
         prog.dialect_evidence = evidence + (f"; {g80_note(prog.g80_line)}" if prog.g80_line else "")
     return prog

@@ -126,9 +126,7 @@ def tcp_prepass(path, data: bytes, dialect_name: str, machine):
     tool length), or ``(data, None)`` where the program has none. Refuses (InputError, file, line,
     column) what has no exact meaning."""
     from .gcode import split_lines
-    codes = "|".join(f"M0*{c}" for c in sorted(set((machine.tcp or {}).get("switch_on", ()))
-                                                 | set((machine.tcp or {}).get("switch_off", ()))))
-    if dialect_name != "heidenhain-iso" and _triggered(data, codes) is None:
+    if not prepass_applies(data, dialect_name, machine):
         return data, None  # the common case: no word of this module (the reader keeps its bulk speed)
     lines = split_lines(data.decode("latin-1"))
     rotary = [a for a in machine.axes if a.kind != "linear"]
@@ -155,6 +153,44 @@ def tcp_prepass(path, data: bytes, dialect_name: str, machine):
         return data, None
     return "".join(out).encode("latin-1"), TcpProgram(on, g93, switch, words, tool_events, lines,
                                                      off_at_end=state.get("off_lines", []))
+
+
+def prepass_applies(data: bytes, dialect_name: str, machine) -> bool:
+    """Whether ``data`` may hold a word of this module (:data:`TRIGGER`, the machine's TCP switch M codes, or a
+    Heidenhain program): the pre-pass reads it line by line."""
+    codes = "|".join(f"M0*{c}" for c in sorted(set((machine.tcp or {}).get("switch_on", ()))
+                                                 | set((machine.tcp or {}).get("switch_off", ()))))
+    return dialect_name == "heidenhain-iso" or _triggered(data, codes) is not None
+
+
+def flat_prepass(path, data: bytes, dialect_name: str, machine, subprograms=None):
+    """:func:`tcp_prepass` of a program that holds subprograms, macros or parameters: run on its flat program
+    (:func:`compensation.nc_expand.expand_if_needed`, by the rules the reader would use), so a ``G93`` block
+    written inside a call has its own line and F. Returns ``(expanded or None, bytes for the reader,
+    TcpProgram or None)``; ``expanded`` None where the program is read as it is (then :func:`tcp_prepass` of
+    ``data``). Refusals are named at the source line."""
+    from . import nc_expand
+    from .gcode_classify import ProgramState
+    exp = None
+    if dialect_name in nc_expand.DIALECTS and prepass_applies(data, dialect_name, machine) and \
+            nc_expand.needs_expansion(data):
+        try:
+            exp = nc_expand.expand_if_needed(data, path, dialect_name, ProgramState, subprograms)
+        except InputError:
+            exp = None  # read as before: the reader's own expansion names the refusal
+    if exp is None:
+        return (None,) + tcp_prepass(path, data, dialect_name, machine)
+    try:
+        flat, pre = tcp_prepass(path, exp.text.encode("latin-1"), dialect_name, machine)
+    except InputError as exc:
+        raise exp.relocate(exc) from None
+    if pre is None:
+        return None, data, None  # nothing of this module once expanded: the program is read as usual
+    if pre.on.any():
+        i = int(np.flatnonzero(pre.on)[0])
+        raise exp.relocate(_refuse(path, i, 1, "tool-centre-point control in a program whose subprograms, macros or "
+                                               "parameters are expanded: not supported (post the 5-axis path flat)"))
+    return exp, flat, pre
 
 
 def _prepass_line(path, i, body, dialect_name, machine, rotary, state, words, tool_events):
@@ -368,12 +404,16 @@ def _check_inverse_time(path, i, toks, codes, state):
                       "move needs its time (F = 1/minutes) on its line")
 
 
-def attach(prog, pre: TcpProgram) -> None:
+def attach(prog, pre: TcpProgram, flat=None) -> None:
     """After the reader: the program's original lines back (its TCP / G93 words written as they were), the
-    tool calls among its events, and the pre-pass kept on the program (``prog.tcp``)."""
+    tool calls among its events, and the pre-pass kept on the program (``prog.tcp``). ``flat``: the expansion the
+    pre-pass ran on (:func:`flat_prepass`; the program read is its flat text), recorded as the program's."""
     if prog.expanded is not None:
-        raise InputError(f"{prog.path}: tool-centre-point or G93 words in a program whose subprograms, macros or "
-                         "canned cycles were expanded: not supported (post the 5-axis path flat)")
+        raise InputError(f"{prog.path}: tool-centre-point or G93 words in a program whose canned cycles (or, with "
+                         "TCP, subprograms or macros) were expanded: not supported (post the 5-axis path flat)")
+    if flat is not None:
+        prog.expanded = flat
+        prog.g80_line = flat.origin[prog.g80_line - 1][0] if prog.g80_line else prog.g80_line
     check_mode_changes(prog, pre)
     prog.lines = pre.lines
     prog.data = None
@@ -485,7 +525,6 @@ def tip_words(pre: TcpProgram, machine, axes, offset, tool_mm) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- inverse time
-_F_WORD = re.compile(r"F[ \t]*([+-]?(?:\d+(?:\.\d*)?|\.\d+))", re.IGNORECASE)
 
 
 def inverse_time_lines(program, groups) -> list:
@@ -502,9 +541,9 @@ def inverse_time_lines(program, groups) -> list:
         _, toks, _ = tokenize(program.lines[m.index].rstrip("\r\n"))
         f = next(t for t in toks if t.letter == "F")
         value = f"{f.value * len(g):.{INVERSE_TIME_DECIMALS}f}".rstrip("0").rstrip(".")
-        first = g[0]
-        hit = _F_WORD.search(first, f.start)
-        new = [first[:hit.start(1)] + value + first[hit.end(1):]]
+        first = g[0]  # its F found anew: the written axis words before it may be shorter than the source's
+        hit = next(t for t in tokenize(first.rstrip("\r\n"))[1] if t.letter == "F")
+        new = [first[:hit.num_start] + value + first[hit.num_end:]]
         for ln in g[1:]:
             body = ln.rstrip("\r\n")
             new.append(f"{body} F{value}{ln[len(body):]}")
