@@ -14,7 +14,8 @@ start's Z to ``ZF``, then a face up to the start's X), independently of the read
   start's Z, a feed along Z to the offset face (Z = ZF + D), a rapid escape by R in X and Z, a rapid back along Z to
   the start's Z − R, a rapid down to the level; then a rapid to A + D, a feed along the offset Z line and up the face.
 
-The compensated program is checked on ``lathe-xzc`` with a seeded truth that is also the model
+G72 is checked on a face (the same rules turned a quarter), G71.2 on a groove (only the pocket cut, at levels I
+apart between its flanks). The compensated program is checked on ``lathe-xzc`` with a seeded truth that is also the model
 (tests/test_lathe_g33.py's truth and part zero): every point of the expanded moves reached, in order, by a written
 move whose TRUE tip (mean over one turn) lies within :data:`test_lathe_g33.TOL_POINT_UM`; the lines that are not
 moves byte for byte. The arithmetic of compensation/nc_g7x_path.py was also compared, outside the test suite, with
@@ -89,6 +90,50 @@ def test_g71_expanded_levels_are_the_reference_roughing(tmp_path, d, i, r):
     _same(got, _g71_reference(d, i, r))
 
 
+FACE = ("(faced shoulder, LinuxCNC G72)\nG21 G18 G90 G8\nG54\nS800 M3\nF200\n"
+        "O100 SUB\n  G0 Z0 (onto the face)\n  G1 X10\n  G1 Z5\nO100 ENDSUB\nG0 X20 Z5\n{cycle}\nG0 X40 Z10\nM5\nM2\n")
+"""A face at Z0 from the start's X (20) down to X10, then a Z line at X10 up to the start's Z (5)."""
+
+
+@pytest.mark.parametrize("d, i, r", [(0.5, 2.0, 0.5), (0.0, 1.5, 0.25)])
+def test_g72_expanded_levels_are_the_roughing_turned_a_quarter(tmp_path, d, i, r):
+    """G72 is G71 on the contour turned a quarter: levels Z = 5 − k·I while above the face's Z + D, each a feed along
+    X to the offset Z line (X10 + D), the escape by R in X and Z, back along X to the start's X − R, up to the level;
+    then the last level on the offset face and up the offset Z line."""
+    src = tmp_path / "p.ngc"
+    src.write_text(FACE.format(cycle=f"G72 Q100 X20 Z5 D{d} I{i} R{r}"))
+    got = [(m.kind, m.end[0], m.end[1]) for m in _read(src).moves[1:-1]]
+    ref, z = [("rapid", 20.0, 5.0)], 5.0
+    while z > 0.0 + d:
+        ref += [("rapid", 20.0, z), ("linear", 10.0 + d, z), ("rapid", 10.0 + d + r, z + r), ("rapid", 20.0 - r, z + r),
+                ("rapid", 20.0, z)]
+        z -= i
+    _same(got, ref + [("rapid", 20.0, d), ("linear", 10.0 + d, d), ("linear", 10.0 + d, 5.0)])
+
+
+POCKET = ("(a shaft with a groove, LinuxCNC G71.2)\nG21 G18 G90 G8\nG54\nS800 M3\nF200\n"
+          "O100 SUB\n  G0 X10\n  G1 Z-10\n  G1 X8 Z-12\n  G1 Z-16\n  G1 X10 Z-18\n  G1 Z-25\n  G1 X20\nO100 ENDSUB\n"
+          "G0 X20 Z2\nG71.2 Q100 X20 Z2 D0 I1 R0.3\nG0 X40 Z10\nM5\nM2\n")
+"""A shaft at X10 with a 2 mm deep groove (45° flanks from Z-10 and Z-18 to a floor at X8 from Z-12 to Z-16)."""
+
+
+def test_g71_2_cuts_only_the_pocket(tmp_path):
+    """G71.2 (the pockets only: after a G71.1): along the contour to the groove, then levels X = 10, 9 (I below the
+    start's X, above the floor), each a feed down the left flank to the level (Z = −10 − (10 − X)), across to the
+    right flank (Z = −18 + (10 − X)), the escape by R in X and Z, back to Z of the left flank − R, down to it; then
+    along the floor, up the right flank and on along the contour."""
+    src = tmp_path / "p.ngc"
+    src.write_text(POCKET)
+    got = [(m.kind, m.end[0], m.end[1]) for m in _read(src).moves[1:-1]]
+    r, ref = 0.3, [("rapid", 20.0, 2.0), ("rapid", 10.0, 2.0), ("linear", 10.0, -10.0)]
+    for x in (10.0, 9.0):
+        left, right = -10.0 - (10.0 - x), -18.0 + (10.0 - x)
+        ref += [("linear", x, left), ("linear", x, right), ("rapid", x + r, right + r), ("rapid", x + r, left - r),
+                ("linear", x, left)]
+    _same(got, ref + [("linear", 8.0, -12.0), ("linear", 8.0, -16.0), ("linear", 10.0, -18.0), ("linear", 10.0, -25.0),
+                      ("linear", 20.0, -25.0)])
+
+
 ARC = ("(turned shaft with a rounded shoulder, LinuxCNC G71 and G70)\nG21 G18 G90 G8\nG54\nS800 M3\nF150\n"
        "O200 SUB\n  G0 X12\n  G1 Z-10\n  G1 X16 Z-14\n  G1 Z-25\n  G3 X19 Z-28 I0 K-3\n  G1 Z-40\n  G1 X24\n"
        "O200 ENDSUB\nG0 X24 Z2\nG71 Q200 X24 Z2 D0.4 I1.5 R0.5\nG70 Q200 X24 Z2 D0.4 P2\nG0 X40 Z10\nM5\nM2\n")
@@ -98,9 +143,13 @@ ARC_CONTOUR = [(12.0, 2.0, None), (12.0, -10.0, None), (16.0, -14.0, None), (16.
 """The contour's points (X radius, Z mm; an arc's centre) as the reference reads it from O200."""
 
 
-def test_g70_last_pass_is_the_contour_with_its_arc(tmp_path):
+@pytest.mark.parametrize("mode, arc", [("G90", "G3 X19 Z-28 I0 K-3"), ("G90", "G3 X19 Z-28 R3"),
+                                       ("G90 G90.1", "G3 X19 Z-28 I16 K-28")])
+def test_g70_last_pass_is_the_contour_with_its_arc(tmp_path, mode, arc):
+    """The shoulder as I K (incremental centre), R (the centre on G3's side) or absolute I K (G90.1 in force before
+    the cycle: the cycle does not run its contour's modal words): the same arc, written in the mode in force."""
     src = tmp_path / "p.ngc"
-    src.write_text(ARC)
+    src.write_text(ARC.replace("G3 X19 Z-28 I0 K-3", arc).replace("G18 G90 G8", f"G18 {mode} G8"))
     prog = _read(src)
     last = prog.moves[-len(ARC_CONTOUR) - 2:-1]  # the last pass (distance 0), before the G0 after the cycle
     assert [m.kind for m in last] == ["rapid", "rapid"] + ["linear"] * 3 + ["arc"] + ["linear"] * 2
