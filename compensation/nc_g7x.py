@@ -181,13 +181,15 @@ class G7xExpansion(LatheExpansion):
 
 def refuse_kept(path, events) -> None:
     """Refuse (InputError) a LinuxCNC G70-G72 left as a cycle (no ``--expand-cycles``): its contour is an o-subroutine
-    the cycle reads and the program's written form does not hold it (its calls are expanded), and the passes the
-    interpreter computes from a compensated contour (offsets, roughing levels) are not the compensated passes."""
+    the cycle reads and the written program, the flat one, no longer defines it (the cycle line kept would name a
+    subroutine LinuxCNC cannot find), and the passes the interpreter computes from a compensated contour (offsets,
+    roughing levels) are not the compensated passes."""
     from errormap.io import InputError
     for line, col, _, e, code in (e for e in events if e[2] == "lathe-g7x"):
         raise InputError(f"{path}: line {line + 1}, column {col}: '{code}' ({WHAT[CODES[code][0]]}, contour o{e[3]}) "
-                         "kept as a cycle: the moves LinuxCNC computes from a compensated contour are not the "
-                         "compensated moves; use --expand-cycles (the cycle written as its moves, each compensated)")
+                         "kept as a cycle: the written program is the flat one (its subroutines expanded), which no "
+                         f"longer defines o{e[3]}, and the moves LinuxCNC computes from a compensated contour are not "
+                         "the compensated moves; use --expand-cycles (the cycle written as its moves, each compensated)")
 
 
 def expand_g7x(prog, path, reparse):
