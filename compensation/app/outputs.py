@@ -250,6 +250,50 @@ def owned_file(path, command: str, interrupted=None, flag: str = "--out"):
             _remove_created(parent, created, whole=False)
 
 
+COMPENSATE_SUMMARY_NAME = "compensate_summary.json"
+"""What ``volcomp compensate`` writes last into its ``--out`` folder: the run's record, which names its outputs."""
+
+
+def plan_outputs(files, out_dir: Path) -> list:
+    """Output path per input; refuses duplicates and outputs that would overwrite an input."""
+    from errormap.io import InputError, not_a_file
+    inputs = [Path(f) for f in files]
+    for p in inputs:
+        if not p.is_file():
+            raise InputError(not_a_file(p))
+    outs = [out_dir / p.name for p in inputs]
+    seen = {}
+    for p, o in zip(inputs, outs):
+        if o.name in seen:
+            raise UsageError(f"two inputs would both be written to {o}: {seen[o.name]} and {p}")
+        seen[o.name] = p
+    resolved_inputs = {p.resolve() for p in inputs}
+    for o in outs:
+        if o.resolve() in resolved_inputs:
+            raise UsageError(f"--out {out_dir} would overwrite the input {o}; choose another folder")
+    return list(zip(inputs, outs))
+
+
+def check_out_dir(out_dir: Path, force: bool) -> list:
+    """Refuse a DIR holding files unless ``force``; return the previous run's outputs (to remove)."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise UsageError(f"--out {out_dir} is not a folder")
+    held = sorted(p.name for p in out_dir.iterdir() if not is_lock(p)) if out_dir.is_dir() else []
+    if held and not force:
+        raise UsageError(f"--out {out_dir} already holds {len(held)} file(s) ({', '.join(held[:3])}"
+                         f"{', ...' if len(held) > 3 else ''}); choose an empty folder or pass --force "
+                         "(which removes the previous run's outputs)")
+    old = []
+    summary = out_dir / COMPENSATE_SUMMARY_NAME
+    if held and summary.is_file():
+        try:
+            doc = json.loads(summary.read_text(encoding="utf-8"))
+            old = [out_dir / Path(e["output"]).name for e in doc.get("files", []) if e.get("output")]
+        except (ValueError, KeyError, TypeError, AttributeError):
+            old = []
+    return old
+
+
 def out_targets_of(command: str, args) -> list:
     """``[(path, kind, flag), ...]`` of every output a command's arguments name that is a folder (kind ``"dir"``) or one
     file (``"file"``): its ``--out`` and the other file outputs with an output rule (``identify --report``,
