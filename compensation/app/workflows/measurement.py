@@ -184,15 +184,6 @@ def check_chain_covariance(machine, elements, cov, cov_path="<covariance>") -> N
         raise InputError(f"{cov_path}: key 'cov': not a covariance (non-finite or negative variance)")
 
 
-def chain_band_sd(machine, elements, cov, axes, cov_path="<covariance>") -> np.ndarray:
-    """Standard deviation (n, 3) μm of the element set's tool-point error at ``axes``
-    (:func:`errormap.chain_covariance.band_sd`), the covariance checked first
-    (:func:`check_chain_covariance`)."""
-    from errormap.chain_covariance import band_sd
-    check_chain_covariance(machine, elements, cov, cov_path)
-    return band_sd(machine, elements, cov, axes)
-
-
 def chain_learned_stage(machine, checks, elements, terms, summary, seed: int = 0, families=None, refit=None,
                         refit_all: bool = False):
     """The learned-residual stage after the chain loop (:func:`compensation.hybrid.learned_stage`, whose
