@@ -218,7 +218,7 @@ def _run_machine_tool(machine, args) -> int:
 
 def _predict_chain(args, t, axes, machine, model, src):
     """Any other model: its field at the points (per-point conditions from their columns), ``--band`` the element
-    set's J Σ Jᵀ per point through the chain's parameter Jacobian. → (columns, header lines, points let through)."""
+    set's J Σ Jᵀ per point through the chain's parameter Jacobian. → (columns, header lines, points let in)."""
     cov = _chain_covariance(args, model, machine) if args.band else None
     field = model.field
     cond = _point_conditions(t, model.needs, args.units) if model.needs else None  # per point, from columns
