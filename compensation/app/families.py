@@ -174,10 +174,6 @@ COMMAND_MODES = {("report", "run"): "report run"}
 registry's name of that job."""
 
 
-def _same_target(*commands: str, target: str) -> dict:
-    return {c: target for c in commands}
-
-
 _FLEET = Gap(NOT_YET, "a fleet file's machines are machine tools (identify from sweeps)")
 _DEMO = Gap(NOT_YET, "the demo's part is the grinder's flute")
 _BY_POSES = "{given}: only arms and parallel machines are simulated by poses (machine tools: --checks)"
@@ -205,9 +201,9 @@ _FLUTE_OPTIONS = (Opt("--flute", PHYSICS), *(Opt(f"--{k.replace('_', '-')}", PHY
 MACHINE_TOOL = Family(
     name="machine tool", column="Machine tool",
     kinds={"machine-tool": Facts(tracker_sweeps=True, gcode=True)},
-    targets={**_same_target("simulate", "sweeps", "featurepoints", "identify", "train", "predict", "benchmark", "demo",
-                            "report run", target="chain"),
-             **_same_target("compensate", "export", "diagnose", "report", "fleet", target="machine tool")},
+    targets={**dict.fromkeys(("simulate", "sweeps", "featurepoints", "identify", "train", "predict", "benchmark", "demo",
+                              "report run"), "chain"),
+             **dict.fromkeys(("compensate", "export", "diagnose", "report", "fleet"), "machine tool")},
     gaps={"demo": Gap(NOT_YET, "the demo's part is the flute (the workpiece turned about X by a full-turn A, fed by X "
                            "and one radial linear axis)", unless="flute_axes"),
           "calibrate": Gap(OTHER_PATH, "identify (sweeps), then diagnose (checks)"),
@@ -227,7 +223,7 @@ MACHINE_TOOL = Family(
 ARM = Family(
     name="serial arm", column="Serial arm",
     kinds={"serial": Facts(poses=True)},
-    targets=_same_target("simulate", "calibrate", "register", "predict", "compensate", "benchmark", target="arm"),
+    targets=dict.fromkeys(("simulate", "calibrate", "register", "predict", "compensate", "benchmark"), "arm"),
     gaps={"fleet": _FLEET, "demo": _DEMO, "identify": _IDENTIFY, "diagnose": _DIAGNOSE_CHECK,
           "export": Gap(NOT_YET, "no controller format for an arm's calibration"),
           "sweeps": Gap(OTHER_PATH, "poses spread over every joint (simulate --poses, then calibrate)"),
@@ -271,7 +267,7 @@ PARALLEL = Family(
     name="parallel machine", column="Parallel (hexapod, tripod)",
     kinds={"hexapod": Facts(poses=True, platform_orientation=True, paper_paths=True),
            "tripod": Facts(poses=True, sensitivity_study=True)},
-    targets=_same_target("simulate", "calibrate", "interpolate", "predict", "benchmark", target="parallel"),
+    targets=dict.fromkeys(("simulate", "calibrate", "interpolate", "predict", "benchmark"), "parallel"),
     gaps={"fleet": _FLEET, "demo": _DEMO, "identify": _IDENTIFY, "diagnose": _DIAGNOSE_CHECK,
           "compensate": Gap(OTHER_PATH, "interpolate --calibration writes the compensated leg-command program"),
           "export": Gap(NOT_YET, "no controller table (interpolate compensates the leg commands)"),

@@ -189,26 +189,24 @@ def _prepare(path: Path, kind: str, flag: str, folder: Path):
 
 
 @contextlib.contextmanager
-def owned_folder(folder, command: str, interrupted=None, flag: str = "--out"):
-    """Own ``folder`` for one run of ``command``: create it if absent, hold its lock, and on
-    Ctrl-C remove what the run added (module docstring). ``interrupted``: a callable that says
-    whether a Ctrl-C is pending (an error raised then is its consequence); ``flag``: the option or
-    argument that named the folder (in refusals). Yields the folder's :class:`Path`."""
-    folder = Path(folder)
-    created = _prepare(folder, "dir", flag, folder)
-    lock = FolderLock(folder, command, flag=flag)
+def _owned(path: Path, command: str, kind: str, flag: str, folder: Path, lock_path, interrupted, snapshot, restore):
+    """Own the output ``path`` of ``kind`` (``dir``, ``file``) for one run: ``folder`` (itself, or a file's) created
+    with the folders above it where absent and removed again if left empty, the lock held while the run works; on
+    Ctrl-C ``restore(snapshot(created), created, lock)`` removes what the run added. Yields ``path``."""
+    created = _prepare(path, kind, flag, folder)
+    lock = FolderLock(path, command, lock_path=lock_path, flag=flag)
     try:
         lock.acquire()
-        before = _snapshot(folder) if created is None else None
+        before = snapshot(created)
     except BaseException:
         if created is not None:
             _remove_created(folder, created, whole=False)  # another run's folder now: only if empty
         raise
     try:
-        yield folder
+        yield path
     except BaseException as exc:
         if _is_interrupt(exc, interrupted):
-            _cleanup(folder, before, created, lock)
+            restore(before, created, lock)
         raise
     finally:
         lock.release()
@@ -216,38 +214,77 @@ def owned_folder(folder, command: str, interrupted=None, flag: str = "--out"):
             _remove_created(folder, created, whole=False)
 
 
-@contextlib.contextmanager
+def owned_folder(folder, command: str, interrupted=None, flag: str = "--out"):
+    """Own ``folder`` for one run of ``command``: create it if absent, hold its lock, and on
+    Ctrl-C remove what the run added (module docstring). ``interrupted``: a callable that says
+    whether a Ctrl-C is pending (an error raised then is its consequence); ``flag``: the option or
+    argument that named the folder (in refusals). A context manager yielding the folder's :class:`Path`."""
+    folder = Path(folder)
+    return _owned(folder, command, "dir", flag, folder, None, interrupted,
+                  lambda created: _snapshot(folder) if created is None else None,
+                  lambda before, created, lock: _cleanup(folder, before, created, lock))
+
+
 def owned_file(path, command: str, interrupted=None, flag: str = "--out"):
     """Own the single-file output ``path`` for one run of ``command``: its lock
     (:func:`file_lock_path`, the folder lock's rules) while the run works, the folders above it
     created if absent (and removed again if left empty), and on Ctrl-C the file removed when it was
-    not there before the run. Yields the file's :class:`Path`."""
+    not there before the run. A context manager yielding the file's :class:`Path`."""
     from errormap.io import sidecar_path
     path = Path(path)
-    parent = path.parent
-    created = _prepare(path, "file", flag, parent)
-    lock = FolderLock(path, command, lock_path=file_lock_path(path), flag=flag)
     files = (path, sidecar_path(path))   # a CSV's provenance sidecar goes with it
-    try:
-        lock.acquire()
-        existed = [os.path.lexists(p) for p in files]
-    except BaseException:
-        if created is not None:
-            _remove_created(parent, created, whole=False)
-        raise
-    try:
-        yield path
-    except BaseException as exc:
-        if _is_interrupt(exc, interrupted):
-            for p, was in zip(files, existed):
-                if not was:
-                    with contextlib.suppress(OSError):
-                        p.unlink()
-        raise
-    finally:
-        lock.release()
-        if created is not None:   # a refused run leaves no folder behind
-            _remove_created(parent, created, whole=False)
+
+    def restore(existed, created, lock):
+        for p, was in zip(files, existed):
+            if not was:
+                with contextlib.suppress(OSError):
+                    p.unlink()
+    return _owned(path, command, "file", flag, path.parent, file_lock_path(path), interrupted,
+                  lambda created: [os.path.lexists(p) for p in files], restore)
+
+
+COMPENSATE_SUMMARY_NAME = "compensate_summary.json"
+"""What ``volcomp compensate`` writes last into its ``--out`` folder: the run's record, which names its outputs."""
+
+
+def plan_outputs(files, out_dir: Path) -> list:
+    """Output path per input; refuses duplicates and outputs that would overwrite an input."""
+    from errormap.io import InputError, not_a_file
+    inputs = [Path(f) for f in files]
+    for p in inputs:
+        if not p.is_file():
+            raise InputError(not_a_file(p))
+    outs = [out_dir / p.name for p in inputs]
+    seen = {}
+    for p, o in zip(inputs, outs):
+        if o.name in seen:
+            raise UsageError(f"two inputs would both be written to {o}: {seen[o.name]} and {p}")
+        seen[o.name] = p
+    resolved_inputs = {p.resolve() for p in inputs}
+    for o in outs:
+        if o.resolve() in resolved_inputs:
+            raise UsageError(f"--out {out_dir} would overwrite the input {o}; choose another folder")
+    return list(zip(inputs, outs))
+
+
+def check_out_dir(out_dir: Path, force: bool) -> list:
+    """Refuse a DIR holding files unless ``force``; return the previous run's outputs (to remove)."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise UsageError(f"--out {out_dir} is not a folder")
+    held = sorted(p.name for p in out_dir.iterdir() if not is_lock(p)) if out_dir.is_dir() else []
+    if held and not force:
+        raise UsageError(f"--out {out_dir} already holds {len(held)} file(s) ({', '.join(held[:3])}"
+                         f"{', ...' if len(held) > 3 else ''}); choose an empty folder or pass --force "
+                         "(which removes the previous run's outputs)")
+    old = []
+    summary = out_dir / COMPENSATE_SUMMARY_NAME
+    if held and summary.is_file():
+        try:
+            doc = json.loads(summary.read_text(encoding="utf-8"))
+            old = [out_dir / Path(e["output"]).name for e in doc.get("files", []) if e.get("output")]
+        except (ValueError, KeyError, TypeError, AttributeError):
+            old = []
+    return old
 
 
 def out_targets_of(command: str, args) -> list:

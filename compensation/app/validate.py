@@ -278,12 +278,18 @@ def check_lm_size(n_points: int, p: int) -> None:
                          f"(at most {n_max:,} points for this network; or --trainer adam / lbfgs)")
 
 
-def predict_batched(field, axes):
-    """``field.predict(axes)`` in batches of :data:`PREDICT_BATCH` points: bounded memory. Shape (n, 3)."""
+def predict_batched(field, axes, conditions=None):
+    """``field.predict(axes)`` in batches of :data:`PREDICT_BATCH` points: bounded memory. Shape (n, 3).
+    ``conditions``: per-point conditions ``{name: (n,)}`` of the field's terms, travelling with their points."""
     import numpy as np
+
+    def batch(i):
+        j = i + PREDICT_BATCH
+        f = field if conditions is None else field.with_conditions({c: v[i:j] for c, v in conditions.items()})
+        return f.predict(axes[i:j])
     if len(axes) <= PREDICT_BATCH:
-        return field.predict(axes)
-    return np.concatenate([field.predict(axes[i:i + PREDICT_BATCH]) for i in range(0, len(axes), PREDICT_BATCH)])
+        return batch(0)
+    return np.concatenate([batch(i) for i in range(0, len(axes), PREDICT_BATCH)])
 
 RULES: dict[str, dict] = {
     "simulate": {"noise_um": non_negative("um"), "checks": Count(1, MAX_CHECKS, "check measurements"),

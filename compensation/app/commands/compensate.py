@@ -15,15 +15,17 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from errormap.io import InputError
 from errormap.machine import load_machine
 
 from compensation.app.validate import UsageError, one_line
 
 from ..families import family_of, say_read_as
+from ..outputs import check_out_dir, plan_outputs
 from ..options import add_cluster_options, add_condition_options, add_units_option, cluster_settings, conditions_from_args
 from ..workflows.cluster import EXIT_CLUSTER, ClusterError
 from ... import guards
-from ...fields import FAILED_VERDICT
+from ...fields import FAILED_VERDICT, resolve_model
 from ...gcode_words import BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, RAPIDS_CHOICES
 from ...dialects import DIALECT_NAMES
 from ...nc_subfiles import SubprogramFiles
@@ -147,23 +149,29 @@ def parse_max_segment(text):
     return float(t)
 
 
-def settings_of(args) -> "CompensateSettings":
-    """The options of ``compensate`` as its workflow's :class:`~compensation.app.workflows.compensate.CompensateSettings`."""
+def settings_of(args, options: dict | None = None) -> "CompensateSettings":
+    """The options of ``compensate`` as its workflow's
+    :class:`~compensation.app.workflows.compensate.CompensateSettings` (``options``: their :func:`option_values`)."""
     from ..workflows.compensate import CompensateSettings  # the G-code reader's kernels load to run, not to parse
-    return CompensateSettings(method=args.method, model=args.model, out_dir=Path(args.out), force=args.force,
-                              allow=parse_allow(args.allow), rapids=args.rapids, block_delete=args.block_delete,
-                              arc_tolerance_um=args.arc_tolerance_um, units=args.units, truth=args.truth,
-                              seed=args.seed, show=args.show, rotary_limit_deg=args.max_rotary_correction_deg,
-                              conditions=conditions_from_args(args), tracking_uri=args.tracking_uri,
-                              dialect=args.dialect,
-                              work_offsets=read_work_offsets(args.work_offsets) if args.work_offsets is not None
-                              else None,
-                              tool_table=read_tool_table(args.tool_table) if args.tool_table else None,
-                              lathe_x=args.lathe_x,
-                              subprograms=SubprogramFiles(args.subprograms) if args.subprograms else None,
-                              cycles="expand" if args.expand_cycles else "keep",
-                              orientation=bool(args.compensate_orientation), chunk_points=args.chunk_points,
-                              max_segment_mm=parse_max_segment(args.max_segment_mm))
+    return CompensateSettings(**(option_values(args) if options is None else options))
+
+
+def option_values(args) -> dict:
+    """The fields of ``CompensateSettings`` from the options: ``--allow`` parsed, the files they name (work offsets,
+    tool table, subprogram folders) read and checked; nothing of the solver loads."""
+    return dict(method=args.method, model=args.model, out_dir=Path(args.out), force=args.force,
+                allow=parse_allow(args.allow), rapids=args.rapids, block_delete=args.block_delete,
+                arc_tolerance_um=args.arc_tolerance_um, units=args.units, truth=args.truth,
+                seed=args.seed, show=args.show, rotary_limit_deg=args.max_rotary_correction_deg,
+                conditions=conditions_from_args(args), tracking_uri=args.tracking_uri,
+                dialect=args.dialect,
+                work_offsets=read_work_offsets(args.work_offsets) if args.work_offsets is not None else None,
+                tool_table=read_tool_table(args.tool_table) if args.tool_table else None,
+                lathe_x=args.lathe_x,
+                subprograms=SubprogramFiles(args.subprograms) if args.subprograms else None,
+                cycles="expand" if args.expand_cycles else "keep",
+                orientation=bool(args.compensate_orientation), chunk_points=args.chunk_points,
+                max_segment_mm=parse_max_segment(args.max_segment_mm))
 
 
 def on_executor(args, work):
@@ -191,8 +199,16 @@ def run(args) -> int:
                                                                        args.force))
     if args.method is None:
         raise UsageError("the following arguments are required: --method")
+    options = option_values(args)   # the files the options name, read (and where the work runs, checked) ...
+    cluster_settings(args)
+    try:   # ... then a model that is not there: refused before the solver's kernels load (seconds) ...
+        resolve_model(args.model)
+    except InputError:   # ... after what the work refuses before the model: the inputs and the output folder
+        plan_outputs(args.files, Path(args.out))
+        check_out_dir(Path(args.out), args.force)
+        raise
     from ..workflows.compensate import compensate_files, print_refusals
-    settings = settings_of(args)
+    settings = settings_of(args, options)
     run_ = on_executor(args, lambda ex: compensate_files(args.files, machine, settings, executor=ex))
     if isinstance(run_, int):
         return run_

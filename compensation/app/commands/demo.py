@@ -66,12 +66,7 @@ def run(args) -> int:
         check_in_strokes(machine, fl.axes(machine), "the flute path")
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    hidden = None
-    if args.hidden:
-        try:
-            hidden = tuple(int(h) for h in args.hidden.split(","))
-        except ValueError:
-            raise UsageError(f"--hidden: expected comma-separated integers, got {args.hidden!r}") from None
+    hidden = tuple(int(h) for h in args.hidden.split(",")) if args.hidden else None   # checked: validate.Widths
     settings = DemoSettings(out=Path(args.out), flute=fl, methods=methods,
                             sim_seed=args.sim_seed, seed=args.seed, tracking_uri=args.tracking_uri,
                             train_iter=args.train_iter, train_s=args.train_s, trainer=args.trainer, hidden=hidden,

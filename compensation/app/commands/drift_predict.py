@@ -63,7 +63,7 @@ def save_updated(model, path, verdict):
 def run(args) -> int:
     import numpy as np
 
-    from compensation.app.workflows.drift import COMPENSATION_COMMENTS, compensation_columns
+    from compensation.app.workflows.drift import COMPENSATION_COMMENTS, band_columns, compensation_columns
     from errormap.diagnosis.drift import load_drift_log
     from errormap.diagnosis.drift_models import input_novelty
     from errormap.diagnosis.drift_models import DriftModel
@@ -119,13 +119,9 @@ def run(args) -> int:
         upd = DriftUpdater(noise_um=args.noise_um,
                            drift_per_h=DRIFT_PER_H if args.drift_per_h is None else args.drift_per_h)
         res = upd.run(model, log, log.disp_um)
-        bands = res.band_um
-        for ch in model.channels:
-            band = bands[ch]
+        for ch in model.channels:   # the saved model's prediction beside the updated one and its band
             cols[f"{ch}_fixed_pred_um"] = res.fixed_um[ch]
-            cols[f"{ch}_pred_um"] = res.pred_um[ch]
-            cols[f"{ch}_lo_um"] = res.pred_um[ch] - band
-            cols[f"{ch}_hi_um"] = res.pred_um[ch] + band
+            cols.update(band_columns({ch: res.pred_um[ch]}, res.band_um))
         print("online update (Kalman filter on the parameters): a-priori error at the measurements, "
               "RMS μm, updated vs the saved model")
         for ch, rows in res.evolution().items():

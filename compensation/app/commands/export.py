@@ -115,11 +115,9 @@ def format_check(check: dict, has_truth: bool) -> list[str]:
         def f(s):
             return f"{s['max_um']:9.4g} / {s['p95_um']:9.4g} / {s['mean_um']:9.4g}"
         lines.append(f"  {name} ({r['model']['n']} points{', %d excluded' % r['excluded'] if r['excluded'] else ''}):")
-        lines.append(f"    table          model {f(r['model'])}" + (f"   true {f(r['true'])}" if has_truth else ""))
-        lines.append(f"    no compensation model {f(r['baseline_none']['model'])}"
-                     + (f"   true {f(r['baseline_none']['true'])}" if has_truth else ""))
-        lines.append(f"    exact (model)  model {f(r['baseline_exact']['model'])}"
-                     + (f"   true {f(r['baseline_exact']['true'])}" if has_truth else ""))
+        for label, b in (("table         ", r), ("no compensation", r["baseline_none"]),
+                         ("exact (model) ", r["baseline_exact"])):
+            lines.append(f"    {label} model {f(b['model'])}" + (f"   true {f(b['true'])}" if has_truth else ""))
         if r["model"]["max_um"] > r["baseline_none"]["model"]["max_um"]:
             lines.append(f"    warning: on the {name} points this table leaves MORE error than no compensation")
     return lines

@@ -49,18 +49,11 @@ def run(args) -> int:
     from ..workflows.fleet import (SUMMARY_NAME, check_tracking_uri, fleet_counts, read_fleet, run_fleet,
                                    validate_inputs)
     cluster_settings(args)
-    try:
-        hidden = [int(h) for h in args.hidden.split(",")]
-    except ValueError:
-        raise UsageError(f"--hidden: expected comma-separated integers, got {args.hidden!r}") from None
-    if not hidden or min(hidden) < 1:
-        raise UsageError(f"--hidden: expected widths >= 1, got {args.hidden!r}")
+    hidden = [int(h) for h in args.hidden.split(",")]   # integers >= 1, checked before run (validate.Widths)
     machines = read_fleet(args.fleet)
     uri = args.tracking_uri or default_tracking_uri()
     check_tracking_uri(uri, len(machines), args.cluster == "ray")
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {out} is not a folder")
+    out = Path(args.out)   # a folder (a file there is refused before run: validate.OUT_DIR)
     if out.is_dir() and any(not is_lock(p) for p in out.iterdir()) and not args.force:
         raise UsageError(f"--out {out} already holds files; choose an empty folder or pass --force")
     print(f"fleet: checking the inputs of {len(machines)} machine(s) ...", file=sys.stderr)

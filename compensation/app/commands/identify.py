@@ -53,9 +53,7 @@ def _bootstrap(args) -> dict:
         if args.seed != 0:
             raise UsageError("--seed seeds the bootstrap; give --bootstrap N with it")
         return {}
-    if args.bootstrap < 2:
-        raise UsageError(f"--bootstrap {args.bootstrap}: a covariance needs N >= 2 draws")
-    if args.noise_um is not None:
+    if args.noise_um is not None:   # (N >= 2 draws: checked before run, validate.RULES)
         raise UsageError("--noise-um scales Gauss-Newton's covariance, --bootstrap estimates it from the "
                          "residuals: give one of them")
     return {"n_boot": args.bootstrap, "seed": args.seed}

@@ -98,18 +98,16 @@ def _predict_diagnosed(args, t, axes, machine, model):
     learned residual, a column ``learned_part``: ``fitted`` inside the checks' box, ``unknown``
     outside (the learned part is tapered to zero there and says nothing). Points outside the
     calibrated volume (the checks' box for a hybrid) are refused unless ``--allow volume``
-    (or ``extrapolate``), and the override is recorded in the header. → (columns, header lines)."""
+    (or ``extrapolate``), recorded in the header by the caller. → (columns, header lines, points let through)."""
     from compensation.hybrid import total_band_std
-    from errormap.chain_covariance import band_sd, covariance_path, read_chain_covariance
-    from ..workflows.measurement import check_chain_covariance
+    from errormap.chain_covariance import band_sd, covariance_path
     field = model.field.corrected
     n_out = _check_volume(args, t, axes, field, machine)
     cond = _point_conditions(t, field.needs, args.units, "diagnosed model")
     el_path = model.elements_path
     cov = None
     if model.covariance_path is not None:
-        cov = read_chain_covariance(model.covariance_path, model.elements)   # checked against its element set
-        check_chain_covariance(machine, model.elements, cov, model.covariance_path)
+        cov = _read_covariance(machine, model)
     elif args.band:   # the band asked for, half of it missing: refused, never a band without the elements' part
         raise UsageError(f"--band needs the kept elements' covariance {covariance_path(el_path)} (written beside "
                          f"them by volcomp diagnose); not found")
@@ -132,10 +130,7 @@ def _predict_diagnosed(args, t, axes, machine, model):
                     + (" (effect terms' own uncertainty not included)" if model.terms else ""))
     else:
         meta.append(f"band: none (the kept elements' covariance {covariance_path(el_path).name} was not found)")
-    if n_out:
-        meta.append(f"allowed: volume ({n_out} of {len(axes)} points outside the calibrated volume, "
-                    f"--allow {'volume' if 'volume' in args.allow else 'extrapolate'})")
-    return cols, meta
+    return cols, meta, n_out
 
 
 def _learned_part(cols, learned, axes) -> list:
@@ -150,24 +145,28 @@ def _learned_part(cols, learned, axes) -> list:
             f"(learned_part unknown outside it: {int((~inside).sum())} of {len(axes)} points)"]
 
 
-def _chain_covariance(args, model, machine) -> tuple:
-    """``--band`` on a machine tool, checked before any work: the model's element set and its
-    identification covariance (``E.cov.npz`` of ``identify --machine`` beside it, or the file its model.json
-    names) as ``(elements, cov, cov_path)``; refused for a model that holds more than elements (their band
-    alone would understate it) or no covariance."""
+def _read_covariance(machine, model):
+    """The model's element-set covariance ``(slot names, stations, Σ)``, read and checked against its element set and
+    ``machine`` (InputError naming the file and key)."""
     from errormap.chain_covariance import read_chain_covariance
     from ..workflows.measurement import check_chain_covariance
-    cov = read_chain_covariance(_band_covariance(args, model), model.elements)
+    cov = read_chain_covariance(model.covariance_path, model.elements)
     check_chain_covariance(machine, model.elements, cov, model.covariance_path)
-    return model.elements, cov, model.covariance_path
+    return cov
 
 
-def _chain_band(args, machine, axes, band_src) -> dict:
-    """The band columns: ``J Σ Jᵀ`` per point through the chain's parameter Jacobian."""
-    from ..workflows.measurement import chain_band_sd
-    el, cov, cov_path = band_src
-    print(f"band: covariance {cov_path} ({len(cov[0])} parameters)", file=sys.stderr)
-    return _band_columns(chain_band_sd(machine, el, cov, axes, cov_path), args.band)
+def _chain_covariance(args, model, machine):
+    """``--band`` on a machine tool, checked before any work: the identification covariance of the model's element
+    set (``E.cov.npz`` of ``identify --machine`` beside it, or the file its model.json names); refused naming the
+    file for a model that holds more than elements (their band alone would understate it) or no covariance."""
+    if not model.elements_only:
+        raise UsageError(f"--band needs an element set with its covariance (E.cov.npz of volcomp identify); "
+                         f"{args.model} holds {', '.join(model.holds()) or 'no elements'}")
+    if model.covariance_path is None:
+        raise InputError(f"{model.source.path}: --band needs the identification's covariance beside the element set "
+                         f"({companion_path(model.elements_path, '.cov.npz').name}, written by volcomp identify; "
+                         "or key 'covariance' of a model.json); none found")
+    return _read_covariance(machine, model)
 
 
 def run(args) -> int:
@@ -206,49 +205,39 @@ def _run_machine_tool(machine, args) -> int:
     tail = [f"model: {src.description}", f"model_kind: {src.kind}", f"model_holds: {', '.join(model.holds())}",
             f"units: {args.units}"]
     if model.per_point:  # the grinder's old closed-loop (and hybrid) model: its own band and conditions
-        cols, meta = _predict_diagnosed(args, t, axes, machine, model)
-        path = write_csv(args.out, cols, header_comments=meta + allowed + tail)
-        print(f"wrote {len(axes)} predictions to {path}")
-        return 0
-    band_src = _chain_covariance(args, model, machine) if args.band else None
-    field = model.field
-    cond = _point_conditions(t, model.needs, args.units) if model.needs else None  # per point, from columns
-    n_out = _check_volume(args, t, axes, field, machine)
-    print(f"predicting {len(axes)} points with the {src.description} ...", file=sys.stderr)
-    from ..validate import predict_batched
-    if cond is None:
-        e = predict_batched(field, axes)
-    else:  # per-point conditions travel with their points, batch by batch
-        from ..validate import PREDICT_BATCH
-        e = np.concatenate([field.with_conditions({c: v[i:i + PREDICT_BATCH] for c, v in cond.items()})
-                            .predict(axes[i:i + PREDICT_BATCH]) for i in range(0, len(axes), PREDICT_BATCH)])
-    cols = {n: np.array(t.raw(n)) for n in t.names if n not in ("dx_um", "dy_um", "dz_um")}
-    cols.update({"dx_um": e[:, 0], "dy_um": e[:, 1], "dz_um": e[:, 2]})
-    meta = [f"machine: {machine.name}"]
-    if model.learned is not None:   # a loop's model.json with its kept learned residual
-        meta += [f"stage: {model.stage} on {model.doc.get('base_stage')}"] + _learned_part(cols, model.learned, axes)
+        cols, meta, n_out = _predict_diagnosed(args, t, axes, machine, model)
+    else:
+        cols, meta, n_out = _predict_chain(args, t, axes, machine, model, src)
     if n_out:   # the override recorded in the output itself, on every machine
         meta.append(f"allowed: volume ({n_out} of {len(axes)} points outside the calibrated volume, "
                     f"--allow {'volume' if 'volume' in args.allow else 'extrapolate'})")
-    if args.band:
-        cols.update(_chain_band(args, machine, axes, band_src))
     path = write_csv(args.out, cols, header_comments=meta + allowed + tail)
     print(f"wrote {len(axes)} predictions to {path}")
     return 0
 
 
+def _predict_chain(args, t, axes, machine, model, src):
+    """Any other model: its field at the points (per-point conditions from their columns), ``--band`` the element
+    set's J Σ Jᵀ per point through the chain's parameter Jacobian. → (columns, header lines, points let in)."""
+    cov = _chain_covariance(args, model, machine) if args.band else None
+    field = model.field
+    cond = _point_conditions(t, model.needs, args.units) if model.needs else None  # per point, from columns
+    n_out = _check_volume(args, t, axes, field, machine)
+    print(f"predicting {len(axes)} points with the {src.description} ...", file=sys.stderr)
+    from ..validate import predict_batched
+    e = predict_batched(field, axes, cond)
+    cols = {n: np.array(t.raw(n)) for n in t.names if n not in ("dx_um", "dy_um", "dz_um")}
+    cols.update({"dx_um": e[:, 0], "dy_um": e[:, 1], "dz_um": e[:, 2]})
+    meta = [f"machine: {machine.name}"]
+    if model.learned is not None:   # a loop's model.json with its kept learned residual
+        meta += [f"stage: {model.stage} on {model.doc.get('base_stage')}"] + _learned_part(cols, model.learned, axes)
+    if args.band:
+        from errormap.chain_covariance import band_sd
+        print(f"band: covariance {model.covariance_path} ({len(cov[0])} parameters)", file=sys.stderr)
+        cols.update(_band_columns(band_sd(machine, model.elements, cov, axes), args.band))
+    return cols, meta, n_out
+
+
 RUNNERS = {"chain": _run_machine_tool, "arm": _run_arm, "parallel": _run_parallel}
 """The runner of each target of ``predict`` (:meth:`compensation.app.families.Family.target`)."""
 
-
-def _band_covariance(args, model):
-    """The covariance file ``--band`` reads: the identification's, of a model that holds an element set alone
-    (its band alone would understate one with terms or a learned part); refused naming the file otherwise."""
-    if not model.elements_only:
-        raise UsageError(f"--band needs an element set with its covariance (E.cov.npz of volcomp identify); "
-                         f"{args.model} holds {', '.join(model.holds()) or 'no elements'}")
-    if model.covariance_path is None:
-        raise InputError(f"{model.source.path}: --band needs the identification's covariance beside the element set "
-                         f"({companion_path(model.elements_path, '.cov.npz').name}, written by volcomp identify; "
-                         "or key 'covariance' of a model.json); none found")
-    return model.covariance_path

@@ -84,22 +84,15 @@ def _run_parallel(machine, args) -> int:
     return _print_written(info, args.out, " (the judge's; never an input of calibrate)")
 
 
-def _machine_tool_defaults(args) -> None:
-    """A machine tool's measurement noise (1 μm) and check count (400) where not given."""
-    if args.noise_um is None:
-        args.noise_um = 1.0
-    if args.checks is None:
-        args.checks = 400
-
-
 def _run_chain(machine, args) -> int:
     """Every machine tool (a chain file, the built-in grinder, a ``kind = "grinder"`` file read as its chain)."""
     from ..workflows.measurement import parse_effects, simulate_chain
-    _machine_tool_defaults(args)
     parse_effects(machine, args.effect)
     print(f"simulating truth {machine.name} seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
-    info = simulate_chain(machine, args.seed, args.out, effects=args.effect, noise_um=args.noise_um,
-                          checks=args.checks, family=args.family, check_noise_seed=args.seed_check_noise)
+    info = simulate_chain(machine, args.seed, args.out, effects=args.effect,   # noise 1 μm, 400 checks: the defaults
+                          noise_um=1.0 if args.noise_um is None else args.noise_um,
+                          checks=400 if args.checks is None else args.checks, family=args.family,
+                          check_noise_seed=args.seed_check_noise)
     for line in summary_lines(info, args.out):
         print(line)
     return 0

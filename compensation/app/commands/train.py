@@ -82,10 +82,7 @@ def _read_validation(path, axis_columns=("x_mm", "z_mm", "a_deg")):
 def run(args) -> int:
     from errormap.featurepoints import FeaturePoints
 
-    try:
-        hidden = tuple(int(h) for h in args.hidden.split(","))
-    except ValueError:
-        raise UsageError(f"--hidden: expected comma-separated integers, got {args.hidden!r}") from None
+    hidden = tuple(int(h) for h in args.hidden.split(","))   # checked before run (validate.Widths)
     max_time = args.max_time if args.max_time is not None else math.inf
     max_iter = args.max_iter if args.max_iter is not None else default_max_iter(args.physics, args.quick)
     from training.trainers import TrackSettings, TrainSettings, a_encoding_applies, fit_field, network_for

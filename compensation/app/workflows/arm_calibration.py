@@ -25,10 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from errormap.arm_calibration import GeometricResult, fit_base_tool, fit_plain_lsq
-from errormap.arm_poses import read_arm_poses, temperature_summary
+from errormap.arm_poses import temperature_summary
 from ...calibration_models import STACKED
 from ...fields import ARM_FORMAT
-from .calibration import holdout_split
 
 Z95 = 1.959963984540054
 FRAMES = {"poses, stages": "the measuring instrument's (tracker's) frame of the calibration poses",
@@ -79,12 +78,6 @@ def errors_mm(poses, pred) -> np.ndarray:
 def stage_row(name, e, what) -> dict:
     return {"name": name, "mean_mm": float(e.mean()), "rms_mm": float(np.sqrt(np.mean(e ** 2))),
             "max_mm": float(e.max()), "what": what}
-
-
-def split(chain, s: ArmCalibrationSettings, data):
-    if s.check:
-        return data, read_arm_poses(s.check, chain)
-    return holdout_split(data, s.holdout, s.seed)
 
 
 def stage_name(model: str) -> str:

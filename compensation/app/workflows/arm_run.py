@@ -18,8 +18,8 @@ from errormap.io import write_json
 from ...calibration_models import calibration_model_document
 
 from ..reports.arm_calibration import write_report
-from .arm_calibration import (ArmCalibrationSettings, calibrate_arm, held_out_verdict, model_document, split,
-                              stated_sigma_mm)
+from .arm_calibration import ArmCalibrationSettings, calibrate_arm, held_out_verdict, model_document, stated_sigma_mm
+from .calibration import split_poses
 from .arm_sessions import session_document
 
 
@@ -31,7 +31,7 @@ def run_arm_calibration(chain, s: ArmCalibrationSettings, out, log=None) -> dict
     if data.session is not None and len(set(data.session)) > 1:       # several sessions: one frame, the reference's
         data, moves, frames = align_sessions(chain, data)
     check_pose_set(chain, data)
-    fit, check = split(chain, s, data)
+    fit, check = split_poses(chain, s, data, read_arm_poses)
     if moves is not None:
         fit = fit.subset(np.argsort(fit.rows, kind="stable"))     # file order: a session's first poses register
         if s.check:

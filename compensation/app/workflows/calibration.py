@@ -74,10 +74,11 @@ def holdout_split(data, holdout: float, seed: int):
     return data.subset(idx[n_check:]), data.subset(idx[:n_check])
 
 
-def split_poses(machine, s: CalibrationSettings, data):
-    """(fit, held-out) pose sets: ``--check`` poses, else a random hold-out."""
+def split_poses(machine, s, data, read=read_poses):
+    """(fit, held-out) pose sets: ``--check`` poses (``s.check`` read with ``read``), else a random hold-out
+    (``s.holdout``, ``s.seed``); a parallel machine's and an arm's settings alike."""
     if s.check:
-        return data, read_poses(s.check, machine)
+        return data, read(s.check, machine)
     return holdout_split(data, s.holdout, s.seed)
 
 

@@ -13,7 +13,6 @@ one (:mod:`compensation.app.workflows.compensate_report`). docs/reference/tool-p
 from __future__ import annotations
 
 import contextlib
-import json
 import sys
 import threading
 from dataclasses import dataclass, field
@@ -27,7 +26,7 @@ from errormap.jit import notice_cold_kernels
 from errormap.progress import Progress
 from errormap.units import UNITS_CHECK
 
-from compensation.app.outputs import is_lock
+from compensation.app.outputs import COMPENSATE_SUMMARY_NAME as SUMMARY_NAME, check_out_dir, plan_outputs
 from compensation.app.validate import UsageError
 
 from ... import guards
@@ -46,7 +45,6 @@ from .compensate_paths import ToolPath, read_tool_path, render, source_line_of
 from .compensate_report import (PATH_SAMPLES, cutter_radius_bound_um, cycle_report, orientation_pass, rotary_refusals,
                                 stats, tcp_entry, true_path_residual_um, true_residual_um)
 
-SUMMARY_NAME = "compensate_summary.json"
 WORK_OFFSETS_MACHINE_NOTE = "volcomp: work offsets taken as machine zero (--work-offsets machine)"
 
 
@@ -122,46 +120,6 @@ class CompensateRun:
     @property
     def refused(self) -> list:
         return [o for o in self.outcomes if o.refused]
-
-
-def plan_outputs(files, out_dir: Path) -> list:
-    """Output path per input; refuses duplicates and outputs that would overwrite an input."""
-    from errormap.io import InputError, not_a_file
-    inputs = [Path(f) for f in files]
-    for p in inputs:
-        if not p.is_file():
-            raise InputError(not_a_file(p))
-    outs = [out_dir / p.name for p in inputs]
-    seen = {}
-    for p, o in zip(inputs, outs):
-        if o.name in seen:
-            raise UsageError(f"two inputs would both be written to {o}: {seen[o.name]} and {p}")
-        seen[o.name] = p
-    resolved_inputs = {p.resolve() for p in inputs}
-    for o in outs:
-        if o.resolve() in resolved_inputs:
-            raise UsageError(f"--out {out_dir} would overwrite the input {o}; choose another folder")
-    return list(zip(inputs, outs))
-
-
-def check_out_dir(out_dir: Path, force: bool) -> list:
-    """Refuse a DIR holding files unless ``force``; return the previous run's outputs (to remove)."""
-    if out_dir.exists() and not out_dir.is_dir():
-        raise UsageError(f"--out {out_dir} is not a folder")
-    held = sorted(p.name for p in out_dir.iterdir() if not is_lock(p)) if out_dir.is_dir() else []
-    if held and not force:
-        raise UsageError(f"--out {out_dir} already holds {len(held)} file(s) ({', '.join(held[:3])}"
-                         f"{', ...' if len(held) > 3 else ''}); choose an empty folder or pass --force "
-                         "(which removes the previous run's outputs)")
-    old = []
-    summary = out_dir / SUMMARY_NAME
-    if held and summary.is_file():
-        try:
-            doc = json.loads(summary.read_text(encoding="utf-8"))
-            old = [out_dir / Path(e["output"]).name for e in doc.get("files", []) if e.get("output")]
-        except (ValueError, KeyError, TypeError, AttributeError):
-            old = []
-    return old
 
 
 def progress_callback(points: int, method: str):

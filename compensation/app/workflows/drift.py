@@ -19,15 +19,13 @@ from ..reports.toolkit import write_page
 def compensation_columns(log, model, cache=None) -> dict:
     """The compensation series: ``time_s`` and per channel ``<ch>_pred_um``, ``<ch>_lo_um``, ``<ch>_hi_um``
     (prediction ± the 95 % band), causal."""
-    pred = model.predict(log, cache)
-    bands = model.band_um(log)
-    cols = {"time_s": log.time_s}
-    for ch, p in pred.items():
-        band = bands[ch]
-        cols[f"{ch}_pred_um"] = p
-        cols[f"{ch}_lo_um"] = p - band
-        cols[f"{ch}_hi_um"] = p + band
-    return cols
+    return {"time_s": log.time_s, **band_columns(model.predict(log, cache), model.band_um(log))}
+
+
+def band_columns(pred: dict, bands: dict) -> dict:
+    """Per channel of ``pred`` ({channel: (n,) μm}): ``<ch>_pred_um``, ``<ch>_lo_um`` and ``<ch>_hi_um`` (± bands)."""
+    return {k: v for ch, p in pred.items()
+            for k, v in ((f"{ch}_pred_um", p), (f"{ch}_lo_um", p - bands[ch]), (f"{ch}_hi_um", p + bands[ch]))}
 
 
 COMPENSATION_COMMENTS = ("compensation series: predicted thermal displacement per channel (um), causal "

@@ -184,15 +184,6 @@ def check_chain_covariance(machine, elements, cov, cov_path="<covariance>") -> N
         raise InputError(f"{cov_path}: key 'cov': not a covariance (non-finite or negative variance)")
 
 
-def chain_band_sd(machine, elements, cov, axes, cov_path="<covariance>") -> np.ndarray:
-    """Standard deviation (n, 3) μm of the element set's tool-point error at ``axes``
-    (:func:`errormap.chain_covariance.band_sd`), the covariance checked first
-    (:func:`check_chain_covariance`)."""
-    from errormap.chain_covariance import band_sd
-    check_chain_covariance(machine, elements, cov, cov_path)
-    return band_sd(machine, elements, cov, axes)
-
-
 def chain_learned_stage(machine, checks, elements, terms, summary, seed: int = 0, families=None, refit=None,
                         refit_all: bool = False):
     """The learned-residual stage after the chain loop (:func:`compensation.hybrid.learned_stage`, whose
@@ -253,6 +244,20 @@ def chain_learned_stage(machine, checks, elements, terms, summary, seed: int = 0
     return learned, stage, without(stage["learned"]["replaced_condition_terms"]), elements
 
 
+def closed_loop(checks_path, machine, elements, checks, **kw) -> tuple:
+    """:func:`errormap.diagnosis.chain_loop.closed_loop_chain` on the read ``checks`` (its ValueError: an
+    InputError naming ``checks_path``) → ``(summary, its models, the kept stage's effect terms)``."""
+    from errormap.diagnosis.chain_loop import closed_loop_chain
+    try:
+        summary = closed_loop_chain(machine, elements, checks, **kw)
+    except InputError:   # names the file itself
+        raise
+    except ValueError as exc:
+        raise InputError(f"{checks_path}: {exc}") from None
+    models = summary.pop("_models")
+    return summary, models, models["terms"] if summary["kept_stage"].endswith("plus_effects") else []
+
+
 def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=None, effects=True,
                    max_effects=4, update=True, units="check", learn: bool = True, refit_all: bool = True,
                    track: bool = False, tracking_uri=None) -> tuple:
@@ -264,23 +269,17 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
     :mod:`compensation.chain_hybrid`). ``machine``: a machine-tool chain or a grinder file (its chain).
     ``track``: a kept learned residual is also logged as an MLflow run (``tracking_uri``; its id recorded in
     diagnosis.json and model.json)."""
-    from errormap.diagnosis.chain_loop import ChainChecks, closed_loop_chain, load_chain_checks, ship_on_all_checks
+    from errormap.diagnosis.chain_loop import ChainChecks, load_chain_checks, ship_on_all_checks
     el, cov, cov_path = load_chain_model(model, machine, prior=True)
     checks = (checks_path if isinstance(checks_path, ChainChecks)   # checks in memory (the benchmark's)
               else load_chain_checks(checks_path, machine, units=units))
     checks_path = checks.path if isinstance(checks_path, ChainChecks) else checks_path
-    try:
-        summary = closed_loop_chain(machine, el, checks, cov=cov if update else None, fit_fraction=fit_fraction,
-                                    noise_um=noise_um, effects=effects, max_effects=max_effects, units=units)
-    except InputError:   # names the file itself
-        raise
-    except ValueError as exc:
-        raise InputError(f"{checks_path}: {exc}") from None
-    models = summary.pop("_models")
+    summary, models, terms = closed_loop(checks_path, machine, el, checks, cov=cov if update else None,
+                                         fit_fraction=fit_fraction, noise_um=noise_um, effects=effects,
+                                         max_effects=max_effects, units=units)
     from compensation.fields import resolve_model
     summary.update({"checks": str(checks_path), "model": str(model), "model_source": resolve_model(model).to_dict(),
                     "covariance": str(cov_path) if cov_path else None, "update": bool(update and cov is not None)})
-    terms = models["terms"] if summary["kept_stage"].endswith("plus_effects") else []
     refit, n = models.get("refit"), len(checks)
     refit_all = bool(refit_all and refit is not None)
     extra, learned = None, None

@@ -127,19 +127,12 @@ def diagnose_network(checks, machine, source, out, *, base=None, fit_fraction=0.
     (``retrain``: its :class:`training.TrainSettings`). → ``(summary, [diagnosis.json])``."""
     from compensation.model_file import read_model
     from errormap.chain_elements import ChainElementSet
-    from errormap.diagnosis.chain_loop import closed_loop_chain
     from errormap.diagnosis.plausibility import diagnosis_verdict
+    from .measurement import closed_loop
     if base is None:
         base = read_model(source.spec, machine, tracking_uri, source=source).field
-    try:
-        summary = closed_loop_chain(machine, ChainElementSet.zeros(machine), checks, cov=None, base=base,
+    summary, _, terms = closed_loop(checks.path, machine, ChainElementSet.zeros(machine), checks, cov=None, base=base,
                                     fit_fraction=fit_fraction, noise_um=noise_um, max_effects=max_effects, units=units)
-    except InputError:
-        raise
-    except ValueError as exc:
-        raise InputError(f"{checks.path}: {exc}") from None
-    models = summary.pop("_models")
-    terms = models["terms"] if summary["kept_stage"].endswith("plus_effects") else []
     summary.update({"checks": str(checks.path), "model": str(source.spec), "model_source": source.to_dict(),
                     "update": False, "covariance": None})
     if terms and featurepoints is not None:
