@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .machine_tool import MachineTool
-
 X_ELEMENTS = ("dx_x", "dy_x", "dz_x", "ex_x", "ey_x", "ez_x")
 Z_ELEMENTS = ("dx_z", "dy_z", "dz_z", "ex_z", "ey_z", "ez_z")
 A_ELEMENTS = ("dx_a", "dy_a", "dz_a", "ex_a", "ey_a", "ez_a")
@@ -32,11 +30,6 @@ def element_unit(name: str) -> str:
     if name not in ELEMENT_NAMES:
         raise KeyError(f"Expected one of the 23 element names {ELEMENT_NAMES}, got {name!r}")
     return "um" if name.startswith("d") else "urad"
-
-
-def default_stations(machine: MachineTool, n: int = 21) -> dict:
-    """``n`` equally spaced stations over each stroke (the paper: every 1/20; A every 18°)."""
-    return {k: np.linspace(*machine.strokes[k], n) for k in ("x_mm", "z_mm", "a_deg")}
 
 
 def check_profile(name: str, values, stations, column: str) -> np.ndarray:

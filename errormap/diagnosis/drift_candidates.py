@@ -28,8 +28,7 @@ class OLSFamily(_Family):
     name = "ols"
 
     def fit(self, log, channels, rows, cache):
-        temps, speed = _inputs(log, rows)
-        feats = [Feature(i) for i in temps + (["speed_rpm"] if speed else [])]
+        feats = [Feature(i) for i in _inputs(log, rows)]
         X = feature_matrix(log, feats, cache)[rows]
         return {ch: {"": (feats, *fit_ols(X, log.disp_um[ch][rows]))} for ch in channels}
 
@@ -50,8 +49,7 @@ class RidgeBankFamily(_Family):
         self.taus, self.lambdas = taus, lambdas
 
     def features(self, log, rows):
-        temps, speed = _inputs(log, rows)
-        return [Feature(i, tau) for i in temps + (["speed_rpm"] if speed else []) for tau in self.taus]
+        return [Feature(i, tau) for i in _inputs(log, rows) for tau in self.taus]
 
     def fit(self, log, channels, rows, cache):
         feats = self.features(log, rows)
@@ -102,10 +100,10 @@ class TransferFamily(_Family):
         self.taus, self.lam = taus, lam
 
     def fit(self, log, channels, rows, cache):
-        temps, speed = _inputs(log, rows)
-        tfe = [Feature(i) for i in temps]
+        ins = _inputs(log, rows)
+        tfe = [Feature(i) for i in ins if i != "speed_rpm"]
         XT = feature_matrix(log, tfe, cache)[rows]
-        if not speed:
+        if "speed_rpm" not in ins:
             return {ch: {"": (tfe, *fit_ridge_path(XT, log.disp_um[ch][rows], [self.lam])[0])} for ch in channels}
         pairs = [(a, b) for i, a in enumerate(self.taus) for b in self.taus[i + 1:]]
         Y = np.stack([log.disp_um[ch][rows] for ch in channels], axis=1)

@@ -47,8 +47,7 @@ class ThermalNNFamily(_Family):
         self.taus, self.lambdas = taus, lambdas
 
     def fit(self, log, channels, rows, cache):
-        temps, speed = _inputs(log, rows)
-        ins = temps + (["speed_rpm"] if speed else [])
+        ins = _inputs(log, rows)
         raw = feature_matrix(log, [Feature(i) for i in ins], cache)[rows]
         feats = [Feature(i, tau) for i in ins for tau in self.taus]
         X = feature_matrix(log, feats, cache)[rows]
@@ -74,8 +73,7 @@ class GreyBoxFamily(_Family):
         self.taus, self.lam = taus, lam
 
     def fit(self, log, channels, rows, cache):
-        temps, speed = _inputs(log, rows)
-        ins = temps + (["speed_rpm"] if speed else [])
+        ins = _inputs(log, rows)
         Y = np.stack([log.disp_um[ch][rows] for ch in channels], axis=1)
         out = {ch: {} for ch in channels}
         for tau in self.taus:
@@ -120,14 +118,15 @@ def _forward_bic(X, y, max_inputs):
     return chosen
 
 
-def _stable_selection(X, y, edges, max_inputs, group=None):
-    """Forward BIC on each leave-one-block-out subsample of the rows (``edges``: block bounds): per column,
+def _stable_selection(X, y, n_sub, max_inputs, group=None):
+    """Forward BIC on each leave-one-block-out subsample of the rows (``n_sub`` equal blocks): per column,
     how often it was selected (count (p,)), and per group of columns (``group`` (p,) ints, default one
     per column) in how many subsamples any of its columns was (presence (g,)), each for the first k
     selected, for every k of ``max_inputs``: {k: (count (p,), presence (g,))}."""
     group = np.arange(X.shape[1]) if group is None else np.asarray(group)
     ng = int(group.max()) + 1 if group.size else 0
     out = {k: (np.zeros(X.shape[1]), np.zeros(ng)) for k in max_inputs}
+    edges = np.linspace(0, len(X), n_sub + 1).round().astype(int)
     n = edges[-1]
     for j in range(len(edges) - 1):
         keep = np.r_[0:edges[j], edges[j + 1]:n]
@@ -148,15 +147,13 @@ class StableOLSFamily(_Family):
         self.n_sub, self.freq, self.max_inputs = n_sub, freq, max_inputs
 
     def fit(self, log, channels, rows, cache):
-        temps, speed = _inputs(log, rows)
-        ins = temps + (["speed_rpm"] if speed else [])
+        ins = _inputs(log, rows)
         feats = [Feature(i) for i in ins]
         X = feature_matrix(log, feats, cache)[rows]
-        edges = np.linspace(0, len(rows), self.n_sub + 1).round().astype(int)
         out = {}
         for ch in channels:
             y = log.disp_um[ch][rows]
-            count, _ = _stable_selection(X, y, edges, (self.max_inputs,))[self.max_inputs]
+            count, _ = _stable_selection(X, y, self.n_sub, (self.max_inputs,))[self.max_inputs]
             sel = np.flatnonzero(count >= self.freq * self.n_sub)
             fs = [feats[i] for i in sel]
             out[ch] = {"": (fs, *fit_ols(X[:, sel], y))}
@@ -180,17 +177,15 @@ class StableLagOLSFamily(_Family):
         self.taus, self.max_inputs, self.n_sub, self.freq = taus, tuple(max_inputs), n_sub, freq
 
     def fit(self, log, channels, rows, cache):
-        temps, speed = _inputs(log, rows)
-        ins = temps + (["speed_rpm"] if speed else [])
+        ins = _inputs(log, rows)
         nt = len(self.taus)
         feats = [Feature(i, tau) for i in ins for tau in self.taus]
         X = feature_matrix(log, feats, cache)[rows]
         group = np.repeat(np.arange(len(ins)), nt)
-        edges = np.linspace(0, len(rows), self.n_sub + 1).round().astype(int)
         out = {}
         for ch in channels:
             y = log.disp_um[ch][rows]
-            stab = _stable_selection(X, y, edges, self.max_inputs, group)
+            stab = _stable_selection(X, y, self.n_sub, self.max_inputs, group)
             hyp = {}
             for k in self.max_inputs:
                 cnt, pres = stab[k]
@@ -202,7 +197,7 @@ class StableLagOLSFamily(_Family):
         return out
 
 
-class GradientFamily(_Family):
+class GradientFamily(StableOLSFamily):
     """Temperature DIFFERENCES as inputs: each temperature minus the coolest sensor's (the reference nearest the
     shop air, by median over the training rows), plus the spindle speed.
 
@@ -214,21 +209,19 @@ class GradientFamily(_Family):
       stably needed).
 
     Returned in the raw inputs (a difference's gain is the sensor's gain, minus on the reference), so the
-    controller form is the OLS baseline's features with constrained coefficients."""
+    controller form is the OLS baseline's features with constrained coefficients. Settings: those of
+    :class:`StableOLSFamily`."""
 
     name = "gradient"
 
-    def __init__(self, n_sub=STABLE_SUBSAMPLES, freq=STABLE_FREQ, max_inputs=STABLE_MAX_INPUTS):
-        self.n_sub, self.freq, self.max_inputs = n_sub, freq, max_inputs
-
     def fit(self, log, channels, rows, cache):
-        temps, speed = _inputs(log, rows)
-        if len(temps) < 2:
+        ins = _inputs(log, rows)
+        speed = "speed_rpm" in ins
+        nt = len(ins) - speed                                            # the temperatures
+        if nt < 2:
             raise ValueError("gradient: fewer than two temperatures vary on the training rows")
-        ins = temps + (["speed_rpm"] if speed else [])
         feats = [Feature(i) for i in ins]
         X = feature_matrix(log, feats, cache)[rows]                      # (n, p): temperatures, then speed
-        nt = len(temps)
         ref = int(np.argmin(np.median(X[:, :nt], axis=0)))
         others = [i for i in range(nt) if i != ref]
         # Z = X @ M: [T_i − T_ref for i ≠ ref] + [T_ref] + [speed]
@@ -240,14 +233,13 @@ class GradientFamily(_Family):
             M[nt, -1] = 1.0
         Z = X @ M
         sum0 = [j for j in range(M.shape[1]) if j != len(others)]       # every column but the absolute reference
-        edges = np.linspace(0, len(rows), self.n_sub + 1).round().astype(int)
         out = {}
         for ch in channels:
             y = log.disp_um[ch][rows]
             hyp = {}
             a, c = fit_ols(Z[:, sum0], y)
             hyp["sum0"] = (feats, a, M[:, sum0] @ c)
-            cnt, _ = _stable_selection(Z, y, edges, (self.max_inputs,))[self.max_inputs]
+            cnt, _ = _stable_selection(Z, y, self.n_sub, (self.max_inputs,))[self.max_inputs]
             sel = np.flatnonzero(cnt >= self.freq * self.n_sub)
             a, c = fit_ols(Z[:, sel], y)
             hyp["stable"] = (feats, a, M[:, sel] @ c)
@@ -280,11 +272,11 @@ def _mode_maps(X, nt: int, speed: bool, counts) -> dict:
 def _mode_inputs(log, channels, rows, cache, counts):
     """What the mode families fit on: (raw input names (temperatures, then the speed where it varies), their
     matrix X (n, p) on ``rows``, :func:`_mode_maps` of X for ``counts``, the displacements Y (n, channels))."""
-    temps, speed = _inputs(log, rows)
-    ins = temps + (["speed_rpm"] if speed else [])
+    ins = _inputs(log, rows)
     X = feature_matrix(log, [Feature(i) for i in ins], cache)[rows]
     Y = np.stack([log.disp_um[ch][rows] for ch in channels], axis=1)
-    return ins, X, _mode_maps(X, len(temps), speed, counts), Y
+    speed = "speed_rpm" in ins
+    return ins, X, _mode_maps(X, len(ins) - speed, speed, counts), Y
 
 
 class ModesFamily(_Family):

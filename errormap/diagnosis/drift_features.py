@@ -133,10 +133,10 @@ def fit_ridge_path(X, Y, lambdas):
     return out[0] if one else out
 
 
-def _inputs(log: DriftLog, rows) -> tuple[list, bool]:
+def _inputs(log: DriftLog, rows) -> list:
+    """The inputs that vary on ``rows``: every such ``temp_<sensor>_c``, then ``speed_rpm`` where it does."""
     temps = [f"temp_{s}_c" for s, v in log.temps_c.items() if np.ptp(v[rows]) > 0]
-    speed = log.speed_rpm is not None and np.ptp(log.speed_rpm[rows]) > 0
-    return temps, speed
+    return temps + (["speed_rpm"] if log.speed_rpm is not None and np.ptp(log.speed_rpm[rows]) > 0 else [])
 
 
 class _Family:
@@ -146,8 +146,7 @@ class _Family:
 
 def input_matrix(log, rows, cache) -> np.ndarray:
     """The raw inputs (every varying temperature and speed) on ``rows``: (len(rows), k)."""
-    temps, speed = _inputs(log, rows)
-    return feature_matrix(log, [Feature(i) for i in temps + (["speed_rpm"] if speed else [])], cache)[rows]
+    return feature_matrix(log, [Feature(i) for i in _inputs(log, rows)], cache)[rows]
 
 def whitener(U):
     """Mean (k,) and whitening matrix W (k, r) of the rows of ``U`` (n, k): ‖(u − mean)·W‖ is the

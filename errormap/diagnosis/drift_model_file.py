@@ -61,8 +61,12 @@ class DriftModel:
         return list(seen.values())
 
     def rho(self, log) -> np.ndarray | None:
-        """ρ (n,) of every row of ``log`` (distance of its raw inputs from the fit data / d0), or None."""
-        return input_rho(self, log)
+        """ρ (n,) of every row of ``log``: :func:`input_novelty` (the distance of its raw inputs from the fit data)
+        / the fit data's range distance d0 (``fitted_on.novelty.range_distance``); None where the model records no
+        distance."""
+        d0 = ((self.meta or {}).get("novelty") or {}).get("range_distance")
+        d = input_novelty(self, log) if d0 else None
+        return None if d is None else d / float(d0)
 
     def channel_rho(self, log, cache: dict | None = None) -> dict:
         """{channel: ρ (n,) or None}: the larger of the raw inputs' ρ (:meth:`rho`) and the ρ of the channel's own
@@ -268,16 +272,3 @@ def input_novelty(model, log) -> np.ndarray | None:
     except InputError:          # an input the model does not need is missing: no distance, the prediction stands
         return None
     return mahalanobis(U, np.asarray(nov["mean"], float), np.asarray(nov["whiten"], float).reshape(len(nov["inputs"]), -1))
-
-
-def input_rho(model, log) -> np.ndarray | None:
-    """ρ (n,) = :func:`input_novelty` / the fit data's range distance d0 (``fitted_on.novelty.range_distance``),
-    or None when the model records no distance."""
-    nov = (model.meta or {}).get("novelty") or {}
-    d0 = nov.get("range_distance")
-    if not d0:
-        return None
-    d = input_novelty(model, log)
-    if d is None:
-        return None
-    return d / float(d0)

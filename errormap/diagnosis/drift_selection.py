@@ -214,11 +214,10 @@ class DriftSelector(Estimator):
         nfolds = sets[2]
         mu, W = whitener(U)
         dval = [mahalanobis(U[va], *whitener(U[tr])) for tr, va in nfolds]
-        temps, speed = _inputs(log, fit)
         d_fit = mahalanobis(U, mu, W)
         return {"log": str(log.path), "fit_rows": int(len(fit)), "fit_until_s": float(log.time_s[fit[-1]]),
                 "selection": self._selection_text(sets),
-                "novelty": {"inputs": temps + (["speed_rpm"] if speed else []), "mean": mu.tolist(),
+                "novelty": {"inputs": _inputs(log, fit), "mean": mu.tolist(),
                             "whiten": W.tolist(),
                             "validated_distance": float(np.quantile(np.concatenate(dval), 0.9)) if dval else None,
                             "fit_distance_q99": float(np.quantile(d_fit, 0.99)),
