@@ -77,7 +77,7 @@ while the other idles."""
 
 UNIT_CPU_S = {
     "bump user path": 200.0,
-    "tests/test_hybrid.py": 100.0,
+    "tests/test_hybrid.py": 65.0,
     "tests/test_chain_loop_terms.py::test_cli_term_the_joint_fit_does_not_support_is_dropped": 100.0,
     "tests/test_hybrid_backfit.py::test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt": 40.0,
     # tests/test_cluster.py (solo, one BLAS thread, 2026-12-03: 281 s before the fleet test's --no-learned, the 4k-point
@@ -91,7 +91,8 @@ UNIT_CPU_S = {
 """The slow tier's longest units of work (CPU s, about their wall time on a quiet core; the slowest tests
 of the last full slow-tier run plus the fixtures they build; test_hybrid.py's and the five-axis term test's
 measured alone, one BLAS thread, with the batched GA on 10 hybrid points: 101 and 98; test_hybrid.py with it on 4,
-the per-point GA on 1 and the pure-noise case on 200 checks, -n 0: 164 CPU s, 272 before), handed out first: with
+the per-point GA on 1 and the pure-noise case on 200 checks, -n 0: 164 CPU s, 272 before; its staged fit on the work
+frame alone, test_hybrid.WORK_FRAME: 96 CPU s, 169 before, back to back on a loaded machine), handed out first: with
 the longest units last, one worker would run one of them alone at the end. Units not named follow, most tests first."""
 
 

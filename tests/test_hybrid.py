@@ -63,12 +63,23 @@ def _bump(machine, axes):
     return np.stack([np.zeros_like(g), g, np.zeros_like(g)], axis=1)
 
 
+WORK_FRAME = ("work",)
+"""The output frame the learned-stage tests cross-validate: the work frame only. learned_stage's default also
+cross-validates the grinder's machine frame (LEARNED_FRAMES: the rotating A axis) and keeps the candidate of lowest
+CV RMS; on the bump and on the condition-term cases of tests/test_hybrid_condition_terms.py the work frame wins
+(measured: bump, CV RMS 1.743 μm in the work frame, 1.823 in the machine frame), each candidate fitted on its own
+with the same seed, so with the work frame alone the stage, its held-out figures and its learned part are the same
+bits (measured: every key of stage["learned"] but inputs_table and output_frames_compared equal, predictions
+equal) at ~55 % of the CPU time. The choice between the frames is tests/test_hybrid_frames.py's; the user's path
+on the bump (tests/test_hybrid_user_path.py) runs the default frames."""
+
+
 @pytest.fixture(scope="module")
 def staged(grinder):
     rng = np.random.default_rng(SEED)
     axes = random_axes(grinder, 800, rng)
     r = _bump(grinder, axes) + NOISE_UM * rng.standard_normal(axes.shape)
-    learned, stage = learned_stage(grinder, r, axes, np.arange(480), np.arange(480, 800), seed=SEED)
+    learned, stage = learned_stage(grinder, r, axes, np.arange(480), np.arange(480, 800), seed=SEED, frames=WORK_FRAME)
     return axes, learned, stage
 
 

@@ -102,12 +102,20 @@ LATHE_HELD_OUT_OVER_FLOOR = 1.5
 
 @pytest.mark.slow
 def test_benchmark_rows_on_the_lathe_are_the_users_path(tmp_path):
+    """The quick benchmark's conditions on the lathe leave nothing out (the bump among the out-of-catalogue effects);
+    its effect=none condition, run as run_chain runs each condition, gives the rows asserted here. The other
+    conditions (stations=21 and effect=bump), whose rows no assertion read, are not run: measured, the effect=none
+    rows are the same numbers either way (every field but the solvers' seconds per point), 16 CPU s instead of 43."""
     from compensation.app.workflows.benchmark_common import RowLog, Tracker, quick_settings
-    from compensation.app.workflows.chain_benchmark import run_chain
+    from compensation.app.workflows.chain_benchmark import ChainBench, bench_conditions
     s = quick_settings()
     s.effects, s.volume_points, s.chain_path_points, s.ooc_effects = (), 0, 10, ("bump",)
+    m = load_machine(LATHE)
+    conds, left_out = bench_conditions(m, s)
+    by_name = {c.name: c for c in conds}
+    assert left_out == [] and {"effect=bump", "effect=none"} <= set(by_name)
     log = RowLog(Tracker(None, enabled=False))
-    assert run_chain(load_machine(LATHE), s, log, tmp_path) == []
+    ChainBench(m, s, log, tmp_path, judging_path(m, s)).run_condition(by_name["effect=none"])
     rows = {(r["path"], r["condition"]): r for r in log.rows}
     before, after = rows["parametric", "effect=none (before closed loop)"], rows["parametric", "effect=none (after closed loop)"]
     learned = rows["learned", "effect=none (before closed loop)"]

@@ -7,6 +7,7 @@ import pytest
 from compensation.hybrid import LEARNED_FAMILIES, LearnedResidual, learned_stage
 from errormap.machine import load_machine
 from errormap.chain_truth import random_axes
+from test_hybrid import WORK_FRAME
 
 SEED = 0
 N_CHECKS, N_FIT = 300, 180
@@ -29,7 +30,10 @@ def kept():
     rng = np.random.default_rng(SEED)
     axes = random_axes(m, N_CHECKS, rng)
     r = _bump(m, axes) + NOISE_UM * rng.standard_normal(axes.shape)
-    learned, stage = learned_stage(m, r, axes, np.arange(N_FIT), np.arange(N_FIT, N_CHECKS), seed=SEED)
+    # the work frame only (test_hybrid.WORK_FRAME): it wins the two-frame comparison here (gp_matern52 in both), the
+    # same stage bits but the candidates' table, 6.6 CPU s instead of 12.3
+    learned, stage = learned_stage(m, r, axes, np.arange(N_FIT), np.arange(N_FIT, N_CHECKS), seed=SEED,
+                                   frames=WORK_FRAME)
     assert learned is not None, stage["learned"]["why"]  # the bump is well above the noise: kept
     return learned, stage
 
