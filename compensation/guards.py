@@ -153,7 +153,9 @@ def convergence_violations(result):
     how = (f" > tolerance {tol:.3g} μm" if tol is not None else "") + (
         " after the GA's retries and Newton polish" if retry and (retry.get("retry_rounds") or retry.get("polished"))
         else "")
-    return bad, np.array([f"{result.method} did not converge (|residual| {v:.3g} μm{how})" for v in r], dtype=object)
+    why = result.info.get("turning_unreachable", {})  # compensation.turning.unreachable_radius
+    return bad, np.array([f"{result.method} did not converge (|residual| {v:.3g} μm{how})" + (
+        f": {why[i]}" if i in why else "") for i, v in zip(bad.tolist(), r)], dtype=object)
 
 
 def _merge(first, second):

@@ -214,6 +214,40 @@ def surface_residual_um(field, machine, axes, axes_d, compiled=None):
     return mean, spread
 
 
+def height_um(field, machine, axes, compiled=None) -> np.ndarray:
+    """(n,) the tool tip's distance (μm) from the plane through the spindle axis in which the linear axes move it
+    (its centre-height error), averaged over one turn, the machine (nominal + ``field``) driven to ``axes`` (n, k).
+    At every sample of the turn the tip's radius is at least this distance, so no X and Z bring the tip nearer the
+    spindle axis than about this (X and Z change it only through the error's slope, nm over μm of travel)."""
+    from .solvers.chain_exact import nominal_and_jacobian
+    n = len(axes)
+    Q = _over_turn(machine, axes)
+    P, J = nominal_and_jacobian(machine, Q, compiled)
+    P = P + 1e-3 * np.asarray(field.predict(Q))
+    _, lin = _indices(machine)
+    slide = J[:, :2, lin]  # (n·T, 2, 2): the xy motion of each linear axis
+    j = np.argmax(np.linalg.norm(slide, axis=1), axis=1)  # the one moving the tip radially (X)
+    u = slide[np.arange(len(Q)), :, j]
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    h = (u[:, 0] * P[:, 1] - u[:, 1] * P[:, 0]) * 1e3
+    return np.abs(h).reshape(n, TURN_SAMPLES).mean(axis=1)
+
+
+def unreachable_radius(field, machine, q, axes_d, bad) -> tuple:
+    """``(indices, reasons)`` of the points ``bad`` (indices into ``q``/``axes_d`` (n, k)) whose programmed radius
+    is nearer the spindle axis than the tool tip passes it (:func:`height_um` at ``q``): no X and Z reach it."""
+    from .solvers.chain_exact import nominal_and_jacobian
+    bad = np.asarray(bad, dtype=np.intp)
+    if not len(bad):
+        return bad, []
+    r0 = np.hypot(*nominal_and_jacobian(machine, axes_d[bad])[0][:, :2].T) * 1e3
+    h = height_um(field, machine, q[bad])
+    hit = r0 < h - TOL_UM
+    return bad[hit], [f"the programmed radius {r / 1e3:.4g} mm is nearer the spindle axis than the tool tip passes it "
+                      f"({v:.3g} μm off centre height, which X and Z cannot correct: the least radius they reach)"
+                      for r, v in zip(r0[hit], h[hit])]
+
+
 def solve_turning(field, machine, axes_d, ball_um: float, tol_um: float = TOL_UM, max_iter: int = MAX_ITER):
     """X and Z of every turning point ``axes_d`` (n, k) so that ``g = 0`` (module docstring); C untouched.
     Returns ``(axes (n, k), residual (n, 3) μm as (radial, 0, axial), converged (n,), spread (n,), iterations)``."""
@@ -310,11 +344,13 @@ def solve_with_turning(solve_rest, field, machine, targets, axes_d, turning, bal
                 info[key] = rest[np.asarray(info[key], dtype=np.intp)]
         info.pop("iterations", None)
     if len(turn):
-        spread = np.zeros(len(turn))
+        spread, unreachable = np.zeros(len(turn)), {}
         for x, z, idx in tool_groups(None if tool_xz is None else np.asarray(tool_xz)[turn], len(turn)):
             f, mt = at_tool(field, machine, x, z)
             q, res, conv, spread[idx], _ = solve_turning(f, mt, axes_d[turn[idx]], ball_um)
             axes[turn[idx]], residual[turn[idx]], converged[turn[idx]] = q, res, conv
+            hit, why = unreachable_radius(f, mt, q, axes_d[turn[idx]], np.flatnonzero(~conv))
+            unreachable.update(zip(turn[idx][hit].tolist(), why))
         commands[turn] = nominal_by_tool(machine, axes[turn], None if tool_xz is None else np.asarray(tool_xz)[turn])
         nfev += len(turn) * TURN_SAMPLES
         names = machine.axis_columns
@@ -323,6 +359,8 @@ def solve_with_turning(solve_rest, field, machine, targets, axes_d, turning, bal
         info.setdefault("kept_axes", [names[c]])
         info["turning_points"] = int(len(turn))
         info["turning_roundness_max_um"] = float(spread.max())
+        if unreachable:
+            info["turning_unreachable"] = unreachable  # {point: why}: compensation.guards.convergence_violations
         info["note"] = ((info["note"] + "; ") if info.get("note") else "") + (
             f"turning mode: {len(turn)} point(s) compensated with {', '.join(names[j] for j in lin)} against the "
             f"surface of revolution, {names[c]} untouched (the spindle)")

@@ -129,3 +129,30 @@ def test_a_c_word_while_the_spindle_turns_is_refused(tmp_path, lathe_models, cap
                  "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert f"{prog}: line 4, column 15: 'C45.' while the spindle turns" in err and "M5" in err
+
+
+AXIS_SCAN_UM = np.arange(-150.0, 150.01, 0.5)
+"""X offsets (μm) scanned about a programmed point on the spindle axis: wider than the chain's error there (the
+±10 μm truth leaves tens of μm)."""
+
+
+def test_points_across_the_spindle_axis_converge_the_axis_itself_is_named_unreachable():
+    """A turning program crossing X = 0 (X < 0 is inside lathe-xzc's stroke, -20..200 mm): on both sides of the axis
+    every point reaches its surface of revolution; on the axis (radius 0) no X and Z bring the tip nearer than its
+    centre-height error, which the solver names instead of a bare non-convergence (checked by a scan of X)."""
+    from compensation.turning import height_um, unreachable_radius
+    mt = load_machine(LATHE)
+    f = ChainField(mt, chain_elements(mt, 303, scale=10.0))
+    xs = np.array([-5.0, -1.0, -0.2, 0.2, 1.0, 5.0, 0.0])
+    ax = np.stack([xs, np.full(len(xs), 230.0), np.zeros(len(xs))], axis=1)
+    q, res, conv, _, _ = solve_turning(f, mt, ax, ball_um=250.0)
+    mean, _ = surface_residual_um(f, mt, q, ax)
+    assert conv[:-1].all() and np.abs(mean[:-1]).max() <= ORACLE_TRUE_UM
+    assert np.all(np.sign(q[:-1, 0]) == np.sign(xs[:-1]))  # each side of the axis stays on its side
+    hit, why = unreachable_radius(f, mt, q, ax, np.flatnonzero(~conv))
+    assert hit.tolist() == [6] and "nearer the spindle axis" in why[0]
+    h = float(height_um(f, mt, q[6:])[0])
+    scan = np.repeat(ax[6:], len(AXIS_SCAN_UM), axis=0)
+    scan[:, 0] += AXIS_SCAN_UM * 1e-3
+    radius = surface_residual_um(f, mt, scan, np.repeat(ax[6:], len(AXIS_SCAN_UM), axis=0))[0][:, 0]
+    assert h > 1.0 and radius.min() >= h - 1e-6  # no X reaches nearer the axis than the height error
