@@ -355,9 +355,11 @@ G7X = (70, 71, 71.1, 71.2, 72, 72.1, 72.2)
 def g7x_contour(m, pc, words, vals):
     """On a LinuxCNC ``G70``-``G72`` line with Q (``m`` the running ``nc_expand._Machine``): the lines of the
     subroutine o<Q> recorded (:attr:`compensation.nc_expand.Expanded.contours`) for the line about to be written,
-    each a motion line with its values evaluated in a fresh call's parameters (the cycle reads them,
-    ``interp_g7x.cc``, without running them); refused: a subroutine line that sets a parameter, calls, branches or
-    ends the program (what the cycle would run of it is not read here)."""
+    each a motion line with its values evaluated in a fresh call's parameters, up to the first ``endsub``. The cycle
+    reads them as ``interp_g7x.cc`` does (``Interp::read``, which parses a line, never ``execute``): an O-word line
+    (``repeat``, ``if``, ``while``, ``call`` …) is read and not run, so it is recorded as ``(line, None)``, a line
+    without motion (a loop's body is read once, every branch of an if in turn; the summary names them). Refused: a
+    subroutine line that sets a parameter, a Fanuc-style call or a program end (not read here)."""
     value = lambda w: w[4] if w[3] is None else vals[id(w)]  # noqa: E731
     if m.dialect != "linuxcnc" or not any(w[0] == "G" and round(value(w), 1) in G7X for w in words):
         return
@@ -369,7 +371,11 @@ def g7x_contour(m, pc, words, vals):
     lines, fr = [], _Frame(f"o{name}")
     for j in range(span[0], span[1] - 1):
         s = m.stmts[j]
-        if s[0] == "plain" and not s[1]:
+        if s[0] == "o" and s[3] == "endsub":  # the reading ends at the first endsub, whichever
+            break
+        if s[0] == "o":  # read, not run: no motion (a loop's body is read once, both branches of an if)
+            lines.append((j + 1, None))
+        elif s[0] == "plain" and not s[1]:
             lines.append((j + 1, m.lines[j].rstrip("\r")))
         elif s[0] == "words" and not s[3] and s[4] is None and not s[5] and all(w[0] not in "@^" for w in s[2]):
             got = {id(w): evaluate(m, w[3], j, fr, True) for w in s[2] if w[3] is not None}
@@ -377,8 +383,9 @@ def g7x_contour(m, pc, words, vals):
         else:
             col = s[3][0][2] + 1 if s[0] == "words" and s[3] else s[5] if s[0] == "o" else None
             raise m._err(j, col, f"in o{name}, the contour of the G7x cycle on {m._at(pc)}: the cycle reads its "
-                                 "subroutine's lines without running them; only motion lines (values and expressions) "
-                                 "are read there, not a parameter setting, a call, control flow or a program end")
+                                 "subroutine's lines without running them (LinuxCNC never sets the parameter); only "
+                                 "motion and O-word lines are read there, not a parameter setting, a call or a "
+                                 "program end")
     m.contours.append((len(m.out), tuple(lines)))
 
 

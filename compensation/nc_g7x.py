@@ -15,11 +15,15 @@ interpreter, ``Interp::convert_g7x`` in src/emc/rs274ngc/interp_g7x.cc):
   (G71/G72), an arc of the contour without I or K (or R);
 - the contour: from the start point, a segment per contour line that moves X or Z (others skipped), G0 and G1 alike
   straight, G2/G3 arcs (I K centres as the arc distance mode says; R: the centre on the side G2/G3 says, R's sign not
-  read).
+  read); its lines are parsed (``Interp::read``), never executed, up to the first ``endsub``: an O-word line (a
+  ``repeat``, ``if``, ``while``, ``call`` …) moves nothing and runs nothing (a loop's body is read once), other axes'
+  words (A B C Y U V W) are skipped, expressions are valued as the line is read (``#<_x>``: the position before the
+  cycle).
 
 Refused here besides (not read exactly): other words on the cycle line (those the cycle does not read), U and W
 (LinuxCNC's axis words), G7 diameter mode, a plane other than G18 (the written arcs are ZX arcs), cutter
-compensation with G70, a contour line with other words than G0-G3, X Z I K R and N, a line moving before the contour
+compensation with G70, a contour line with other words than G0-G3, X Z I K R, N and other axes', a parameter setting
+in the contour (never applied there), a line moving before the contour
 names G0-G3, an arc line without its own G2/G3 (the interpreter takes its direction from the line's own word), an R
 arc shorter than its chord, and what :mod:`compensation.nc_g7x_path` cannot compute as the reference does."""
 from __future__ import annotations
@@ -42,6 +46,9 @@ DEFAULTS = {"D": 0.0, "E": 0.0, "P": 1.0, "I": 1.0, "R": 0.5}
 """Their values without the word (the interpreter's)."""
 WHAT = {70: "finishing cycle", 71: "roughing cycle", 72: "facing cycle"}
 CONTOUR_LETTERS = frozenset("NGXZIKR")
+IGNORED_AXES = frozenset("ABCYUVW")
+"""Axis words of a contour line the cycle parses and never uses (``convert_g7x`` reads only X Z I K R of a line):
+skipped, the segment is the X Z move (LinuxCNC's lathe_g70_71_demo's ``G1 X10 A0.2``)."""
 
 
 def g7x_line(words, idx: int, st, ax) -> str | None:
@@ -74,14 +81,14 @@ def g7x_line(words, idx: int, st, ax) -> str | None:
     if not (np.isfinite(x) and np.isfinite(z)):
         raise _Refuse(col, f"'{code.code}' from an unknown position: give X and Z on the cycle line or before it")
     v = {a: by[a].value if a in by else DEFAULTS[a] for a in READ[cycle]}
-    segs = contour(lines, x, z, st.arc_abs, round(q))
+    segs, unrun = contour(lines, x, z, st.arc_abs, round(q))
     try:
         moves = finishing(segs, x, z, v["D"], v["E"], int(v["P"])) if cycle == 70 else \
             roughing(segs, sub, x, z, v["D"], v["I"], v["R"], cycle == 72)
     except (G7xError, ZeroDivisionError, ValueError) as exc:
         raise _Refuse(col, f"'{code.code}' ({WHAT[cycle]}, contour o{round(q)}): not computed as LinuxCNC computes "
                            f"it: {exc}") from None
-    st.events.append((idx, col, "lathe-g7x", (moves, st.inch, bool(st.arc_abs), round(q)), code.code))
+    st.events.append((idx, col, "lathe-g7x", (moves, st.inch, bool(st.arc_abs), round(q), unrun), code.code))
     st.pos = np.array(st.pos, dtype=float)  # a new array: the moves read hold the old one as their end
     st.pos[ix], st.pos[iz] = moves[-1][1].imag * unit, moves[-1][1].real * unit
     st.mode, st.last_move = None, None  # which G0-G3 LinuxCNC leaves in force the reference does not say
@@ -116,13 +123,17 @@ def _words(words, code, cycle: int) -> dict:
     return by
 
 
-def contour(lines, x: float, z: float, arc_abs: bool, name) -> list:
-    """The cycle's segments (:mod:`compensation.nc_g7x_path`) from (``x``, ``z``) along ``lines`` ``[(source line,
-    text)]`` (the subroutine's lines, values evaluated), as ``convert_g7x`` reads them (module docstring): its
-    first segment from the start point to the contour's first point."""
-    segs, at = [], complex(z, x)
+def contour(lines, x: float, z: float, arc_abs: bool, name) -> tuple:
+    """``(segments, unrun)``: the cycle's segments (:mod:`compensation.nc_g7x_path`) from (``x``, ``z``) along
+    ``lines`` ``[(source line, text)]`` (the subroutine's lines, values evaluated; text None: an O-word line, read
+    and not run), as ``convert_g7x`` reads them (module docstring): its first segment from the start point to the
+    contour's first point; ``unrun`` the source lines of the O-word lines."""
+    segs, at, unrun = [], complex(z, x), []
     motion = None
     for src, text in lines:
+        if text is None:
+            unrun.append(src)
+            continue
         where = f"line {src} (the contour o{name})"
         try:
             ws = tokenize(text)[1]
@@ -130,8 +141,11 @@ def contour(lines, x: float, z: float, arc_abs: bool, name) -> list:
             raise _Refuse(1, f"{where}, column {r.col}: {r.msg}") from None
         for w in ws:
             if w.letter not in CONTOUR_LETTERS or (w.letter == "G" and w.code not in ("G0", "G1", "G2", "G3")):
+                if w.letter in IGNORED_AXES:
+                    continue
                 raise _Refuse(1, f"{where}, column {w.start + 1}: '{w.letter}{w.text}' in a G7x contour: the cycle "
-                                 "reads only G0-G3, X Z I K R (LinuxCNC does not run the contour's other words)")
+                                 "reads only G0-G3, X Z I K R and skips the other axes' words; what LinuxCNC makes "
+                                 "of this one there is not read here")
         by = {w.letter: w for w in ws}
         own = by["G"].code if "G" in by else None
         motion = own or motion
@@ -149,7 +163,7 @@ def contour(lines, x: float, z: float, arc_abs: bool, name) -> list:
     if len(segs) < 2:
         raise _Refuse(1, f"the contour o{name} makes {len(segs)} move(s) from the start point: the cycle needs the "
                          "move to the contour and at least one along it")
-    return segs
+    return segs, unrun
 
 
 def _centre(by, at: complex, to: complex, motion, own, arc_abs: bool, where) -> complex:
@@ -206,7 +220,7 @@ def g7x_lines(line, e, src) -> tuple:
     """``(lines, summary note)`` of the cycle of event ``e`` on ``line``: its moves as ``G00``/``G01`` and ``G02``/
     ``G03`` lines in absolute X Z of the program's units (arc centres I K as the arc distance mode in force says);
     ``src`` the line's origin entry (its source line first)."""
-    moves, _, arc_abs, name = e[3]
+    moves, _, arc_abs, name, unrun = e[3]
     ending = line[len(line.rstrip("\r\n")):] or "\n"
     out, at = [], None
     for code, p, c in moves:
@@ -216,5 +230,7 @@ def g7x_lines(line, e, src) -> tuple:
             words += f" I{_word_text(k.imag)} K{_word_text(k.real)}"
         out.append(words + ending)
         at = p
+    read = (f"; its O-word lines {', '.join(map(str, unrun))} read and not run, as the interpreter reads a contour "
+            "(a loop's body once)") if unrun else ""
     return out, (f"line {src[0]}: {e[4]} (contour o{name}) expanded: {len(moves)} moves as LinuxCNC's interpreter "
-                 "computes them, each compensated point by point")
+                 f"computes them, each compensated point by point{read}")

@@ -204,3 +204,25 @@ def test_g71_refusals_name_line_column_word(tmp_path, old, new, where):
     assert where in str(exc.value), str(exc.value)
     if "kept" in where:
         assert "use --expand-cycles" in str(exc.value)
+
+
+LOOPED = ("  G0 X{a:g}\n  O110 REPEAT [3]\n  O120 IF [1 GT 2]\n  G1 Z{zf:g} A0.2\n  O120 ENDIF\n  O110 ENDREPEAT\n"
+          "  O130 CALL\n  (onto")
+"""The step's contour with O-word lines around its Z line (a loop of 3, a false if, a call) and an A word on it."""
+
+
+@pytest.mark.parametrize("cycle", ["G71 Q100 X20 Z2 D0.5 I2 R0.5", "G70 Q100 X20 Z2 D1 P2"])
+def test_contour_o_words_read_not_run_as_the_interpreter_reads_them(tmp_path, cycle):
+    """LinuxCNC builds the contour with ``Interp::read`` alone (interp_g7x.cc's ``convert_g7x``: parse, never
+    execute, until the first endsub): the loop's body is read once, the false if's body too, the call not made, the A
+    word skipped; the moves are those of the flat contour (G0 X10, G1 Z-20, G1 X20), the summary names the lines."""
+    flat = _moves(tmp_path, cycle)
+    src = tmp_path / "looped.ngc"
+    text = _program(cycle).replace("O100 SUB", "O130 SUB\nO130 ENDSUB\nO100 SUB", 1)
+    src.write_text(text.replace("  G0 X10 (onto", LOOPED.format(a=A, zf=ZF), 1).replace("  G1 Z-20 (along the "
+                                                                                               "step)\n", "", 1))
+    prog = _read(src)
+    got = [(m.kind, m.end[0], m.end[1]) for m in prog.moves[1:-1]]
+    _same(got, flat)
+    note = next(e[4] for e in prog.events if e[2] == "lathe-cycle")
+    assert "O-word lines 10, 11, 13, 14, 15 read and not run" in note, note
