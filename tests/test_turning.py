@@ -156,3 +156,8 @@ def test_points_across_the_spindle_axis_converge_the_axis_itself_is_named_unreac
     scan[:, 0] += AXIS_SCAN_UM * 1e-3
     radius = surface_residual_um(f, mt, scan, np.repeat(ax[6:], len(AXIS_SCAN_UM), axis=0))[0][:, 0]
     assert h > 1.0 and radius.min() >= h - 1e-6  # no X reaches nearer the axis than the height error
+    from compensation.guards import convergence_violations
+    from compensation.turning import nominal_by_tool, solve_with_turning
+    res = solve_with_turning(None, f, mt, nominal_by_tool(mt, ax, None), ax, np.ones(len(ax), bool), 250.0)
+    bad, reasons = convergence_violations(res)  # the guard's refusal names it
+    assert bad.tolist() == [6] and "the programmed radius 0 mm is nearer the spindle axis" in reasons[0]
