@@ -214,50 +214,73 @@ def surface_residual_um(field, machine, axes, axes_d, compiled=None):
     return mean, spread
 
 
-def height_um(field, machine, axes, compiled=None) -> np.ndarray:
-    """(n,) the tool tip's distance (μm) from the plane through the spindle axis in which the linear axes move it
-    (its centre-height error), averaged over one turn, the machine (nominal + ``field``) driven to ``axes`` (n, k).
-    At every sample of the turn the tip's radius is at least this distance, so no X and Z bring the tip nearer the
-    spindle axis than about this (X and Z change it only through the error's slope, nm over μm of travel)."""
+def _tip_over_turn(field, machine, axes, compiled=None) -> tuple:
+    """``(P (n, T, 3) mm, u (n, T, 2))``: the tool tip (nominal + ``field``) over one turn of the spindle
+    (:data:`TURN_SAMPLES` = T) at ``axes`` (n, k), and the unit xy direction in which the linear axis that moves the
+    tip radially (X) moves it there."""
     from .solvers.chain_exact import nominal_and_jacobian
-    n = len(axes)
     Q = _over_turn(machine, axes)
     P, J = nominal_and_jacobian(machine, Q, compiled)
     P = P + 1e-3 * np.asarray(field.predict(Q))
     _, lin = _indices(machine)
     slide = J[:, :2, lin]  # (n·T, 2, 2): the xy motion of each linear axis
-    j = np.argmax(np.linalg.norm(slide, axis=1), axis=1)  # the one moving the tip radially (X)
+    j = np.argmax(np.linalg.norm(slide, axis=1), axis=1)
     u = slide[np.arange(len(Q)), :, j]
     u /= np.linalg.norm(u, axis=1, keepdims=True)
-    h = (u[:, 0] * P[:, 1] - u[:, 1] * P[:, 0]) * 1e3
-    return np.abs(h).reshape(n, TURN_SAMPLES).mean(axis=1)
+    return P.reshape(len(axes), TURN_SAMPLES, 3), u.reshape(len(axes), TURN_SAMPLES, 2)
+
+
+def height_um(field, machine, axes, compiled=None) -> np.ndarray:
+    """(n,) the tool tip's distance (μm) from the plane through the spindle axis in which the linear axes move it
+    (its centre-height error), averaged over one turn, the machine (nominal + ``field``) driven to ``axes`` (n, k).
+    At every sample of the turn the tip's radius is at least this distance, so no X and Z bring the tip nearer the
+    spindle axis than about this (X and Z change it only through the error's slope, nm over μm of travel)."""
+    P, u = _tip_over_turn(field, machine, axes, compiled)
+    return (np.abs(u[..., 0] * P[..., 1] - u[..., 1] * P[..., 0]) * 1e3).mean(axis=1)
+
+
+def _closest_approach(field, machine, q, axes_d, compiled=None) -> np.ndarray:
+    """``q`` (n, k) moved in X and Z so that the tip crosses the slide's plane at the spindle axis (its mean position
+    along the slide 0) at the programmed Z: where the tip passes nearest the axis (its radius the height error)."""
+    P0, _ = _tip_over_turn(_Zero(), machine, axes_d, compiled)
+    z0 = P0[..., 2].mean(axis=1)
+
+    def along(qq, idx):
+        P, u = _tip_over_turn(field, machine, qq, compiled)
+        s = (u * P[..., :2]).sum(axis=2).mean(axis=1)
+        return np.stack([s, P[..., 2].mean(axis=1) - z0[idx]], axis=1) * 1e3, np.zeros(len(idx))
+    return _newton(along, np.array(q, dtype=float), _indices(machine)[1], TOL_UM, MAX_ITER)[0]
+
+
+class _Zero:
+    def predict(self, q):
+        return np.zeros((len(q), 3))
 
 
 def unreachable_radius(field, machine, q, axes_d, bad) -> tuple:
-    """``(indices, reasons)`` of the points ``bad`` (indices into ``q``/``axes_d`` (n, k)) whose programmed radius
-    is nearer the spindle axis than the tool tip passes it (:func:`height_um` at ``q``): no X and Z reach it."""
+    """``(indices, reasons, axes)`` of the points ``bad`` (indices into ``q``/``axes_d`` (n, k)) whose programmed
+    radius is nearer the spindle axis than the tool tip passes it (:func:`height_um` at ``q``): no X and Z reach it;
+    ``axes`` (m, k) theirs where the tip passes nearest the axis (written only where the guard is overridden)."""
     from .solvers.chain_exact import nominal_and_jacobian
     bad = np.asarray(bad, dtype=np.intp)
     if not len(bad):
-        return bad, []
+        return bad, [], q[bad]
     r0 = np.hypot(*nominal_and_jacobian(machine, axes_d[bad])[0][:, :2].T) * 1e3
     h = height_um(field, machine, q[bad])
     hit = r0 < h - TOL_UM
-    return bad[hit], [f"the programmed radius {r / 1e3:.4g} mm is nearer the spindle axis than the tool tip passes it "
-                      f"({v:.3g} μm off centre height, which X and Z cannot correct: the least radius they reach)"
-                      for r, v in zip(r0[hit], h[hit])]
+    why = [f"the programmed radius {r / 1e3:.4g} mm is nearer the spindle axis than the tool tip passes it ({v:.3g} "
+           "μm off centre height, which X and Z cannot correct: the least radius they reach)"
+           for r, v in zip(r0[hit], h[hit])]
+    return bad[hit], why, _closest_approach(field, machine, q[bad[hit]], axes_d[bad[hit]])
 
 
-def solve_turning(field, machine, axes_d, ball_um: float, tol_um: float = TOL_UM, max_iter: int = MAX_ITER):
-    """X and Z of every turning point ``axes_d`` (n, k) so that ``g = 0`` (module docstring); C untouched.
-    Returns ``(axes (n, k), residual (n, 3) μm as (radial, 0, axial), converged (n,), spread (n,), iterations)``."""
-    from errormap.chain_kernel import NominalChain
-    compiled = NominalChain(machine)
-    _, lin = _indices(machine)
-    q = np.array(axes_d, dtype=float)
+def _newton(fun, q, lin, tol_um: float, max_iter: int) -> tuple:
+    """``(q, g, extra, ok, iterations)``: ``q`` (n, k) moved along the linear axes ``lin`` by Newton steps
+    (finite-difference 2×2 Jacobian, step :data:`FD_STEP_MM`) until ``|g| ≤ tol_um``; ``fun(q_rows, rows) -> (g
+    (m, 2) μm, extra (m,))`` at those rows; ``ok`` False where the Jacobian was singular."""
     n = len(q)
-    g, spread = surface_residual_um(field, machine, q, axes_d, compiled)
-    active = np.linalg.norm(g, axis=1) > tol_um
+    g, extra = fun(q, np.arange(n))
+    active, ok_all = np.linalg.norm(g, axis=1) > tol_um, np.ones(n, dtype=bool)
     it = 0
     while active.any() and it < max_iter:
         it += 1
@@ -266,16 +289,28 @@ def solve_turning(field, machine, axes_d, ball_um: float, tol_um: float = TOL_UM
         for col, j in enumerate(lin):
             qh = q[idx].copy()
             qh[:, j] += FD_STEP_MM
-            J[:, :, col] = (surface_residual_um(field, machine, qh, axes_d[idx], compiled)[0] - g[idx]) / FD_STEP_MM
+            J[:, :, col] = (fun(qh, idx)[0] - g[idx]) / FD_STEP_MM
         ok = np.abs(np.linalg.det(J)) > 1e-12
         step = np.zeros((len(idx), 2))
         step[ok] = np.linalg.solve(J[ok], -g[idx][ok][..., None])[..., 0]
         q[idx[:, None], np.array(lin)[None, :]] += step
-        g[idx], spread[idx] = surface_residual_um(field, machine, q[idx], axes_d[idx], compiled)
+        g[idx], extra[idx] = fun(q[idx], idx)
+        ok_all[idx] &= ok
         active[idx] = (np.linalg.norm(g[idx], axis=1) > tol_um) & ok
+    return q, g, extra, ok_all, it
+
+
+def solve_turning(field, machine, axes_d, ball_um: float, tol_um: float = TOL_UM, max_iter: int = MAX_ITER):
+    """X and Z of every turning point ``axes_d`` (n, k) so that ``g = 0`` (module docstring); C untouched.
+    Returns ``(axes (n, k), residual (n, 3) μm as (radial, 0, axial), converged (n,), spread (n,), iterations)``."""
+    from errormap.chain_kernel import NominalChain
+    compiled = NominalChain(machine)
+    _, lin = _indices(machine)
+    q, g, spread, _, it = _newton(lambda qq, idx: surface_residual_um(field, machine, qq, axes_d[idx], compiled),
+                                  np.array(axes_d, dtype=float), lin, tol_um, max_iter)
     moved = np.linalg.norm(q[:, lin] - axes_d[:, lin], axis=1) * 1e3
     converged = (np.linalg.norm(g, axis=1) <= tol_um) & (moved <= ball_um)
-    residual = np.stack([g[:, 0], np.zeros(n), g[:, 1]], axis=1)
+    residual = np.stack([g[:, 0], np.zeros(len(q)), g[:, 1]], axis=1)
     return q, residual, converged, spread, it
 
 
@@ -349,8 +384,12 @@ def solve_with_turning(solve_rest, field, machine, targets, axes_d, turning, bal
             f, mt = at_tool(field, machine, x, z)
             q, res, conv, spread[idx], _ = solve_turning(f, mt, axes_d[turn[idx]], ball_um)
             axes[turn[idx]], residual[turn[idx]], converged[turn[idx]] = q, res, conv
-            hit, why = unreachable_radius(f, mt, q, axes_d[turn[idx]], np.flatnonzero(~conv))
+            hit, why, nearest = unreachable_radius(f, mt, q, axes_d[turn[idx]], np.flatnonzero(~conv))
             unreachable.update(zip(turn[idx][hit].tolist(), why))
+            if len(hit):  # where the tip passes nearest the axis: its radius is what is left
+                axes[turn[idx][hit]] = nearest
+                g, spread[idx[hit]] = surface_residual_um(f, mt, nearest, axes_d[turn[idx][hit]])
+                residual[turn[idx][hit]] = np.stack([g[:, 0], np.zeros(len(hit)), g[:, 1]], axis=1)
         commands[turn] = nominal_by_tool(machine, axes[turn], None if tool_xz is None else np.asarray(tool_xz)[turn])
         nfev += len(turn) * TURN_SAMPLES
         names = machine.axis_columns
