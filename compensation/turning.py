@@ -268,8 +268,8 @@ def unreachable_radius(field, machine, q, axes_d, bad) -> tuple:
     r0 = np.hypot(*nominal_and_jacobian(machine, axes_d[bad])[0][:, :2].T) * 1e3
     h = height_um(field, machine, q[bad])
     hit = r0 < h - TOL_UM
-    why = [f"the programmed radius {r / 1e3:.4g} mm is nearer the spindle axis than the tool tip passes it ({v:.3g} "
-           "μm off centre height, which X and Z cannot correct: the least radius they reach)"
+    why = [f"the programmed radius {round(r / 1e3, 6):.4g} mm is nearer the spindle axis than the tool tip passes it "
+           f"({v:.3g} μm off centre height, which X and Z cannot correct: the least radius they reach)"
            for r, v in zip(r0[hit], h[hit])]
     return bad[hit], why, _closest_approach(field, machine, q[bad[hit]], axes_d[bad[hit]])
 
