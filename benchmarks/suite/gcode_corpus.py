@@ -5,7 +5,7 @@ names each (repository, path, commit, sha256 of the bytes counted), the built-in
 and the controller it was written for; fetch them into a folder (file names as in the manifest's
 ``file`` column) and count:
 
-    python -m benchmarks.suite.gcode_corpus --corpus DIR [--root CHECKOUT] [--json OUT]
+    python -m benchmarks.suite.gcode_corpus --corpus DIR [--root CHECKOUT] [--json OUT] [--expand-cycles]
 
 In the suite (``python -m benchmarks.run gcode_corpus``) the corpus folder is ``$VOLCOMP_PROGRAM_CORPUS`` (counted,
 compensated and checked: ``--check`` below); without it only the programs written in the shops' and CAM posts'
@@ -59,6 +59,8 @@ Counted (2026-12-02; before = main at the start of this work, after = this tree;
 | NC_FILES.csv (185), after | 16 | 119 | 50 | 0 | 0 of 15 checked (13 mill, 2 lathe; max 0.49 um) |
 | NC_FILES.csv (185), 2026-12-03 (lathe threading read: LinuxCNC G33 in pieces with their own K, G33.1 refused where its hole bends over the arc tolerance) | 20 | 125 | 40 | 0 | 0 of 16 checked (14 mill, 2 lathe; max 0.49 um); main before it: the same counts and checks, `threading.ngc` written with K unchanged and `mmount.ngc` refused by its guards instead of its G33.1 |
 | NC_FILES.csv (185), 2026-12-03 (LinuxCNC lathe G70-G72 read, written with ``--expand-cycles`` as the interpreter's moves; G93 read in a program whose subroutines are expanded) | 21 | 125 | 39 | 0 | 0 of 16 checked (14 mill, 2 lathe; max 0.49 um); main before it: 20, 125, 40, 0, the same checks; newly read: `daisy.ngc` (G93 inside subroutines; compensating it at the count's part zero is refused by the stroke guard, Z below its stroke); the three G7x programs still refused, each at its own word: `lathe_g7x_quadrants` kept as a cycle (with ``--expand-cycles`` it reads, 786 moves; its X < 0 moves through the spindle axis, where the turning solve does not converge), `lathe_g70_71_demo` an `A` word in its contour, `lathe_g7x_face_boring` a REPEAT loop in its contour |
+| NC_FILES.csv (185), 2026-12-03 (G7x contours read as ``Interp::read`` reads them: O-word lines not run, other axes' words skipped; on-axis turning points named) | 21 | 125 | 39 | 0 | 0 of 16 checked (max 0.49 um), as before; `lathe_g70_71_demo` now stops at its `G42.1`, `lathe_g7x_face_boring` at its contour's `#<_x>` (the position before the G72: the program's start) |
+| the same, ``--expand-cycles`` | 24 | 125 | 36 | 0 | 0 of 16 checked (max 0.49 um); newly read: `g76`, `lathe-g76`, `lathe_g7x_quadrants`, whose compensation the convergence guard refuses at 9, 9 and 6 points on the spindle axis (as `lathecomp`'s 25 within 20 um of it): the tip passes the axis at its centre-height error (10-21 um on the count's truth), which X and Z cannot correct |
 | MANIFEST.csv (101), before | 40 | 25 | 36 | 0 | - |
 | MANIFEST.csv (101), after | 42 | 25 | 34 | 0 | 0 of 34 checked (3 not checkable) |
 | MANIFEST.csv (101), with CAM-post words (G80 with G0, bare G43 with the modal H, …; kept cycles checked) | 43 | 25 | 33 | 0 | 0 of 38 checked |
@@ -192,7 +194,7 @@ def _lines(path: Path) -> list:
 
 
 def compensate_accepted(root: Path, corpus: Path, out: dict, tmp: Path, check: bool = False,
-                        manifest: Path = MANIFEST) -> None:
+                        manifest: Path = MANIFEST, cycles: str = "keep") -> None:
     """``--compensate``: TRUE max before/after of each accepted program (module docstring)."""
     from compensation.app.cli import main
     from errormap.machine import load_machine
@@ -210,7 +212,7 @@ def compensate_accepted(root: Path, corpus: Path, out: dict, tmp: Path, check: b
         rc = main(["compensate", str(corpus / r["file"]), "--machine", m["machine"], "--model",
                    str(truths[m["machine"]]), "--truth", str(truths[m["machine"]]), "--method", "exact", "--out",
                    str(dest), "--dialect", m["dialect"], "--work-offsets", str(tmp / f"offsets-{m['machine']}.csv"),
-                   "--tool-table", str(tmp / "tools.csv")])
+                   "--tool-table", str(tmp / "tools.csv")] + (["--expand-cycles"] if cycles == "expand" else []))
         summary = dest / "compensate_summary.json"
         e = json.loads(summary.read_text())["files"][0] if rc == 0 and summary.is_file() else {}
         r["compensated"] = {"exit": rc, "true_max_um": e.get("true", {}).get("max_um"),
@@ -526,7 +528,8 @@ def lathe_points_reached(field, lathe, m_src, m_out, zero_xz_mm, tol_um: float) 
     return errs, None
 
 
-def count(root: Path, corpus: Path, compensate: bool = False, check: bool = False, manifest: Path = MANIFEST) -> dict:
+def count(root: Path, corpus: Path, compensate: bool = False, check: bool = False, manifest: Path = MANIFEST,
+          cycles: str = "keep") -> dict:
     sys.path.insert(0, str(root))
     from compensation.app.validate import UsageError
     from compensation.app.workflows.compensate import CompensateSettings
@@ -546,7 +549,8 @@ def count(root: Path, corpus: Path, compensate: bool = False, check: bool = Fals
                 results.append((r, "missing or changed", ""))
                 continue
             offsets, tools = tables[r["machine"]]
-            s = CompensateSettings("exact", "", Path(tmp), dialect=r["dialect"], work_offsets=offsets, tool_table=tools)
+            s = CompensateSettings("exact", "", Path(tmp), dialect=r["dialect"], work_offsets=offsets, tool_table=tools,
+                                   cycles=cycles)
             try:
                 read_tool_path(p, machines[r["machine"]], s)
                 results.append((r, "accepted", ""))
@@ -558,7 +562,7 @@ def count(root: Path, corpus: Path, compensate: bool = False, check: bool = Fals
         out["results"] = [{"file": r["file"], "kind": r["kind"], "outcome": o, "reason": why,
                            "sample": sample_of(r.get("licence", ""))} for r, o, why in results]
         if compensate:
-            compensate_accepted(root, corpus, out, Path(tmp), check, manifest)
+            compensate_accepted(root, corpus, out, Path(tmp), check, manifest, cycles)
     return out
 
 
@@ -788,10 +792,12 @@ if __name__ == "__main__":
                                            "manifest row's path copied to its file name")
     ap.add_argument("--manifest", default=str(MANIFEST), help="the manifest to count (default: MANIFEST.csv; "
                                                                "program_corpus/NC_FILES.csv: LinuxCNC's nc_files)")
+    ap.add_argument("--expand-cycles", action="store_true", help="read and compensate as with --expand-cycles")
     a = ap.parse_args()
     if a.from_package:
         lay_out(Path(a.from_package), Path(a.corpus), Path(a.manifest))
-    result = count(Path(a.root).resolve(), Path(a.corpus), a.compensate or a.check, a.check, Path(a.manifest))
+    result = count(Path(a.root).resolve(), Path(a.corpus), a.compensate or a.check, a.check, Path(a.manifest),
+                   "expand" if a.expand_cycles else "keep")
     print(report(result))
     if a.json:
         Path(a.json).write_text(json.dumps(result, indent=1))
