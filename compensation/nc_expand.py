@@ -84,8 +84,8 @@ class Expanded:
     ``first line`` (1-based, in the numbering of ``origin``) on are that file's, from its line 1."""
     contours: tuple = ()
     """``(output line (0-based), ((source line, text), ...))`` for each LinuxCNC ``G70``-``G72`` line written: the
-    lines of the o-subroutine its Q names, values evaluated (:func:`compensation.nc_flow.g7x_contour`), which the
-    cycle reads without running them (:mod:`compensation.nc_g7x`)."""
+    lines of the o-subroutine its Q names, values evaluated, an O-word line's text None (:func:`compensation.nc_flow.
+    g7x_contour`), which the cycle reads without running them (:mod:`compensation.nc_g7x`)."""
 
     def at(self, src: int) -> tuple:
         """``(path, line)`` of a source line in the numbering of ``origin``."""
