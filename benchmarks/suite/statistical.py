@@ -245,24 +245,25 @@ def effect_sweep(name: str, n_rep: int, sim: "ChainSimulator | None" = None) -> 
     return out
 
 
-def effect_band_coverage(n_rep: int) -> dict:
+def effect_band_coverage(n_rep: int, sim: "ChainSimulator | None" = None) -> dict:
     """:func:`effect_sweep` for every effect of :data:`EFFECT_TRUTHS` (``n_rep`` repetitions each, seeds 1300's
-    spawns), the coefficients' 95 % bands pooled by the worst: every rate within 90–98 %."""
-    sim = ChainSimulator(chain_setting())
+    spawns), the coefficients' 95 % bands pooled by the worst: every rate within 90–98 %. ``sim``: the
+    simulator on ``chain_setting()`` (built here when None)."""
+    sim = sim or ChainSimulator(chain_setting())
     per = {name: effect_sweep(name, n_rep, sim) for name in EFFECT_TRUTHS}
     rates = [r for v in per.values() for r in v["rates"].values()]
     return {"rate": min(rates), "rate_max": max(rates), "effects": per, "repetitions": n_rep,
             "range": [COVERAGE_LO, COVERAGE_HI], "within": all(COVERAGE_LO <= r <= COVERAGE_HI for r in rates)}
 
 
-def joint_refit_coverage(n_refit: int) -> dict:
+def joint_refit_coverage(n_refit: int, sim: "ChainSimulator | None" = None) -> dict:
     """The loop's final estimate of kept terms (its joint fit with the update): thermal growth on X and a Z·X
     coupling (on Z's own element; X·Z is represented by the grinder's element slots, so the loop absorbs it
     and never fits it), both of which the update alone takes up in part, the elements' deviation drawn from the
     update's own prior and σ estimated; both terms' 95 % intervals (from the joint fit's posterior covariance)
-    must hold the truth 90–98 % of the time."""
+    must hold the truth 90–98 % of the time. ``sim``: the simulator on ``chain_setting()`` (built here when None)."""
     from errormap.diagnosis.chain_loop import EffectTerm
-    sim = ChainSimulator(chain_setting())
+    sim = sim or ChainSimulator(chain_setting())
     truth = {"thermal_x_um_per_mm_c": (EffectTerm("thermal", ("X",), "dx_x", {}, np.zeros(1)), 0.0115),
              "interaction_zx_corner_um": (EffectTerm("interaction", ("Z", "X"), "dz_z", {}, np.zeros(1)), 6.0)}
     terms = [t for t, _ in truth.values()]
@@ -355,6 +356,10 @@ SWEEPS = {   # name -> (function, full size, quick size)
     "residual_declines_noise": (residual_declines_noise, 20, 2),
     "mt_band_coverage": (mt_band_coverage, 8, 1),
 }
+ON_CHAIN_SIMULATOR = ("effect_band_coverage", "joint_refit_coverage")
+"""The sweeps whose repetitions run on the one loop's setting (:func:`chain_setting`, a 40-draw bootstrap
+identification, ~3 CPU s): :func:`run_sweeps` builds its :class:`ChainSimulator` once and hands it to each (its
+draws come from each sweep's own seeds; the simulator holds no state that a repetition changes)."""
 
 
 TITLE = "Statistical sweeps: 95 % band coverage and decline rates over fixed seeds"
@@ -378,12 +383,14 @@ def run_sweeps(names=None, quick: bool = False) -> dict:
     """Run the named sweeps (all by default) → {"quick": bool, "sweeps": {name: result + size, cpu_s}}.
     One BLAS thread: the repetitions' matrices are small (several threads spin on a shared machine)."""
     from threadpoolctl import threadpool_limits
-    out = {"quick": quick, "sweeps": {}}
+    out, shared = {"quick": quick, "sweeps": {}}, {}
     for name in names or SWEEPS:
         fn, full, small = SWEEPS[name]
-        t0 = time.process_time()
+        t0 = time.process_time()   # the shared simulator's build counts to the first sweep that uses it
         with threadpool_limits(1, user_api="blas"):
-            res = fn(small if quick else full)
+            if name in ON_CHAIN_SIMULATOR and "sim" not in shared:
+                shared["sim"] = ChainSimulator(chain_setting())
+            res = fn(small if quick else full, **({"sim": shared["sim"]} if name in ON_CHAIN_SIMULATOR else {}))
         out["sweeps"][name] = dict(res, size=small if quick else full, cpu_s=round(time.process_time() - t0, 1))
     return out
 
