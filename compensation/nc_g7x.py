@@ -69,7 +69,7 @@ def g7x_line(words, idx: int, st, ax) -> str | None:
     if why is not None:
         raise _Refuse(col, f"'{code.code}' ({WHAT[cycle]}) {why}")
     q = by["Q"].value
-    lines = getattr(st, "g7x_contours", {}).get(idx)
+    lines = st.g7x_contours.get(idx)
     if lines is None:
         raise _Refuse(by["Q"].start + 1, f"'Q{by['Q'].text}': no subroutine o{round(q)} defined before the "
                                          f"{code.code} (LinuxCNC: 'Q routine not found'; its contour is that "

@@ -215,13 +215,14 @@ def surface_residual_um(field, machine, axes, axes_d, compiled=None):
 
 
 def _tip_over_turn(field, machine, axes, compiled=None) -> tuple:
-    """``(P (n, T, 3) mm, u (n, T, 2))``: the tool tip (nominal + ``field``) over one turn of the spindle
-    (:data:`TURN_SAMPLES` = T) at ``axes`` (n, k), and the unit xy direction in which the linear axis that moves the
-    tip radially (X) moves it there."""
+    """``(P (n, T, 3) mm, u (n, T, 2))``: the tool tip (nominal + ``field``; ``field`` None: nominal) over one turn
+    of the spindle (:data:`TURN_SAMPLES` = T) at ``axes`` (n, k), and the unit xy direction in which the linear axis
+    that moves the tip radially (X) moves it there."""
     from .solvers.chain_exact import nominal_and_jacobian
     Q = _over_turn(machine, axes)
     P, J = nominal_and_jacobian(machine, Q, compiled)
-    P = P + 1e-3 * np.asarray(field.predict(Q))
+    if field is not None:
+        P = P + 1e-3 * np.asarray(field.predict(Q))
     _, lin = _indices(machine)
     slide = J[:, :2, lin]  # (n·T, 2, 2): the xy motion of each linear axis
     j = np.argmax(np.linalg.norm(slide, axis=1), axis=1)
@@ -242,7 +243,7 @@ def height_um(field, machine, axes, compiled=None) -> np.ndarray:
 def _closest_approach(field, machine, q, axes_d, compiled=None) -> np.ndarray:
     """``q`` (n, k) moved in X and Z so that the tip crosses the slide's plane at the spindle axis (its mean position
     along the slide 0) at the programmed Z: where the tip passes nearest the axis (its radius the height error)."""
-    P0, _ = _tip_over_turn(_Zero(), machine, axes_d, compiled)
+    P0, _ = _tip_over_turn(None, machine, axes_d, compiled)
     z0 = P0[..., 2].mean(axis=1)
 
     def along(qq, idx):
@@ -250,11 +251,6 @@ def _closest_approach(field, machine, q, axes_d, compiled=None) -> np.ndarray:
         s = (u * P[..., :2]).sum(axis=2).mean(axis=1)
         return np.stack([s, P[..., 2].mean(axis=1) - z0[idx]], axis=1) * 1e3, np.zeros(len(idx))
     return _newton(along, np.array(q, dtype=float), _indices(machine)[1], TOL_UM, MAX_ITER)[0]
-
-
-class _Zero:
-    def predict(self, q):
-        return np.zeros((len(q), 3))
 
 
 def unreachable_radius(field, machine, q, axes_d, bad) -> tuple:
