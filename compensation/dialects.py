@@ -119,6 +119,11 @@ class Dialect:
     """``G43.1 axes`` is a tool length offset the program gives (LinuxCNC, "G43.1 Dynamic Tool Length Offset": it
     replaces the current offset along the axes given; :func:`compensation.gcode_state.dynamic_length`); elsewhere
     G43.1 is refused (Fanuc's G43.1 is length compensation along the tool axis)."""
+    dynamic_cutter: bool = False
+    """``G41.1``/``G42.1 D<diameter> [L<orientation>]`` is cutter radius compensation with the diameter on the line
+    (LinuxCNC, "G41.1, G42.1 Dynamic Cutter Compensation": radius D/2, no tool table;
+    :func:`compensation.gcode_state.dynamic_cutter`); elsewhere refused (Fanuc's G41.1/G42.1 is normal direction
+    control, a rotary axis turned to the path)."""
     dwell_x: bool = False
     """``G04 X`` is a dwell time in seconds and the line moves nothing (Fanuc 0i-MF "Dwell": ``G04 X_`` or ``G04 P_``;
     Siemens ISO mode as Fanuc); elsewhere an X on a ``G4`` line is refused (LinuxCNC: a move after the dwell)."""
@@ -202,7 +207,7 @@ DIALECTS = {
                                      52: "adaptive feed", 53: "feed stop control", 60: "pallet change pause"},
                         io_codes=IO_CODES, arc_radius_tol=LINUXCNC_ARC_TOL, modes={"G50": SCALING_OFF},
                         splines=SPLINES, g92_offsets=True, synced=SYNCED, dwell_with_motion=True,
-                        lathe_modes=LATHE_MODES, probes=PROBES, dynamic_length=True),
+                        lathe_modes=LATHE_MODES, probes=PROBES, dynamic_length=True, dynamic_cutter=True),
     "fanuc": Dialect("fanuc", {**_COMMON, 19: "orient spindle", 29: "rigid tapping mode for the next G84 (moves nothing)",
                                48: "overrides on", 49: "overrides off"},
                      program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G50": SCALING_OFF, "G50.1": MIRROR_OFF,

@@ -8,7 +8,7 @@ import re
 
 import numpy as np
 
-from .gcode_state import (LOCAL_SHIFT_DIALECTS, lathe_t_offset, ttoo_lathe, MODE_E, bare_d, bare_g43_rule, bare_g43_tool, d_modal, _dialect_mode, _forget, _g10, _g92, probe_move, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
+from .gcode_state import (DYNAMIC_CUTTER, LOCAL_SHIFT_DIALECTS, lathe_t_offset, ttoo_lathe, MODE_E, bare_d, bare_g43_rule, bare_g43_tool, d_modal, _dialect_mode, _forget, _g10, _g92, probe_move, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
 from .nc_contour import ContourState, after_line, cycle_line
 from .nc_groove import groove_line
@@ -85,7 +85,7 @@ def _checked_words(words, ax: AxisWords, dia=None):
             if code in dia.modes or code in dia.work_systems or code in dia.splines or code in dia.synced or (
                     code in dia.lathe_modes) or code in dia.probes or (
                     dia.g92_offsets and code in G92_CODES) or (code == "G52" and dia.name in LOCAL_SHIFT_DIALECTS) or (
-                    code == "G43.1" and dia.dynamic_length):
+                    code == "G43.1" and dia.dynamic_length) or (code in DYNAMIC_CUTTER and dia.dynamic_cutter):
                 gs.append((code, w))
                 continue
             if code in BARE_UNITS and dia.g80_unrecognised and "Y" in ax.words and all(x.letter in "GN" for x in words):
@@ -178,6 +178,7 @@ def _modal_groups(gs, dia=None) -> dict:
         grp = "length" if code == "G43.1" else "lathe" if dia is not None and code in dia.lathe_modes else "nonmodal" if code in G92_CODES or code == "G52" else "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
             code in dia.splines or code in dia.synced or code in dia.probes) else ALLOWED_G[code][0] if code in ALLOWED_G else (
             "coords" if dia is not None and code in dia.work_systems else "dialect mode")  # a dialect's own first
+        grp = "cutter" if code in DYNAMIC_CUTTER else grp  # LinuxCNC G41.1/G42.1 (passed only where read)
         g80_motion = dia is not None and (dia.g80_with_motion or dia.g80_unrecognised)  # no dialect: the one reading
         if grp == "motion" and grp in groups and g80_motion and "G80" in (code, groups[grp][0]):
             if code != "G80":
@@ -223,7 +224,7 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words, nose: bool = Fal
     """``P`` only with G4/G64 (or P1 on an arc), ``Q`` only with G64; ``D`` only with G41/G42, and not at all on a
     lathe whose ``G41``/``G42`` take the T word's register (``nose``: :func:`compensation.gcode_state.ttoo_lathe`)."""
     for letter, allowed_with in (("P", ("G4", "G64", "G54.1", "G154", "G10", "G187")), ("Q", ("G64", "G5.1")), ("H", ("G43",)),
-                                 ("L", ("G10",))):
+                                 ("L", ("G10",) + DYNAMIC_CUTTER)):
         if letter in by:
             h_alone = letter == "H" and getattr(st.dialect, "h_offset_alone", False)  # Fanuc: H alone in G43 mode
             arc_p1 = letter == "P" and st.mode in ("G2", "G3") and bool(axis_words or arc_words) and by["P"].value == 1
@@ -237,7 +238,7 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words, nose: bool = Fal
         raise _Refuse(by["D"].start + 1, f"'D{by['D'].text}' on a {st.dialect.name} lathe: G41/G42 take the nose radius "
                                          "of the T word's offset register (TttOO); what a D word selects is not settled "
                                          "here: leave it out and give the radius in the tool table's radius_mm column")
-    for letter, code in (("D", ("G41", "G42")),):
+    for letter, code in (("D", ("G41", "G42") + DYNAMIC_CUTTER),):
         if letter in by and not any(c in code for c, _ in gs) and not d_modal(st):
             raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(code)}")
     loaded = st.dialect is not None and st.dialect.name in LOADED_TOOL_DIALECTS  # resolved by _work_state

@@ -85,6 +85,8 @@ def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
         value = None if code == "G40" else _nose_register(st, code, w)
         st.events.append((idx, w.start + 1, "nose", value, code if value is None else f"{code} (T offset {value:02d})"))
         st.cutter = code
+    elif groups.get("cutter", ("",))[0] in DYNAMIC_CUTTER:
+        dynamic_cutter(idx, st, groups["cutter"], by)
     elif "cutter" in groups or "D" in by:
         code, w = groups["cutter"] if "cutter" in groups else (st.cutter, by["D"])  # a D alone: Fanuc (d_modal)
         d = by.get("D")
@@ -147,6 +149,44 @@ def dynamic_length(idx, st: _State, groups, by, ax: AxisWords) -> None:
     st.g43 = False
     st.tool = ("G43.1", idx)
     _forget(st, ax, allowed)
+
+
+DYNAMIC_CUTTER = ("G41.1", "G42.1")
+"""LinuxCNC's dynamic cutter radius compensation (:attr:`compensation.dialects.Dialect.dynamic_cutter`)."""
+
+
+def dynamic_cutter(idx, st: _State, cutter, by) -> None:
+    """LinuxCNC ``G41.1``/``G42.1 D<diameter> [L<orientation>]`` (G-code reference, "G41.1, G42.1 Dynamic Cutter
+    Compensation"; its interpreter, ``Interp::convert_cutter_compensation_on``): compensation on with the radius D/2
+    in program units (no tool table), recorded as the event ``"cutter-dynamic"`` (radius mm;
+    :meth:`compensation.nc_state._Controller.dynamic_cutter`): the path is compensated as programmed, as under
+    ``G41``/``G42``. Refused as LinuxCNC refuses it: no D; a plane other than G17/G18; compensation already on; L
+    not a whole number 0-9, or L outside G18. Refused here besides: a negative D (the reference's D is the
+    diameter; its interpreter would take the other side: write the side you mean with D ≥ 0)."""
+    code, w = cutter
+    d, el = by.get("D"), by.get("L")
+    if d is None:
+        raise _Refuse(w.start + 1, f"'{code}' without D (the cutter diameter): LinuxCNC's error ('{code} with no D "
+                                   "word'); write the diameter, like '{code} D6'")
+    if st.plane not in ("G17", "G18"):
+        raise _Refuse(w.start + 1, f"'{code}' in the plane {st.plane}: LinuxCNC compensates the cutter radius only "
+                                   "in XY (G17) or XZ (G18)")
+    if st.cutter != "G40":
+        raise _Refuse(w.start + 1, f"'{code}' while {st.cutter} is on: LinuxCNC's error (compensation turned on when "
+                                   "already on); write G40 before it")
+    if not np.isfinite(d.value) or d.value < 0:
+        raise _Refuse(d.start + 1, f"'D{d.text}' with {code}: D is the cutter diameter (≥ 0); a negative one "
+                                   "(LinuxCNC's interpreter takes the other side) is not read here: write the side "
+                                   "meant with G41.1/G42.1 and D ≥ 0")
+    if el is not None and (el.value != int(el.value) or not 0 <= el.value <= 9):
+        raise _Refuse(el.start + 1, f"'L{el.text}' with {code}: the tool orientation is a whole number 0-9")
+    if el is not None and st.plane != "G18":
+        raise _Refuse(el.start + 1, f"'L{el.text}' with {code} in {st.plane}: LinuxCNC's error (L, the lathe tool's "
+                                    "orientation, only in the XZ plane G18)")
+    radius_mm = d.value / 2 * (MM_PER_INCH if st.inch else 1.0)
+    text = f"{code} D{d.text}" + (f" L{el.text}" if el is not None else "")
+    st.events.append((idx, w.start + 1, "cutter-dynamic", radius_mm, text))
+    st.cutter = code
 
 
 def _tool_axes(ax: AxisWords) -> tuple:

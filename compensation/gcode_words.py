@@ -206,7 +206,8 @@ REFUSED_G = {
     "G31": "skip (probing)", "G33": "spindle-synchronised motion (read with --dialect linuxcnc)",
     "G33.1": "rigid tapping (read with --dialect linuxcnc)",
     "G38.2": "probing", "G38.3": "probing", "G38.4": "probing", "G38.5": "probing",
-    "G41.1": "dynamic cutter radius compensation", "G42.1": "dynamic cutter radius compensation",
+    **{g: ("dynamic cutter radius compensation, D the diameter (LinuxCNC's, read with --dialect linuxcnc; Fanuc's "
+           "G41.1/G42.1 is normal direction control)") for g in ("G41.1", "G42.1")},
     "G43.1": "dynamic tool length offset (LinuxCNC's read with --dialect linuxcnc)", "G43.2": "tool length offset",
     "G50": "scaling off / lathe coordinate setting (dialect-dependent)", "G50.1": "mirror off",
     "G51": "scaling", "G51.1": "mirror",
@@ -240,8 +241,9 @@ LETTER_RULES = {
     **{c: f"arc centre {a} offset (G2/G3 only, in a plane with {a})" for c, a in CENTRE_AXIS.items()},
     "R": "arc radius (G2/G3 only; G10 L1 tool radius)",
     "P": "G4 dwell, G64 tolerance, P1 on an arc, G54.1 system, G10 number",
-    "H": "tool length offset number (G43 only)", "L": "G10 data type (G10 only)",
-    "D": "cutter radius offset number (G41/G42 only)",
+    "H": "tool length offset number (G43 only)",
+    "L": "G10 data type (G10 only; LinuxCNC G41.1/G42.1: the lathe tool orientation)",
+    "D": "cutter radius offset number (G41/G42 only; LinuxCNC G41.1/G42.1: the cutter diameter)",
     "Q": "G64 tolerance", "O": "program number on a line of its own",
 }
 REFUSED_LETTERS = {

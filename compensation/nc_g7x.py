@@ -13,6 +13,10 @@ interpreter, ``Interp::convert_g7x`` in src/emc/rs274ngc/interp_g7x.cc):
   ``.2`` only the pockets;
 - refused by LinuxCNC (and so here): no Q, a subroutine not defined before the cycle, G91, cutter compensation on
   (G71/G72), an arc of the contour without I or K (or R);
+- ``G70`` under cutter compensation (``G41``/``G42``, ``G41.1``/``G42.1``): LinuxCNC runs it (``convert_g7x`` refuses
+  only G71/G72), each move it makes going through ``convert_straight``/``convert_arc`` as a written move's does, so
+  its compensation offsets them as it offsets written moves: read so, the path compensated as programmed (the
+  bound the radius leaves reported, as for written moves under G41/G42);
 - the contour: from the start point, a segment per contour line that moves X or Z (others skipped), G0 and G1 alike
   straight, G2/G3 arcs (I K centres as the arc distance mode says; R: the centre on the side G2/G3 says, R's sign not
   read); its lines are parsed (``Interp::read``), never executed, up to the first ``endsub``: an O-word line (a
@@ -21,10 +25,9 @@ interpreter, ``Interp::convert_g7x`` in src/emc/rs274ngc/interp_g7x.cc):
   cycle).
 
 Refused here besides (not read exactly): other words on the cycle line (those the cycle does not read), U and W
-(LinuxCNC's axis words), G7 diameter mode, a plane other than G18 (the written arcs are ZX arcs), cutter
-compensation with G70, a contour line with other words than G0-G3, X Z I K R, N and other axes', a parameter setting
-in the contour (never applied there), a line moving before the contour
-names G0-G3, an arc line without its own G2/G3 (the interpreter takes its direction from the line's own word), an R
+(LinuxCNC's axis words), G7 diameter mode, a plane other than G18 (the written arcs are ZX arcs), a contour line
+with other words than G0-G3, X Z I K R, N and other axes', a parameter setting in the contour (never applied there),
+a line moving before the contour names G0-G3, an arc line without its own G2/G3 (the interpreter takes its direction from the line's own word), an R
 arc shorter than its chord, and what :mod:`compensation.nc_g7x_path` cannot compute as the reference does."""
 from __future__ import annotations
 
@@ -62,8 +65,8 @@ def g7x_line(words, idx: int, st, ax) -> str | None:
     col = code.start + 1
     by = _words(words, code, cycle)
     why = ("under G91 (LinuxCNC: it works only in absolute distance mode)" if st.incremental else
-           f"with cutter compensation {st.cutter} on (LinuxCNC's error for G71/G72; with G70 not read here)"
-           if st.cutter != "G40" else
+           f"with cutter compensation {st.cutter} on (LinuxCNC's error: 'G{cycle}.{sub} cannot be used with cutter "
+           "compensation turned on'; write G40 before it)" if st.cutter != "G40" and cycle != 70 else
            "in diameter mode G7 (not read here: write the cycle under G8)" if st.diameter else
            "in a plane other than G18 (ZX; the moves it writes are ZX arcs)" if st.plane != "G18" else None)
     if why is not None:

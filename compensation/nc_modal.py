@@ -37,8 +37,8 @@ _G_GROUPS = {
     "lathe_mode": ("G7", "G8"), "path_control": ("G61", "G61.1", "G64"),
 }
 """Modal G groups M70 saves (LinuxCNC manual) and the codes of each."""
-_WITH_WORDS = {"G43": "H", "G41": "D", "G42": "D", "G96": "D", "G64": "PQ", "M50": "P", "M51": "P", "M52": "P",
-               "M53": "P"}
+_WITH_WORDS = {"G43": "H", "G41": "D", "G42": "D", "G41.1": "DL", "G42.1": "DL", "G96": "D", "G64": "PQ", "M50": "P",
+               "M51": "P", "M52": "P", "M53": "P"}
 """Codes whose value includes words of the same line (G43 H, G64 P Q, ...)."""
 _M_GROUPS = {3: "spindle", 4: "spindle", 5: "spindle", 48: "overrides", 49: "overrides", 50: "feed_override",
              51: "speed_override", 52: "adaptive_feed", 53: "feed_hold"}

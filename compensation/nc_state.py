@@ -548,6 +548,9 @@ class _Controller:
             select[kind](value, where)
         elif kind == "tool-dynamic":
             self.dynamic_length(value, line, where)
+        elif kind == "cutter-dynamic":  # G41.1/G42.1 (gcode_state.dynamic_cutter): the line's radius, a tool's own
+            self.cutter = f"G41.1/G42.1 line {line + 1}"
+            self.radii[self.cutter] = value
         elif kind.startswith("g10-"):
             self.g10(kind, value, where)
             self.check_active(where)
@@ -573,7 +576,8 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
     option that supplies it) a work system or a tool not in the tables nor set by the program's own
     ``G10`` lines before it."""
     path, words = program.path, program.axis_words.words
-    events = list(getattr(program, "events", ()) or ())
+    # in line order (stable: a line's own order kept): cycle notes are appended after the reading (nc_contour._carry)
+    events = sorted(getattr(program, "events", ()) or (), key=lambda e: e[0])
     _refuse_set_from_compensated(program, events)
     c = _Controller(path, words, offsets, tools)
     first, frames = [0], [c.frame()]
@@ -586,6 +590,9 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
              "tool_table": tools.source if tools else None,
              "tools_used": {int(t): float(c.tooltab[t]) for t in sorted(c.used_tools)}}
     notes.update({"dynamic_tool_lengths_mm": c.dynamic} if c.dynamic else {})  # G43.1: the offsets the program set
+    from .nc_expand import source_line  # G41.1/G42.1: D/2 mm, at the line a report names
+    radii = [f"line {source_line(program, e[0] + 1)}: {e[3]:g}" for e in events if e[2] == "cutter-dynamic"]
+    notes.update({"dynamic_cutter_radii_mm": radii} if radii else {})
     notes["offsets_mm_deg"] = {s: [float(v) for v in _offset_vector(c.table.get(s, {}), words)]
                                for s in sorted(c.used_systems)}
     notes["g53_lines"] = [e[0] + 1 for e in events if e[2] == "g53"]

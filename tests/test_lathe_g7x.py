@@ -21,6 +21,8 @@ move whose TRUE tip (mean over one turn) lies within :data:`test_lathe_g33.TOL_P
 moves byte for byte. The arithmetic of compensation/nc_g7x_path.py was also compared, outside the test suite, with
 LinuxCNC's own interp_g7x.cc compiled on its own (1,800 random contours of lines and arcs, every cycle: the same moves
 within 3e-8 mm, the same refusals, and a refusal where the reference crashes)."""
+import json
+
 import numpy as np
 import pytest
 from test_lathe_g33 import LATHE, PART_Z_MM, TOL_POINT_UM, _compensate, _field
@@ -179,6 +181,52 @@ def test_g71_g70_compensated_every_point_true(tmp_path):
     assert non_moves == [ln for ln, c in zip(p_src.lines, p_src.classes) if c != "move"]
 
 
+def test_g70_under_g42_1_is_read_as_under_g42_with_the_tool_table_radius(tmp_path):
+    """LinuxCNC runs G70 under cutter compensation (``convert_g7x`` refuses only G71/G72 so), its moves offset by
+    its compensation as written moves are: expanded, each point compensated as programmed (TRUE within the
+    tolerance), the written program and the reported bound the same as under ``G42 D5`` with tool 5's radius 0.4 mm
+    from the tool table (``G42.1 D0.8``: D the diameter)."""
+    runs = {}
+    for key, comp in (("dyn", "G42.1 D0.8 L3"), ("table", "G42 D5")):
+        (tmp_path / key).mkdir()
+        (tmp_path / key / "t.csv").write_text("tool,x_mm,z_mm,radius_mm\n5,0,0,0.4\n")
+        text = ARC.replace("\nG70", f"\n{comp}\nG70").replace("G0 X40 Z10", "G40 G0 X40 Z10")
+        rc, src, written, truth = _compensate(tmp_path / key, text, ("--expand-cycles", "--tool-table",
+                                                                     str(tmp_path / key / "t.csv")))
+        assert rc == 0
+        summary = json.loads((written.parent / "compensate_summary.json").read_text())["files"][0]
+        runs[key] = (src, written, truth, summary)
+    src, written, truth, dyn = runs["dyn"]
+    p_src, p_out = _read(src), _read(written, "keep")
+    lathe, field = _field(truth)
+    m_src = [m for m in p_src.moves if m.compensate]
+    errs, missed = lathe_points_reached(field, lathe, m_src, [m for m in p_out.moves if m.compensate],
+                                        (0.0, PART_Z_MM), TOL_POINT_UM)
+    assert missed is None and len(errs) == len(m_src) > 20 and max(errs) <= TOL_POINT_UM
+    table_out = _read(runs["table"][1], "keep")
+    assert np.abs(np.array([m.end for m in p_out.moves]) - np.array([m.end for m in table_out.moves])).max() <= \
+        TOL_WRITTEN_MM
+    bound = runs["table"][3]["cutter_radius_bound_um"]
+    assert bound > 0.01 and abs(dyn["cutter_radius_bound_um"] - bound) <= 1e-9 * bound
+    assert dyn["dynamic_cutter_radii_mm"] == ["line 17 (expanded line 56): 0.4"]  # the G71's 49 moves before it
+
+
+def test_frames_follow_the_lines_after_expanded_cycles(tmp_path):
+    """The cycles' notes are events added after the reading (out of line order): the frames still follow the lines,
+    so the G71's moves run at tool 1's Z offset, the G70's (after ``T2 M6 G43``) at tool 2's."""
+    from compensation.nc_state import program_frames, read_tool_table, read_work_offsets
+    src = tmp_path / "p.ngc"
+    src.write_text(ARC.replace("G0 X24 Z2\n", "T1 M6 G43\nG0 X24 Z2\n").replace("\nG70", "\nT2 M6 G43\nG70"))
+    (tmp_path / "t.csv").write_text("tool,x_mm,z_mm,radius_mm\n1,0,10,0\n2,0,20,0\n")
+    (tmp_path / "o.csv").write_text("system,x_mm,y_mm,z_mm\nG54,0,0,0\n")
+    prog = _read(src)
+    frames = program_frames(prog, read_work_offsets(tmp_path / "o.csv"), read_tool_table(tmp_path / "t.csv"))
+    z = frames.lathe_tool([m.index for m in prog.moves])[:, 1]
+    t2 = next(i for i, ln in enumerate(prog.lines) if ln.startswith("T2"))
+    before = np.array([m.index < t2 for m in prog.moves])
+    assert before.sum() > 20 and np.all(z[before] == 10.0) and np.all(z[~before] == 20.0)
+
+
 @pytest.mark.parametrize("old,new,where", [
     ("D0.5 I2 R0.5", "D0.5 I2 R0.5", "line 12, column 1: 'G71' (roughing cycle, contour o100) kept as a cycle"),
     ("G21 G18 G90 G8", "G21 G18 G90 G7", "line 12, column 1: 'G71' (roughing cycle) in diameter mode G7"),
@@ -188,6 +236,8 @@ def test_g71_g70_compensated_every_point_true(tmp_path):
     (" R0.5", " R0.5 F100", "line 12, column 30: 'F100' on a G71 line"),
     (" R0.5", " R0.5 U1", "line 12, column 30: 'U1' on a G71 line"),
     (" I2", " I0", "line 12, column 22: 'I0' on a G71 line: the depth of cut must be > 0"),
+    ("G0 X20 Z2\n", "G0 X20 Z2\nG41.1 D0.8\n", "line 13, column 1: 'G71' (roughing cycle) with cutter compensation "
+                                             "G41.1 on (LinuxCNC's error: 'G71.0 cannot be used with cutter"),
     ("  G1 Z-20 (", "  G1 Z-20 F50 (",
      "line 12, column 1: line 8 (the contour o100), column 11: 'F50' in a G7x contour"),
     ("  G0 X10 (onto", "  X10 (onto",

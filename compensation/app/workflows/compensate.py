@@ -623,8 +623,10 @@ def print_gcode_notes(entry) -> None:
             f", tilt left along the hole max {c['tilt_max_um']:.3g} um (line {c['tilt_max_line']})"
             if c["mode"] == "keep" else ""))
     if "cutter_radius_bound_um" in entry:
-        print(f"  G41/G42 cutter radius compensation: the path is compensated as programmed; the error it "
-              f"leaves is at most {entry['cutter_radius_bound_um']:.3g} um (field gradient x {entry['cutter_radius_arm']})")
+        dyn = entry.get("dynamic_cutter_radii_mm")  # LinuxCNC G41.1/G42.1: radius D/2 from the line
+        print(f"  G41/G42{'/G41.1/G42.1' if dyn else ''} cutter radius compensation: the path is compensated as "
+              f"programmed; the error it leaves is at most {entry['cutter_radius_bound_um']:.3g} um (field gradient x "
+              f"{entry['cutter_radius_arm']})" + (f"; G41.1/G42.1 radius D/2 (mm) at {', '.join(dyn)}" if dyn else ""))
 
 
 def print_refusals(run: CompensateRun, show: int) -> None:
