@@ -167,7 +167,7 @@ def dynamic_cutter(idx, st: _State, cutter, by) -> None:
     d, el = by.get("D"), by.get("L")
     if d is None:
         raise _Refuse(w.start + 1, f"'{code}' without D (the cutter diameter): LinuxCNC's error ('{code} with no D "
-                                   "word'); write the diameter, like '{code} D6'")
+                                   f"word'); write the diameter, like '{code} D6'")
     if st.plane not in ("G17", "G18"):
         raise _Refuse(w.start + 1, f"'{code}' in the plane {st.plane}: LinuxCNC compensates the cutter radius only "
                                    "in XY (G17) or XZ (G18)")

@@ -81,7 +81,8 @@ def test_the_radius_is_half_d_in_program_units(tmp_path, units, comp, radius_mm)
 
 
 @pytest.mark.parametrize("comp, dialect, where", [
-    ("G41.1", "linuxcnc", "column 1: 'G41.1' without D (the cutter diameter): LinuxCNC's error"),
+    ("G41.1", "linuxcnc", "column 1: 'G41.1' without D (the cutter diameter): LinuxCNC's error ('G41.1 with no D "
+                          "word'); write the diameter, like 'G41.1 D6'"),
     ("G42.1 D-6", "linuxcnc", "column 7: 'D-6' with G42.1: D is the cutter diameter (≥ 0)"),
     ("G41.1 D6 L2", "linuxcnc", "column 10: 'L2' with G41.1 in G17: LinuxCNC's error"),
     ("G18 G41.1 D6 L10", "linuxcnc", "column 14: 'L10' with G41.1: the tool orientation is a whole number 0-9"),
