@@ -64,7 +64,7 @@ def _line_plot(rows, select, xkey, xlabel, title, alt) -> Figure | None:
         ax.legend()
     fig.suptitle(title + f" (values < {PLOT_FLOOR_UM:g} μm drawn at {PLOT_FLOOR_UM:g})")
     fig.tight_layout()
-    return figure(fig, alt)
+    return figure(fig, alt, laid_out=True)
 
 
 def _effects_plot(rows, name) -> Figure | None:
@@ -113,7 +113,7 @@ def _cost_plot(doc) -> Figure | None:
         ax.grid(True, axis="y", alpha=0.3)
         ax.legend()
     fig.tight_layout()
-    return figure(fig, "cost")
+    return figure(fig, "cost", laid_out=True)
 
 
 def verdicts(doc) -> list[str]:

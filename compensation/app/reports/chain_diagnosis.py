@@ -59,7 +59,7 @@ def _stage_figure(doc) -> Figure:
     ax.legend(fontsize=8, loc="lower right")
     fig.tight_layout()
     return figure(fig, "stages", "Held-out and fitting MEASURED residual per stage of the loop against the noise "
-                  "floor (what the check noise alone would leave).", FIG_DPI)
+                  "floor (what the check noise alone would leave).", FIG_DPI, laid_out=True)
 
 
 def _element_figures(machine, updated, identified) -> list[Figure]:
@@ -89,7 +89,7 @@ def _element_figures(machine, updated, identified) -> list[Figure]:
         fig.tight_layout()
         out.append(figure(fig, f"elements of axis {a.word}",
                           f"Component elements of axis {a.word} (the chain's slots, ISO 230 names): the sweeps' "
-                          "identification and the loop's update over the stations.", FIG_DPI))
+                          "identification and the loop's update over the stations.", FIG_DPI, laid_out=True))
     return out
 
 

@@ -30,7 +30,8 @@ def _figures(prog, nominal_legs_mm) -> list[Figure]:
         ax.grid(True, alpha=0.3)
     axs[0].legend(fontsize=8)
     fig.tight_layout()
-    out.append(figure(fig, "tool path", "Tool tip of every interpolation step, projected on x–y and x–z.", FIG_DPI))
+    out.append(figure(fig, "tool path", "Tool tip of every interpolation step, projected on x–y and x–z.", FIG_DPI,
+                      laid_out=True))
     k = prog.legs_mm.shape[1]
     fig, axs = plt.subplots(1, 2, figsize=(10, 3.6))
     steps = np.arange(len(prog.q))
@@ -45,7 +46,7 @@ def _figures(prog, nominal_legs_mm) -> list[Figure]:
     axs[1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     fig.tight_layout()
     out.append(figure(fig, "leg commands", "Leg lengths (relative to the first step) and the leg increments of "
-                      "each interpolation period.", FIG_DPI))
+                      "each interpolation period.", FIG_DPI, laid_out=True))
     if nominal_legs_mm is not None:
         fig, ax = plt.subplots(figsize=(10, 3.4))
         for i in range(k):

@@ -93,4 +93,4 @@ def learned_map_figure(m: dict) -> Figure:
         over = "any further linear axis at mid-stroke"
     return figure(fig, "learned map", f"The learned correction over {s1.upper()}–{s2.upper()} (vector norm, {over}) "
                   "and the norm of its 95 % band: it is zero, and its band the prior's, where the checks do not reach",
-                  dpi=FIG_DPI)
+                  dpi=FIG_DPI, laid_out=True)

@@ -87,7 +87,7 @@ def _times_plot(cmp: Comparison) -> Figure:
         a.grid(True, axis="y", alpha=0.3)
     fig.suptitle("Solver times")
     fig.tight_layout()
-    return figure(fig, "solver times", "Solver wall time per method (total and per point).", dpi=FIG_DPI)
+    return figure(fig, "solver times", "Solver wall time per method (total and per point).", dpi=FIG_DPI, laid_out=True)
 
 
 RESIDUAL_DIGITS = 4
