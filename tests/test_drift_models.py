@@ -39,11 +39,18 @@ def _frame(cols):
 
 
 # -- causality -------------------------------------------------------------------------------
-@pytest.mark.slow  # over the 5 CPU s tier limit (README "Tests and benchmarks")
-def test_predictions_before_t_do_not_change_when_later_samples_change():
+@pytest.fixture(scope="module")
+def small_selection():
+    """``_small_log()`` (seed 0, 16 h at 60 s), its frame and the selection fitted on it (fit fraction 0.6): one fit
+    for the two tests that read it (causality, the controller JSON); neither changes it."""
     cols, _ = _small_log()
     log = _frame(cols)
-    sel = DriftSelector(fit_fraction=0.6).fit(log)
+    return cols, log, DriftSelector(fit_fraction=0.6).fit(log)
+
+
+@pytest.mark.slow  # over the 5 CPU s tier limit (README "Tests and benchmarks")
+def test_predictions_before_t_do_not_change_when_later_samples_change(small_selection):
+    _, log, sel = small_selection
     # every kind of feature at once: filter, delay, power
     extra = [Feature("temp_s3_c", 1800.0, 900.0), Feature("speed_rpm", 3600.0, 0.0, 2, 1e4), Feature("temp_s5_c")]
     model = DriftModel({**sel.model_.channels, "x": ChannelFit("test", "", extra, 1.0, np.array([2.0, -3.0, 0.5]))})
@@ -189,10 +196,8 @@ def test_chosen_model_never_loses_to_ols_in_validation():
 
 # -- controller form ----------------------------------------------------------------------------
 @pytest.mark.slow  # a whole selection (5.6–6.1 CPU s measured on the shared machine; tier rule: > 5 s)
-def test_model_json_round_trip_and_version_check(tmp_path):
-    cols, _ = _small_log()
-    log = _frame(cols)
-    sel = DriftSelector(fit_fraction=0.6).fit(log)
+def test_model_json_round_trip_and_version_check(tmp_path, small_selection):
+    cols, log, sel = small_selection
     sel.model_.save(tmp_path / "m.json")
     obj = json.loads((tmp_path / "m.json").read_text())
     assert obj["schema"] == SCHEMA and obj["schema_version"] == SCHEMA_VERSION
