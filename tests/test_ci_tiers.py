@@ -35,3 +35,12 @@ def test_ci_runs_both_tiers_and_the_readme_names_the_fast_one():
     assert '-ne 5' in ci  # "no tests collected" is not a failure
     readme = (ROOT / "README.md").read_text()
     assert 'python -m pytest -q -n 2 -m "not slow"' in readme.split("\n## ")[0]
+
+
+def test_ci_warms_the_kernel_cache_before_the_tiers_and_only_waits_for_it():
+    """The kernel warm-up (.ci/warm_kernels.py) starts in the background before Chromium's install and is waited for
+    before the fast tier; its failure is printed, never CI's exit status (the tests compile what it missed)."""
+    ci = (ROOT / ".ci" / "run").read_text()
+    start, wait, fast = (ci.index(s) for s in ("python .ci/warm_kernels.py", 'wait "$warm"', '-m "not slow"'))
+    assert start < ci.index("apt-get install") < wait < fast
+    assert 'if ! wait "$warm"' in ci
