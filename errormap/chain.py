@@ -282,7 +282,8 @@ class Chain:
         """Per ET the tool-point displacement and the rotation per unit value, each (n, 3, n_et)."""
         p = F[:, -1, :3, 3]
         m = len(self.ets)
-        ax = np.einsum("nmij,mj->nmi", F[:, :m, :3, :3], np.eye(3)[self.axis])  # (n, m, 3): ET axes in the world
+        # (n, m, 3): each ET's axis in the world (+ 0.0: a zero is +0, as the one-hot sum this replaced gave)
+        ax = np.take_along_axis(F[:, :m, :3, :3], self.axis[None, :, None, None], 3)[..., 0] + 0.0
         org = F[:, :m, :3, 3]                              # (n, m, 3)
         lin = np.where(self.kind_r[None, :, None], np.cross(ax, p[:, None, :] - org), ax)
         ang = np.where(self.kind_r[None, :, None], ax, 0.0)
