@@ -474,12 +474,12 @@ class ExtendedChain:
     def _basis(self, q) -> np.ndarray:
         """∂Δθ/∂(extra slot) per pose, rad per slot unit, shape (n, n_extra), read-only; the last poses' kept."""
         q = np.atleast_2d(np.asarray(q, float))
-        key = (q.shape, q.tobytes())
-        if self._basis_memo is None or self._basis_memo[0] != key:
+        key, memo = (q.shape, q.tobytes()), self._basis_memo   # read once: another thread may replace it
+        if memo is None or memo[0] != key:
             out = self._basis_of(q)
             out.flags.writeable = False
-            self._basis_memo = (key, out)
-        return self._basis_memo[1]
+            memo = self._basis_memo = (key, out)
+        return memo[1]
 
     def _basis_of(self, q) -> np.ndarray:
         """:meth:`_basis` computed, (n, n_extra)."""
