@@ -454,6 +454,7 @@ class ExtendedChain:
         self._term_joint = np.array([t[1] for t in terms], int)   # (n_extra,) the joint each slot turns
         self.param_names = tuple(chain.param_names) + tuple(t[0] for t in terms)
         self.n_geo = chain.n_params
+        self._basis_memo = None   # (q bytes, its basis): a fit evaluates the same poses at every iteration
 
     def __getattr__(self, name):
         return getattr(self.__dict__["chain"], name)
@@ -471,9 +472,18 @@ class ExtendedChain:
         return e[:self.n_geo], e[self.n_geo:]
 
     def _basis(self, q) -> np.ndarray:
-        """∂Δθ/∂(extra slot) per pose, rad per slot unit, shape (n, n_extra)."""
-        from .arm_simulate import gravity_moment_mm
+        """∂Δθ/∂(extra slot) per pose, rad per slot unit, shape (n, n_extra), read-only; the last poses' kept."""
         q = np.atleast_2d(np.asarray(q, float))
+        key, memo = (q.shape, q.tobytes()), self._basis_memo   # read once: another thread may replace it
+        if memo is None or memo[0] != key:
+            out = self._basis_of(q)
+            out.flags.writeable = False
+            memo = self._basis_memo = (key, out)
+        return memo[1]
+
+    def _basis_of(self, q) -> np.ndarray:
+        """:meth:`_basis` computed, (n, n_extra)."""
+        from .arm_simulate import gravity_moment_mm
         out = np.zeros((len(q), len(self.terms)))
         tau = gravity_moment_mm(self.chain, q) * GRAVITY_M_PER_MM if self.compliance else None
         for k, (_, j, kind) in enumerate(self.terms):

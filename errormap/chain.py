@@ -253,21 +253,21 @@ class Chain:
         """Cumulative frames before each ET and after the last, shape (n, n_et + 1, 4, 4)."""
         v = self.et_values(q, errors)
         n, m = v.shape
-        F = np.empty((n, m + 1, 4, 4))
-        F[:, 0] = np.eye(4)
+        G = np.empty((m + 1, 3, 4, n))   # the frames' top three rows, poses last: every column slice contiguous
+        G[0] = np.eye(4)[:3, :, None]
         for k in range(m):
-            a = self.axis[k]
-            x = v[:, k]
-            T = F[:, k]
-            nxt = T.copy()
+            a, T, nxt = self.axis[k], G[k], G[k + 1]
+            nxt[...] = T
             if self.kind_r[k]:
                 b, c = (a + 1) % 3, (a + 2) % 3
-                cs, sn = np.cos(x), np.sin(x)
-                nxt[:, :3, b] = T[:, :3, b] * cs[:, None] + T[:, :3, c] * sn[:, None]
-                nxt[:, :3, c] = T[:, :3, c] * cs[:, None] - T[:, :3, b] * sn[:, None]
+                cs, sn = np.cos(v[:, k]), np.sin(v[:, k])
+                nxt[:, b] = T[:, b] * cs + T[:, c] * sn
+                nxt[:, c] = T[:, c] * cs - T[:, b] * sn
             else:
-                nxt[:, :3, 3] = T[:, :3, 3] + T[:, :3, a] * x[:, None]
-            F[:, k + 1] = nxt
+                nxt[:, 3] = T[:, 3] + T[:, a] * v[:, k]
+        F = np.empty((n, m + 1, 4, 4))
+        F[:, :, :3] = np.moveaxis(G, 3, 0)
+        F[:, :, 3] = (0.0, 0.0, 0.0, 1.0)
         return F
 
     def fk(self, q, errors=None) -> np.ndarray:
@@ -282,7 +282,8 @@ class Chain:
         """Per ET the tool-point displacement and the rotation per unit value, each (n, 3, n_et)."""
         p = F[:, -1, :3, 3]
         m = len(self.ets)
-        ax = np.einsum("nmij,mj->nmi", F[:, :m, :3, :3], np.eye(3)[self.axis])  # (n, m, 3): ET axes in the world
+        # (n, m, 3): each ET's axis in the world (+ 0.0: a zero is +0, as the one-hot sum this replaced gave)
+        ax = np.take_along_axis(F[:, :m, :3, :3], self.axis[None, :, None, None], 3)[..., 0] + 0.0
         org = F[:, :m, :3, 3]                              # (n, m, 3)
         lin = np.where(self.kind_r[None, :, None], np.cross(ax, p[:, None, :] - org), ax)
         ang = np.where(self.kind_r[None, :, None], ax, 0.0)
