@@ -63,8 +63,7 @@ def _line_plot(rows, select, xkey, xlabel, title, alt) -> Figure | None:
         ax.grid(True, which="both", alpha=0.3)
         ax.legend()
     fig.suptitle(title + f" (values < {PLOT_FLOOR_UM:g} μm drawn at {PLOT_FLOOR_UM:g})")
-    fig.tight_layout()
-    return figure(fig, alt, laid_out=True)
+    return figure(fig, alt, tight_layout=True)
 
 
 def _effects_plot(rows, name) -> Figure | None:
@@ -112,8 +111,7 @@ def _cost_plot(doc) -> Figure | None:
         ax.set_yscale("log")
         ax.grid(True, axis="y", alpha=0.3)
         ax.legend()
-    fig.tight_layout()
-    return figure(fig, "cost", laid_out=True)
+    return figure(fig, "cost", tight_layout=True)
 
 
 def verdicts(doc) -> list[str]:

@@ -57,9 +57,8 @@ def _stage_figure(doc) -> Figure:
     ax.set_xlabel("RMS of |measured − predicted| (μm, log scale)")
     ax.grid(True, axis="x", alpha=0.3)
     ax.legend(fontsize=8, loc="lower right")
-    fig.tight_layout()
     return figure(fig, "stages", "Held-out and fitting MEASURED residual per stage of the loop against the noise "
-                  "floor (what the check noise alone would leave).", FIG_DPI, laid_out=True)
+                  "floor (what the check noise alone would leave).", FIG_DPI, tight_layout=True)
 
 
 def _element_figures(machine, updated, identified) -> list[Figure]:
@@ -86,10 +85,9 @@ def _element_figures(machine, updated, identified) -> list[Figure]:
             ax.tick_params(labelsize=7)
             ax.grid(True, alpha=0.3)
         axs[0, 0].legend(fontsize=7)
-        fig.tight_layout()
         out.append(figure(fig, f"elements of axis {a.word}",
                           f"Component elements of axis {a.word} (the chain's slots, ISO 230 names): the sweeps' "
-                          "identification and the loop's update over the stations.", FIG_DPI, laid_out=True))
+                          "identification and the loop's update over the stations.", FIG_DPI, tight_layout=True))
     return out
 
 

@@ -51,10 +51,9 @@ def drift_report(log, sel, channels, log_path) -> str:
         axs[1].hist(after[hold], bins=bins, alpha=0.5, label="after")
         axs[1].set_xlabel(f"held-out {ch} (μm)")
         axs[1].legend(fontsize=8)
-        fig.tight_layout()
         figures.append(figure(fig, ch, f"{ch}: displacement before and after the drift model over time (dashed: "
                                         "start of the held-out part) and the held-out histogram.", dpi=FIG_DPI,
-                                      laid_out=True))
+                                      tight_layout=True))
     return render_page("drift.html", title="volcomp diagnose — drift log", log=str(log_path),
                        n_fit=len(log.time_s) - len(hold), n_hold=len(hold), repaired=repaired, channels=table,
                        sensors=sensors, figures=figures)

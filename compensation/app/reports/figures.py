@@ -15,11 +15,13 @@ def pyplot():
     return plt
 
 
-def png_bytes(fig, dpi: int = 100, laid_out: bool = False) -> bytes:
-    """Render ``fig`` to PNG, close it, and return the bytes: trimmed to its tight bounding box, unless ``laid_out``
-    (the caller ran ``fig.tight_layout()``, which already keeps every label inside the figure: the trim would draw
-    the figure once more to find the box, a third of a many-panel figure's rendering time)."""
+def png_bytes(fig, dpi: int = 100, tight_layout: bool = False) -> bytes:
+    """Render ``fig`` to PNG, close it, and return the bytes: trimmed to its tight bounding box, or with
+    ``tight_layout`` laid out by ``fig.tight_layout()`` (which keeps every label inside the figure: the trim would draw
+    the figure once more to find its box, a third of a many-panel figure's rendering time)."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi, bbox_inches=None if laid_out else "tight")
+    if tight_layout:
+        fig.tight_layout()
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches=None if tight_layout else "tight")
     pyplot().close(fig)
     return buf.getvalue()

@@ -29,9 +29,8 @@ def _figures(prog, nominal_legs_mm) -> list[Figure]:
         ax.set_aspect("equal", adjustable="datalim")
         ax.grid(True, alpha=0.3)
     axs[0].legend(fontsize=8)
-    fig.tight_layout()
     out.append(figure(fig, "tool path", "Tool tip of every interpolation step, projected on x–y and x–z.", FIG_DPI,
-                      laid_out=True))
+                      tight_layout=True))
     k = prog.legs_mm.shape[1]
     fig, axs = plt.subplots(1, 2, figsize=(10, 3.6))
     steps = np.arange(len(prog.q))
@@ -44,9 +43,8 @@ def _figures(prog, nominal_legs_mm) -> list[Figure]:
         ax.set_xlabel("interpolation step")
         ax.grid(True, alpha=0.3)
     axs[1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
-    fig.tight_layout()
     out.append(figure(fig, "leg commands", "Leg lengths (relative to the first step) and the leg increments of "
-                      "each interpolation period.", FIG_DPI, laid_out=True))
+                      "each interpolation period.", FIG_DPI, tight_layout=True))
     if nominal_legs_mm is not None:
         fig, ax = plt.subplots(figsize=(10, 3.4))
         for i in range(k):

@@ -81,7 +81,6 @@ def learned_map_figure(m: dict) -> Figure:
         ax.set_ylabel(f"{s2} (mm)")
         ax.set_title(title, fontsize=9)
         fig.colorbar(im, ax=ax)
-    fig.tight_layout()
     if rot is not None and isinstance(m.get("rotary_deg"), dict) and m["rotary_deg"]:
         # the angles each rotary axis was at (a short stroke clips them: five-axis-ac's A [-120, 30])
         over = "averaged over " + "; ".join(f"{c.rsplit('_', 1)[0].upper()} = {', '.join(f'{a:g}' for a in v)}°"
@@ -93,4 +92,4 @@ def learned_map_figure(m: dict) -> Figure:
         over = "any further linear axis at mid-stroke"
     return figure(fig, "learned map", f"The learned correction over {s1.upper()}–{s2.upper()} (vector norm, {over}) "
                   "and the norm of its 95 % band: it is zero, and its band the prior's, where the checks do not reach",
-                  dpi=FIG_DPI, laid_out=True)
+                  dpi=FIG_DPI, tight_layout=True)

@@ -86,8 +86,8 @@ def _times_plot(cmp: Comparison) -> Figure:
         a.set_yscale("log")
         a.grid(True, axis="y", alpha=0.3)
     fig.suptitle("Solver times")
-    fig.tight_layout()
-    return figure(fig, "solver times", "Solver wall time per method (total and per point).", dpi=FIG_DPI, laid_out=True)
+    return figure(fig, "solver times", "Solver wall time per method (total and per point).", dpi=FIG_DPI,
+                  tight_layout=True)
 
 
 RESIDUAL_DIGITS = 4

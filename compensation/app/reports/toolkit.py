@@ -207,11 +207,11 @@ class Figure:
         return environment().get_template("_figure.html").render(f=self)
 
 
-def figure(fig, alt: str, caption: str | None = None, dpi: int = DEFAULT_DPI, laid_out: bool = False) -> Figure:
-    """A matplotlib figure as an embedded :class:`Figure` (the matplotlib figure is closed); ``laid_out``: the
-    caller ran ``fig.tight_layout()`` (:func:`.figures.png_bytes`)."""
+def figure(fig, alt: str, caption: str | None = None, dpi: int = DEFAULT_DPI, tight_layout: bool = False) -> Figure:
+    """A matplotlib figure as an embedded :class:`Figure` (the matplotlib figure is closed); ``tight_layout``: laid
+    out by ``fig.tight_layout()`` instead of trimmed (:func:`.figures.png_bytes`)."""
     from .figures import png_bytes
-    return Figure(png_bytes(fig, dpi, laid_out), alt, caption)
+    return Figure(png_bytes(fig, dpi, tight_layout), alt, caption)
 
 
 # -- pages ---------------------------------------------------------------------------------------
