@@ -175,10 +175,9 @@ def _modal_groups(gs, dia=None) -> dict:
     a motion code where the dialect runs them so: the motion code is kept)."""
     groups = {}
     for code, w in gs:
-        grp = "length" if code == "G43.1" else "lathe" if dia is not None and code in dia.lathe_modes else "nonmodal" if code in G92_CODES or code == "G52" else "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
+        grp = "length" if code == "G43.1" else "cutter" if code in DYNAMIC_CUTTER else "lathe" if dia is not None and code in dia.lathe_modes else "nonmodal" if code in G92_CODES or code == "G52" else "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
             code in dia.splines or code in dia.synced or code in dia.probes) else ALLOWED_G[code][0] if code in ALLOWED_G else (
             "coords" if dia is not None and code in dia.work_systems else "dialect mode")  # a dialect's own first
-        grp = "cutter" if code in DYNAMIC_CUTTER else grp  # LinuxCNC G41.1/G42.1 (passed only where read)
         g80_motion = dia is not None and (dia.g80_with_motion or dia.g80_unrecognised)  # no dialect: the one reading
         if grp == "motion" and grp in groups and g80_motion and "G80" in (code, groups[grp][0]):
             if code != "G80":
@@ -221,8 +220,8 @@ LATHE_NOSE_HINT = "; on a Fanuc or Haas lathe the TttOO word's register gives it
 
 
 def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words, nose: bool = False, lathe: bool = False):
-    """``P`` only with G4/G64 (or P1 on an arc), ``Q`` only with G64; ``D`` only with G41/G42, and not at all on a
-    lathe whose ``G41``/``G42`` take the T word's register (``nose``: :func:`compensation.gcode_state.ttoo_lathe`)."""
+    """``P`` only with G4/G64 (or P1 on an arc), ``Q`` only with G64; ``D`` only with G41/G42 (and LinuxCNC's
+    G41.1/G42.1, ``L`` too), and not at all on a lathe whose ``G41``/``G42`` take the T word's register (``nose``: :func:`compensation.gcode_state.ttoo_lathe`)."""
     for letter, allowed_with in (("P", ("G4", "G64", "G54.1", "G154", "G10", "G187")), ("Q", ("G64", "G5.1")), ("H", ("G43",)),
                                  ("L", ("G10",) + DYNAMIC_CUTTER)):
         if letter in by:
