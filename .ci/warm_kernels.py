@@ -20,23 +20,19 @@ PROGRAM = "G21 G90 G17 G54\nG0 X10 Y10 Z5\nG1 Z-1 F200\nG2 X30 Y10 I10 J0\nG1 X3
 
 def main() -> None:
     rng = np.random.default_rng(0)
+    models = {}
     for name in ("grinder", "mill-xyz", "five-axis-ac", "lathe-xzc"):
         m = load_machine(name)
-        model = Identification(m).fit(simulate_sweeps(simulate_truth(m, seed=1), noise_um=1.0, seed=2,
-                                                      n_stations=11))
+        model = models[name] = Identification(m).fit(simulate_sweeps(simulate_truth(m, seed=1), noise_um=1.0, seed=2,
+                                                                     n_stations=11))
         axes = random_axes(m, 20, rng)
         compensate_points(model.field_, m, axes, allow=("volume", "stroke", "ball"))
         compensate_points(model.field_, m, axes[:1], method="ga", allow=("volume", "stroke", "ball"))  # ~1 s a point
-    m = load_machine("mill-xyz")
     with tempfile.TemporaryDirectory() as td:
         td = Path(td)
-        model = Identification(m).fit(simulate_sweeps(simulate_truth(m, seed=1), noise_um=1.0, seed=2,
-                                                      n_stations=11))
         (td / "p.nc").write_text(PROGRAM, encoding="ascii")
-        model_path = td / "el.json"
-        model.elements_.save(model_path)
-        compensate_program([td / "p.nc"], m, model_path, td / "out", work_offsets="machine")
-
+        models["mill-xyz"].elements_.save(td / "el.json")
+        compensate_program([td / "p.nc"], load_machine("mill-xyz"), td / "el.json", td / "out", work_offsets="machine")
 
 if __name__ == "__main__":
     main()
