@@ -1,5 +1,5 @@
 """Compile numba's cached kernels (``@njit(cache=True)``: errormap.chain_kernel, compensation.solvers.exact and
-_ga_kernels, compensation.gcode_kernels) once, before the tests: ``.ci/run`` starts this in the background while
+_ga_kernels, compensation.gcode_kernels, training.gp's marginal likelihood) once, before the tests: ``.ci/run`` starts this in the background while
 Chromium installs (a download, one core idle), so that the fast tier's two workers find the kernels in numba's
 cache instead of each compiling them (tens of CPU seconds a worker on a fresh clone). It runs the public API on
 the built-in machines the tests use; a kernel it misses is compiled by the tests as before (nothing is asserted
@@ -33,6 +33,9 @@ def main() -> None:
         (td / "p.nc").write_text(PROGRAM, encoding="ascii")
         models["mill-xyz"].elements_.save(td / "el.json")
         compensate_program([td / "p.nc"], load_machine("mill-xyz"), td / "el.json", td / "out", work_offsets="machine")
+    from training.residual import ResidualRegressor   # the learned stage's GP kernels (one signature for all)
+    X = rng.uniform(-1.0, 1.0, (40, 3))
+    ResidualRegressor(families=("gp",), seed=0).fit(X, np.c_[np.sin(2 * X[:, 0]), X[:, 1], X[:, 2] ** 2])
 
 if __name__ == "__main__":
     main()

@@ -38,9 +38,14 @@ def test_ci_runs_both_tiers_and_the_readme_names_the_fast_one():
 
 
 def test_ci_warms_the_kernel_cache_before_the_tiers_and_only_waits_for_it():
-    """The kernel warm-up (.ci/warm_kernels.py) starts in the background before Chromium's install and is waited for
-    before the fast tier; its failure is printed, never CI's exit status (the tests compile what it missed)."""
+    """Chromium's install starts in the background before the Python packages' (the two overlap); the kernel warm-up
+    (.ci/warm_kernels.py) starts in the background after them; both are waited for before the fast tier, and a
+    failure of either is printed, never CI's exit status (the tests compile what the warm-up missed; the browser
+    check skips)."""
     ci = (ROOT / ".ci" / "run").read_text()
-    start, wait, fast = (ci.index(s) for s in ("python .ci/warm_kernels.py", 'wait "$warm"', '-m "not slow"'))
-    assert start < ci.index("apt-get install") < wait < fast
-    assert 'if ! wait "$warm"' in ci
+    apt, pip, warm, wait_apt, wait_warm, fast = (ci.index(s) for s in (
+        "apt-get install", "pip install", "python .ci/warm_kernels.py", 'wait "$chromium"', 'wait "$warm"',
+        '-m "not slow"'))
+    assert apt < pip < warm < wait_apt < fast and warm < wait_warm < fast
+    assert ci[apt:pip].count(" &\n") == 1   # in the background
+    assert 'if ! wait "$warm"' in ci and '! wait "$chromium"' in ci

@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from training.gp import GP_KERNELS, _gp_nll, _n_theta, additive_terms
+from training.gp import GP_KERNELS, _gp_nll, _kernel, _n_theta, _Pairs, _parts, _sqdist_by_dim, additive_terms
 from training.residual import ResidualRegressor
 
 GRAD_TOL_REL = 1e-5
@@ -31,7 +31,7 @@ def _data(seed, n=60):
 @pytest.mark.parametrize("kind", sorted(set(GP_KERNELS.values())))
 def test_nll_gradient_matches_finite_differences(kind):
     X, Y = _data(0, n=40)
-    D = np.moveaxis((X[:, None, :] - X[None, :, :]) ** 2, 2, 0).copy()
+    P = _Pairs(X)
     theta = np.array([np.log(0.7), np.log(1.3), np.log(0.8), np.log(0.01)])
     terms = None
     if kind == "rbf_sum":   # long (1.5, 2.0) and short (0.3, 0.2) length scales, their variances, the noise
@@ -40,11 +40,23 @@ def test_nll_gradient_matches_finite_differences(kind):
         terms = additive_terms(2)
         theta = np.log([0.7, 1.3, 0.5, 0.3, 0.2, 0.01])
     assert len(theta) == _n_theta(2, kind, terms)
-    f0, g = _gp_nll(theta, X, Y[:, 0], D, kind, terms)
+    f0, g = _gp_nll(theta, X, Y[:, 0], P, kind, terms)
     h = 1e-6
-    gfd = np.array([(_gp_nll(theta + h * e, X, Y[:, 0], D, kind, terms)[0]
-                     - _gp_nll(theta - h * e, X, Y[:, 0], D, kind, terms)[0]) / (2 * h) for e in np.eye(len(theta))])
+    gfd = np.array([(_gp_nll(theta + h * e, X, Y[:, 0], P, kind, terms)[0]
+                     - _gp_nll(theta - h * e, X, Y[:, 0], P, kind, terms)[0]) / (2 * h) for e in np.eye(len(theta))])
     assert np.abs(g - gfd).max() <= GRAD_TOL_REL * np.abs(g).max()
+    # the value: the full (n, n) matrices, every entry computed (the pairs hold the lower triangle only)
+    assert f0 == pytest.approx(_full_nll(theta, X, Y[:, 0], kind, terms), rel=ASSEMBLY_RTOL)
+
+
+def _full_nll(theta, X, y, kind, terms):
+    """The marginal likelihood from the whole (n, n) covariance (:func:`_sqdist_by_dim` on every pair, both ways)."""
+    from scipy.linalg import cho_factor, cho_solve
+    parts, sn2 = _parts(theta, X.shape[1], kind, terms)
+    K = sum(_kernel(_sqdist_by_dim(X, X, inv_l2), sf2, base)[0] for inv_l2, sf2, base, _, _ in parts)
+    K = K + sn2 * np.eye(len(y))
+    c = cho_factor(K, lower=True)
+    return 0.5 * y @ cho_solve(c, y) + np.log(np.diag(c[0])).sum() + 0.5 * len(y) * np.log(2 * np.pi)
 
 
 @pytest.mark.parametrize("family", ["gp_matern52", "gp_matern32", "gp_sum"])
@@ -126,7 +138,7 @@ def test_additive_per_atom_assembly_equals_the_per_term_form():
     terms = additive_terms(5, ((0,), (1, 2), (3, 4)))
     assert terms == ((0,), (1, 2), (3, 4), (0, 1, 2), (0, 3, 4), (1, 2, 3, 4))
     theta = np.r_[np.log([0.7, 1.3, 0.9, 1.1, 0.6]), np.log([0.5, 0.3, 0.2, 0.1, 0.05, 0.02]), np.log(0.01)]
-    f, g = _gp_nll(theta, X, y, D, "additive", terms)
+    f, g = _gp_nll(theta, X, y, _Pairs(X), "additive", terms)
     f_ref, g_ref = _per_term_nll(theta, y, D, terms)
     assert f == pytest.approx(f_ref, rel=ASSEMBLY_RTOL)
     assert np.abs(g - g_ref).max() <= ASSEMBLY_RTOL * np.abs(g_ref).max()

@@ -9,6 +9,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
 from scipy.linalg.lapack import dpotri
+from numba import njit
 from scipy.optimize import minimize
 
 GP_KERNELS = {"gp": "rbf", "gp_matern52": "matern52", "gp_matern32": "matern32", "gp_sum": "rbf_sum",
@@ -157,115 +158,202 @@ def _theta_starts(d, kind, var, n_restarts, rng, terms=None):
     return starts
 
 
-def _gp_nll(theta, X, y, D, kind="rbf", terms=None):
+class _Pairs:
+    """The training points of one fit and their pairs (i, j), i > j: the strict lower triangle of an (n, n) kernel
+    matrix, column by column. The marginal likelihood works on them alone (every matrix in it is symmetric and every
+    kernel is ``sf²`` on the diagonal, where the differences are zero): half the work of the full matrices.
+
+    ``X`` (n, d) the points; ``i``, ``j`` (m,) the rows and columns of the m = n(n−1)/2 pairs and ``flat_f`` their
+    index in a Fortran-ordered (n, n) array (LAPACK's); ``sq`` (d, m) the squared difference of each input over the
+    pairs (computed when first asked: only the Matérn kernels read it)."""
+
+    def __init__(self, Xs):
+        self.X = np.ascontiguousarray(Xs, dtype=float)
+        self.n = n = len(Xs)
+        self.j, self.i = np.triu_indices(n, 1)   # column by column: (i, j) = (j + 1, j), (j + 2, j), …
+        self.flat_f = self.j * n + self.i
+        self._sq = None
+        self._t = {}
+
+    def columns_t(self, cols):
+        """X's columns ``cols`` (a tuple; repeats allowed), transposed: (len(cols), n) C-ordered."""
+        if cols not in self._t:
+            self._t[cols] = np.ascontiguousarray(self.X[:, list(cols)].T)
+        return self._t[cols]
+
+    @property
+    def sq(self):
+        if self._sq is None:
+            self._sq = np.ascontiguousarray(np.square(self.X[self.i] - self.X[self.j]).T)   # one input per row
+        return self._sq
+
+
+@lru_cache(maxsize=32)
+def _se_layout(d, kind, terms):
+    """A squared-exponential kernel (``rbf``, ``rbf_sum``, ``additive``) as a sum of terms, each ``sf²_t`` times a
+    product of atoms' ``exp(−½ Σ_c Δ_c²/l_c²)`` over virtual input columns c → (columns: the input of each virtual
+    column, atom of each virtual column (dv,), term_atoms (T, A) uint8). θ is then (log l (dv), log sf² (T), log sn²)
+    for all three: ``rbf`` one atom of every input, one term; ``rbf_sum`` every input twice (the long and the short
+    length scales), two atoms, two terms; ``additive`` :func:`_atoms` (shared length scales)."""
+    if kind == "rbf":
+        return tuple(range(d)), np.zeros(d, dtype=np.int64), np.ones((1, 1), dtype=np.uint8)
+    if kind == "rbf_sum":
+        return tuple(range(d)) * 2, np.repeat(np.arange(2), d), np.eye(2, dtype=np.uint8)
+    atoms, made_of = _atoms(d, terms)
+    atom_of = np.empty(d, dtype=np.int64)
+    for a, cols in enumerate(atoms):
+        atom_of[list(cols)] = a
+    term_atoms = np.zeros((len(made_of), len(atoms)), dtype=np.uint8)
+    for t, parts in enumerate(made_of):
+        term_atoms[t, list(parts)] = 1
+    return tuple(range(d)), atom_of, term_atoms
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _se_lower(XT, inv_l2, atom_of, term_atoms, sf2, k_diag, K, E):
+    """K's diagonal (``k_diag``) and strict lower triangle, and each pair's atom exponentials, column by column (the
+    innermost loops run over a column's rows: contiguous, vectorised).
+
+    XT (dv, n) virtual columns, inv_l2 (dv,), atom_of (dv,), term_atoms (T, A), sf2 (T,); K (n, n) Fortran-ordered,
+    written; E (A, m), written: pair p = the p-th of :class:`_Pairs`."""
+    dv, n = XT.shape
+    T, A = term_atoms.shape
+    S = np.empty((A, n))
+    p0 = 0
+    for j in range(n):
+        K[j, j] = k_diag
+        L = n - j - 1
+        S[:, :L] = 0.0
+        for c in range(dv):
+            a, f, xj = atom_of[c], inv_l2[c], XT[c, j]
+            for r in range(L):
+                diff = XT[c, j + 1 + r] - xj
+                S[a, r] += f * (diff * diff)
+        for a in range(A):
+            for r in range(L):
+                E[a, p0 + r] = np.exp(-0.5 * S[a, r])
+        for r in range(L):
+            K[j + 1 + r, j] = 0.0
+        for t in range(T):
+            for r in range(L):
+                S[0, r] = sf2[t]   # S is free now: the term's product
+            for a in range(A):
+                if term_atoms[t, a]:
+                    for r in range(L):
+                        S[0, r] *= E[a, p0 + r]
+            for r in range(L):
+                K[j + 1 + r, j] += S[0, r]
+        p0 += L
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _se_pair_sums(XT, atom_of, term_atoms, sf2, E, alpha, Kinv, g):
+    """Over the pairs (i > j), with w = α_i α_j − K⁻¹_ij: g[c] = Σ w Δ_c² Σ_{t ∋ atom of c} K_t and
+    g[dv + t] = Σ w K_t (g (dv + T,), written). Kinv (n, n) Fortran-ordered, its lower triangle read."""
+    dv, n = XT.shape
+    T, A = term_atoms.shape
+    M = np.empty((A, n))
+    w = np.empty(n)
+    kt = np.empty(n)
+    g[:] = 0.0
+    p0 = 0
+    for j in range(n):
+        L = n - j - 1
+        for r in range(L):
+            w[r] = alpha[j + 1 + r] * alpha[j] - Kinv[j + 1 + r, j]
+        M[:, :L] = 0.0
+        for t in range(T):
+            for r in range(L):
+                kt[r] = sf2[t]
+            for a in range(A):
+                if term_atoms[t, a]:
+                    for r in range(L):
+                        kt[r] *= E[a, p0 + r]
+            acc = 0.0
+            for r in range(L):
+                acc += w[r] * kt[r]
+            g[dv + t] += acc
+            for a in range(A):
+                if term_atoms[t, a]:
+                    for r in range(L):
+                        M[a, r] += kt[r]
+        for c in range(dv):
+            a, xj = atom_of[c], XT[c, j]
+            acc = 0.0
+            for r in range(L):
+                diff = XT[c, j + 1 + r] - xj
+                acc += w[r] * M[a, r] * (diff * diff)
+            g[c] += acc
+        p0 += L
+
+
+def _factored(K, y):
+    """A zero-mean GP with covariance K (n, n), Fortran-ordered, its lower triangle read (and overwritten), at y (n,)
+    → (nll, α = K⁻¹y, K⁻¹ (its lower triangle)); None where K is not positive definite."""
+    try:
+        c = cho_factor(K, lower=True, overwrite_a=True, check_finite=False)
+    except np.linalg.LinAlgError:
+        return None
+    alpha = cho_solve(c, y, check_finite=False)
+    nll = 0.5 * y @ alpha + np.log(np.diag(c[0])).sum() + 0.5 * len(y) * np.log(2 * np.pi)
+    Kinv, info = dpotri(c[0], lower=1, overwrite_c=1)   # K⁻¹ from its Cholesky factor (lower triangle filled)
+    return None if info != 0 else (nll, alpha, Kinv)
+
+
+def _gp_nll(theta, X, y, pairs, kind="rbf", terms=None):
     """Negative log marginal likelihood and its gradient in θ (:func:`_n_theta` layout).
 
-    X (n, d) standardised, y (n,), D (d, n, n) squared differences per input; ``kind`` the kernel
-    (``terms`` its terms for ``additive``)."""
-    d = X.shape[1]
-    if kind == "additive":
-        return _additive_nll(theta, y, D, terms)
-    parts, sn2 = _parts(theta, d, kind, terms)
-    KH = [_kernel(np.tensordot(inv_l2, D, axes=1), sf2, base) for inv_l2, sf2, base, _, _ in parts]
-    K = _summed([k for k, _ in KH])
-    K[np.diag_indices(len(y))] += sn2
-    got = _nll_from_K(K, y)
+    X (n, d) standardised, y (n,), ``pairs`` the :class:`_Pairs` of X; ``kind`` the kernel (``terms`` its terms
+    for ``additive``). The gradient is −½ tr(W ∂K/∂θ), W = ααᵀ − K⁻¹: off the diagonal each pair stands for two
+    equal entries (the factor 2 cancels the ½); on it every kernel is its ``sf²`` and every length scale's
+    derivative zero (Δ = 0), which leaves −½ sf² tr W and −½ sn² tr W."""
+    if kind in ("matern52", "matern32"):
+        return _matern_nll(theta, X, y, pairs, kind)
+    cols, atom_of, term_atoms = _se_layout(X.shape[1], kind, terms)
+    XT = pairs.columns_t(cols)
+    dv, (T, A), n = len(cols), term_atoms.shape, len(y)
+    inv_l2, sf2, sn2 = np.exp(-2.0 * theta[:dv]), np.exp(theta[dv:dv + T]), np.exp(theta[-1])
+    K, E = np.zeros((n, n), order="F"), np.empty((A, n * (n - 1) // 2))
+    _se_lower(XT, inv_l2, atom_of, term_atoms, sf2, sf2.sum() + sn2, K, E)
+    got = _factored(K, y)
     if got is None:
         return 1e25, np.zeros_like(theta)
-    nll, W = got
-    grad = np.zeros_like(theta)
-    for (inv_l2, _, _, sl, isf), (Kf, H) in zip(parts, KH):
-        # dK/dlog l_j = H ⊙ D_j / l_j² (H = Kf for the squared exponential); each part has its own
-        # length scales here (the additive kernel, whose terms share them, is :func:`_additive_nll`)
-        WH = W * H
-        grad[sl] += -0.5 * inv_l2 * np.tensordot(D, WH, axes=([1, 2], [0, 1]))
-        grad[isf] = -0.5 * (WH if H is Kf else W * Kf).sum()
-    grad[-1] = -0.5 * sn2 * np.trace(W)
-    return nll, grad
+    nll, alpha, Kinv = got
+    g = np.empty(dv + T)
+    _se_pair_sums(XT, atom_of, term_atoms, sf2, E, alpha, Kinv, g)
+    w_trace = alpha @ alpha - Kinv.trace()
+    return nll, np.r_[-inv_l2 * g[:dv], -g[dv:] - 0.5 * sf2 * w_trace, -0.5 * sn2 * w_trace]
+
+
+def _matern_nll(theta, X, y, pairs, kind):
+    """:func:`_gp_nll` of a Matérn kernel, on the pairs' squared differences (:attr:`_Pairs.sq`)."""
+    d, n = X.shape[1], len(y)
+    [(inv_l2, sf2, _, _, _)], sn2 = _parts(theta, d, kind)
+    Kf, H = _kernel(inv_l2 @ pairs.sq, sf2, kind)
+    K = np.zeros((n, n), order="F")
+    np.put(K.T, pairs.flat_f, Kf)   # K.T is K's memory read C-ordered: (i, j) at j·n + i
+    K[np.diag_indices(n)] = sf2 + sn2
+    got = _factored(K, y)
+    if got is None:
+        return 1e25, np.zeros_like(theta)
+    nll, alpha, Kinv = got
+    w = alpha[pairs.i] * alpha[pairs.j]
+    w -= np.take(Kinv.T.ravel(), pairs.flat_f)
+    w_trace = alpha @ alpha - Kinv.trace()
+    # dK/dlog l_j = H ⊙ Δ_j²/l_j², dK/dlog sf² = K (sf² on the diagonal)
+    return nll, np.r_[-inv_l2 * (pairs.sq @ (w * H)), -(w @ Kf) - 0.5 * sf2 * w_trace, -0.5 * sn2 * w_trace]
 
 
 @lru_cache(maxsize=32)
 def _atoms(d, terms):
     """The finest partition of the d inputs of which every additive term is a union: inputs in the same
     terms are one atom (a rotary axis's cos and sin) → (atoms: tuple of column tuples, per term the atom
-    indices it is made of). Cached: the marginal likelihood asks for it at every evaluation."""
+    indices it is made of)."""
     sig = {}
     for j in range(d):
         sig.setdefault(tuple(j in t for t in terms), []).append(j)
     atoms = tuple(tuple(v) for v in sig.values())
     return atoms, tuple(tuple(a for a, cols in enumerate(atoms) if cols[0] in t) for t in terms)
-
-
-def _nll_from_K(K, y):
-    """(nll, W = ααᵀ − K⁻¹) of a zero-mean GP with covariance K (n, n) at y (n,); None where K is not
-    positive definite."""
-    try:
-        c = cho_factor(K, lower=True, overwrite_a=True, check_finite=False)   # K is not used after: factored in place
-    except np.linalg.LinAlgError:
-        return None
-    alpha = cho_solve(c, y, check_finite=False)
-    nll = 0.5 * y @ alpha + np.log(np.diag(c[0])).sum() + 0.5 * len(y) * np.log(2 * np.pi)
-    Kinv, info = dpotri(c[0], lower=1, overwrite_c=1)   # K⁻¹ from its Cholesky factor (lower triangle filled)
-    if info != 0:
-        return None
-    Kinv = np.tril(Kinv)
-    diag = Kinv.diagonal().copy()
-    Kinv += Kinv.T                              # the mirror; the diagonal doubled, then put back exactly
-    Kinv[np.diag_indices(len(y))] = diag
-    W = np.outer(alpha, alpha)
-    W -= Kinv
-    return nll, W
-
-
-def _summed(mats):
-    """Σ of the (n, n) arrays ``mats`` in their order, into a new array (the first copied, the others added)."""
-    out = mats[0].copy()
-    for m in mats[1:]:
-        out += m
-    return out
-
-
-def _rows(D, cols):
-    """``D[cols]`` (len(cols), n, n): a view where ``cols`` is one ascending run, else a copy."""
-    c0 = cols[0]
-    return D[c0:c0 + len(cols)] if tuple(cols) == tuple(range(c0, c0 + len(cols))) else D[list(cols)]
-
-
-def _additive_nll(theta, y, D, terms):
-    """:func:`_gp_nll` of the ``additive`` kernel, assembled per atom (:func:`_atoms`): each term's squared
-    exponential is the product of its atoms' ``exp(−½ Σ_j Δ_j²/l_j²)`` and each length scale's gradient sums
-    ``W ⊙ K_t`` over the terms that hold it first — the same function and gradient as the per-term form
-    (:func:`_parts`), a few times fewer (n, n) operations on a machine with many axes (15 terms on five)."""
-    d, n = D.shape[0], len(y)
-    atoms, made_of = _atoms(d, terms)
-    inv_l2 = np.exp(-2.0 * theta[:d])
-    E = []
-    for cols in atoms:
-        e = np.tensordot(inv_l2[list(cols)], _rows(D, cols), axes=1)
-        e *= -0.5
-        E.append(np.exp(e, out=e))
-    Ks = []
-    for t, parts in enumerate(made_of):
-        k = np.exp(theta[d + t]) * E[parts[0]]
-        for a in parts[1:]:
-            k *= E[a]
-        Ks.append(k)
-    K = _summed(Ks)
-    K[np.diag_indices(n)] += np.exp(theta[-1])
-    got = _nll_from_K(K, y)
-    if got is None:
-        return 1e25, np.zeros_like(theta)
-    nll, W = got
-    grad = np.zeros_like(theta)
-    for a, cols in enumerate(atoms):
-        M = _summed([Ks[t] for t, parts in enumerate(made_of) if a in parts])
-        M *= W
-        for j in cols:
-            grad[j] = -0.5 * inv_l2[j] * np.vdot(D[j], M)
-    for t in range(len(terms)):
-        grad[d + t] = -0.5 * np.vdot(W, Ks[t])
-    grad[-1] = -0.5 * np.exp(theta[-1]) * np.trace(W)
-    return nll, grad
 
 
 class _GP:
@@ -287,8 +375,7 @@ class _GP:
         """Xs (n, d) standardised, Ys (n, 3) scaled → self (theta_ (3, p) with p = :func:`_n_theta`,
         alpha_ (3, n), L_ (3, n, n))."""
         n, d = Xs.shape
-        D = (Xs[:, None, :] - Xs[None, :, :]) ** 2
-        D = np.moveaxis(D, 2, 0).copy()
+        pairs = _Pairs(Xs)
         terms = self._terms(d)
         bounds = _theta_bounds(d, self.kernel, terms)
         thetas = []
@@ -298,7 +385,7 @@ class _GP:
             best = None
             for t0 in _theta_starts(d, self.kernel, var, self.n_restarts, self.rng, terms):
                 t0 = np.clip(t0, [b[0] for b in bounds], [b[1] for b in bounds])
-                r = minimize(_gp_nll, t0, args=(Xs, y, D, self.kernel, terms), jac=True, method="L-BFGS-B", bounds=bounds,
+                r = minimize(_gp_nll, t0, args=(Xs, y, pairs, self.kernel, terms), jac=True, method="L-BFGS-B", bounds=bounds,
                              options={"maxiter": 100})
                 if best is None or r.fun < best.fun:
                     best = r
