@@ -75,25 +75,23 @@ EACH_TEST_ITS_OWN_UNIT = {
 data): each test is its own unit of ``--dist loadscope``, so a file of long tests does not keep one worker busy
 while the other idles."""
 
-UNIT_CPU_S = {
-    "bump user path": 200.0,
-    "tests/test_hybrid.py": 65.0,
-    "tests/test_chain_loop_terms.py::test_cli_term_the_joint_fit_does_not_support_is_dropped": 100.0,
-    "tests/test_hybrid_backfit.py::test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt": 40.0,
-    # tests/test_cluster.py (solo, one BLAS thread, 2026-12-03: 281 s before the fleet test's --no-learned, the 4k-point
-    # Ray batch and the one Ray start: ~230), tests/test_chain_cluster.py (107 with its own Ray start: ~95) and
-    # tests/test_mlflow_server.py (~5): the longest unit
-    "Ray, MLflow tracking server": 330.0,
-    # the shared runs of tests/shared_runs.py plus tests/test_benchmark.py's slow tests (-n 0 on a loaded machine,
-    # 2026-12-03: ~220 s, of which test_benchmark.py ~150): the longest unit since test_benchmark.py joined it
-    "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark": 150.0,
+UNIT_WALL_S = {
+    "Ray, MLflow tracking server": 256.0,   # mostly waiting on Ray's processes and the server: ~20 CPU s of its own
+    "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark": 198.0,
+    "tests/test_benchmarks_suite.py": 99.0,
+    "tests/test_arm_calibration.py": 85.0,
+    "tests/test_hybrid.py": 71.0,
+    "bump user path": 71.0,
+    "tests/test_tutorials.py": 71.0,
+    "tests/test_hybrid_chain.py": 61.0,
+    "tests/test_hybrid_backfit.py::test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt": 47.0,
+    "tests/test_drift_models.py": 33.0,
+    "tests/test_arm_plain_lsq.py": 30.0,
 }
-"""The slow tier's longest units of work (CPU s, about their wall time on a quiet core; the slowest tests
-of the last full slow-tier run plus the fixtures they build; test_hybrid.py's and the five-axis term test's
-measured alone, one BLAS thread, with the batched GA on 10 hybrid points: 101 and 98; test_hybrid.py with it on 4,
-the per-point GA on 1 and the pure-noise case on 200 checks, -n 0: 164 CPU s, 272 before; its staged fit on the work
-frame alone, test_hybrid.WORK_FRAME: 96 CPU s, 169 before, back to back on a loaded machine), handed out first: with
-the longest units last, one worker would run one of them alone at the end. Units not named follow, most tests first."""
+"""The slow tier's longest units of work, handed out first (longest first: with a long unit last, one worker would
+run it alone at the end while the other idles). Their wall seconds in the last full slow-tier run (`-n 2 --dist
+loadscope`, one BLAS thread, 2026-12-04, 251 tests in 903 s; the units' walls summed 1,676 s): the sizes, not CPU
+seconds — the Ray unit's tests wait on Ray's processes. Units not named follow, most tests first."""
 
 
 def _unit(nodeid: str) -> str:
@@ -103,19 +101,19 @@ def _unit(nodeid: str) -> str:
     return nodeid if module in EACH_TEST_ITS_OWN_UNIT else SAME_WORKER.get(module, module)
 
 
-def _unit_cpu_s(unit: str) -> float:
-    """``UNIT_CPU_S`` of a unit (a parametrized test's cases: the test's), 0 for one not named."""
-    return UNIT_CPU_S.get(unit, UNIT_CPU_S.get(unit.split("[", 1)[0], 0.0))
+def _unit_wall_s(unit: str) -> float:
+    """``UNIT_WALL_S`` of a unit (a parametrized test's cases: the test's), 0 for one not named."""
+    return UNIT_WALL_S.get(unit, UNIT_WALL_S.get(unit.split("[", 1)[0], 0.0))
 
 
 def pytest_collection_modifyitems(config, items):
     """Under ``--dist loadscope`` the units are handed out in collection order: the longest ones first
-    (``UNIT_CPU_S``), then the others by their number of tests (xdist's own order), each unit's tests in
+    (``UNIT_WALL_S``), then the others by their number of tests (xdist's own order), each unit's tests in
     their order (a stable sort)."""
     if config.getvalue("dist") == "loadscope":
         units = [_unit(item.nodeid) for item in items]
         n_tests = {u: units.count(u) for u in set(units)}
-        key = {id(item): (-_unit_cpu_s(u), -n_tests[u]) for item, u in zip(items, units)}
+        key = {id(item): (-_unit_wall_s(u), -n_tests[u]) for item, u in zip(items, units)}
         items.sort(key=lambda item: key[id(item)])
 
 
