@@ -16,6 +16,7 @@ from errormap.io import InputError
 from .gcode import DEFAULT_RAPIDS, AxisWords, GProgram, arc_segments, move_points, parse_program, render_program
 from .gcode_words import cr_line_ends, with_line_end
 from .nc_cycles import cycle_pass
+from .nc_expand import source_line
 
 MAX_SEGMENTS_PER_MOVE = 100_000
 """A move split or linearised into more pieces than this is refused (a tolerance far too tight)."""
@@ -368,7 +369,6 @@ def tap_bend_um(program, field_, frames, tol_um: float, machine=None) -> dict:
     bend = np.linalg.norm(E - line, axis=2).max(axis=1)
     if (bend > tol_um).any():
         k = int(np.argmax(bend > tol_um))  # the first in line order
-        from .nc_expand import source_line
         raise InputError(f"{program.path}: line {source_line(program, taps[k].index + 1)}: 'G33.1' (a tap and its "
                          f"return, one K): the field bends {bend[k]:.3g} um along the hole, more than "
                          f"--arc-tolerance-um {tol_um:g}; raise it or tap shorter holes")

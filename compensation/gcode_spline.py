@@ -12,6 +12,7 @@ import numpy as np
 
 from .gcode_state import MM_PER_INCH, _Refuse
 from .gcode_words import GMove
+from .nc_expand import source_lines
 
 def spline_move(idx, st, by: dict, axis_words: dict, motion_word, ax) -> GMove:
     """The :class:`GMove` (kind ``"spline"``) of a ``G5``/``G5.1`` line (``st.mode``); its ``arc`` holds the
@@ -135,10 +136,11 @@ def spline_extent_mm(g: dict) -> float:
 
 
 def spline_lines(program) -> list:
-    """The 1-based lines of a parsed program's spline moves (its block-wise table's curved rows, or its moves)."""
+    """The lines of a parsed program's spline moves (its block-wise table's curved rows, or its moves), as reports
+    name them (:func:`compensation.nc_expand.source_line`)."""
     t = program.table
     moves = [t.objects[t.obj[k]] for k in np.flatnonzero(t.kind == 2).tolist()] if t is not None else program.moves
-    return [m.index + 1 for m in moves if m.kind == "spline"]
+    return source_lines(program, [m.index + 1 for m in moves if m.kind == "spline"])
 
 
 # ---------------------------------------------------------------------------- NURBS (G5.2 ... G5.3)

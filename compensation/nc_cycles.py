@@ -63,6 +63,7 @@ from __future__ import annotations
 import bisect
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -137,6 +138,19 @@ class CycleExpansion(Expanded):
     spans: list = field(default_factory=list)
     source: list = field(default_factory=list)
     inner: object = None
+
+    @cached_property
+    def _starts(self) -> list:
+        return [a for a, _ in self.spans]
+
+    def name(self, line: int):
+        """1-based output ``line`` as a report names it: kept cycles are written on their own lines (the output is
+        the input's line for line), so the input line the cycle pass read it from, named by the expansion before
+        it (``inner``) where there is one; written as moves: :meth:`Expanded.name`."""
+        if self.mode != "keep" or not 1 <= line <= len(self.origin):
+            return super().name(line)
+        j = bisect.bisect_right(self._starts, line - 1)
+        return j if self.inner is None else self.inner.name(j)
 
     def note(self) -> str:
         what = ("canned cycles kept, each hole's X Y Z and R compensated at its bottom and R point"

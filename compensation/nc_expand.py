@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 from errormap.io import InputError
@@ -94,6 +95,26 @@ class Expanded:
                 return path, src - first + 1
         return self.path, src
 
+    def named(self, src: int):
+        """A source line in the numbering of ``origin`` as a report names it: its line ``k`` (int) in the main file,
+        ``'k of PATH'`` in a subprogram file."""
+        path, k = self.at(src)
+        return k if path == self.path else f"{k} of {path}"
+
+    @cached_property
+    def line_for_line(self) -> bool:
+        """Whether every output line is the main file's line of its number, outside any call: the program's lines
+        are then named as those of a program read as it is."""
+        return all(src == i and not calls for i, (src, _, calls) in enumerate(self.origin, 1))
+
+    def name(self, line: int):
+        """1-based output ``line`` as a report names it (:func:`source_line`)."""
+        if self.line_for_line or not 1 <= line <= len(self.origin):
+            return line
+        src, _, calls = self.origin[line - 1]
+        return (f"{self.named(src)} (expanded line {line}"
+                + "".join(f", called from line {self.named(c)}" for c in reversed(calls)) + ")")
+
     def where(self, out_line: int, col: int | None = None) -> str:
         """``'prog.nc: line 12, column 3 (called from line 4)'`` for 1-based output line ``out_line``."""
         src, verbatim, calls = self.origin[out_line - 1]
@@ -101,7 +122,7 @@ class Expanded:
         at = f"{path}: line {line}"
         if col is not None:
             at += f", column {col}" if verbatim else f" (expanded as {self.line(out_line)!r}), column {col} of that"
-        return at + "".join(f" (called from line {c})" for c in reversed(calls))
+        return at + "".join(f" (called from line {self.named(c)})" for c in reversed(calls))
 
     def note(self) -> str:
         """The header line of a written program: it is the flat (expanded) one."""
@@ -124,15 +145,19 @@ class Expanded:
 
 
 def source_line(program, line: int):
-    """A reader's 1-based ``line`` as a report names it: the line itself for a program read as it is; for
-    an expanded one (``program.expanded``) its source line, the expanded line and the call sites, as text."""
+    """A reader's 1-based ``line`` as every note of a summary or report names it: the line itself (int) for a
+    program read as it is, or written line for line as the source (:attr:`Expanded.line_for_line`; canned cycles
+    kept, :meth:`compensation.nc_cycles.CycleExpansion.name`); for one written as its flat program
+    (``program.expanded``: subprograms, macros, loops, cycles written as moves), text: its source line
+    (:meth:`Expanded.named`), the flat program's line and the call sites, outermost last:
+    ``'12 (expanded line 40, called from line 3)'``."""
     exp = getattr(program, "expanded", None)
-    if exp is None or not 1 <= line <= len(exp.origin):
-        return line
-    src, _, calls = exp.origin[line - 1]
-    path, k = exp.at(src)
-    src = k if path == exp.path else f"{k} of {path}"
-    return f"{src} (expanded line {line}" + "".join(f", called from line {c}" for c in reversed(calls)) + ")"
+    return line if exp is None else exp.name(line)
+
+
+def source_lines(program, lines) -> list:
+    """:func:`source_line` of each 1-based line of ``lines`` (ints for a program read as it is)."""
+    return [source_line(program, int(k)) for k in lines]
 
 
 def needs_expansion(data: bytes) -> bool:

@@ -192,11 +192,6 @@ def refuse_kept(path, events) -> None:
                              "compensated point by point)")
 
 
-def _source(prog, idx: int) -> int:
-    exp = getattr(prog, "expanded", None)
-    return exp.origin[idx][0] if exp is not None else idx + 1
-
-
 def cycle_points(g: Groove) -> list:
     """The control's moves of a second block (module docstring) as ``[(motion code, X radius mm, Z mm)]``, from its
     start point to its return there: per column, feeds of Δk each returning e by rapid (the next feed from there),

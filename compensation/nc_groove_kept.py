@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from .gcode_state import MM_PER_INCH
-from .nc_groove import ACROSS, ACROSS_UM, _source, _where
+from .nc_expand import source_line
+from .nc_groove import ACROSS, ACROSS_UM, _where
 
 
 def hold_kept(res, tp, field, machine):
@@ -45,7 +46,7 @@ def hold_kept(res, tp, field, machine):
         mean, _ = surface_residual_by_tool(field, machine, res.axes[[r]], tp.axes[[r]], txz)
         res.residual_um[r] = [mean[0, 0], 0.0, mean[0, 1]]
         res.commands_mm[[r]] = nominal_by_tool(machine, res.axes[[r]], txz)
-        out.append({"line": _source(prog, idx), "code": code, "across_um": across_um})
+        out.append({"line": source_line(prog, idx + 1), "code": code, "across_um": across_um})
     res.info["grooves"] = out
     return res
 

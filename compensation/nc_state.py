@@ -46,6 +46,8 @@ import numpy as np
 
 from errormap.io import InputError, decode_text, not_a_file
 
+from .nc_expand import source_line, source_lines
+
 MACHINE = "machine"
 """``--work-offsets machine``: the program is written in machine coordinates (every offset zero)."""
 OFFSET_WORDS = ("X", "Y", "Z", "A", "B", "C", "U", "V", "W")
@@ -404,7 +406,7 @@ class _Controller:
         # (never machine zero: --work-offsets machine says so explicitly; refuse_unknown_frames refuses the rest)
         self.system, self.tool, self.cutter = "G54", None, None
         self.used_systems, self.used_tools = set(), set()
-        self.dynamic = []  # the summary's line per G43.1 (dynamic_length)
+        self.dynamic = []  # (line, text) of the summary's note per G43.1 (dynamic_length)
         self.g92, self.g92_stored = np.zeros(len(words)), np.zeros(len(words))  # G92 offset: added to every system
 
     def offset(self) -> np.ndarray:
@@ -490,7 +492,7 @@ class _Controller:
         self.tooltab[key] = value.get("Z", self.tooltab[self.tool] if on else 0.0)
         self.tool_x[key] = value.get("X", self.tool_x.get(self.tool, 0.0) if on else 0.0)
         self.tool = key
-        self.dynamic.append(f"line {line + 1}: Z {self.tooltab[key]:g}" + (f", X {self.tool_x[key]:g}" * self.lathe()))
+        self.dynamic.append((line + 1, f"Z {self.tooltab[key]:g}" + (f", X {self.tool_x[key]:g}" * self.lathe())))
 
     def select_cutter(self, value, where, nose: bool = False) -> None:  # nose: a T register's (ttoo_lathe)
         if value is not None and not np.isfinite(self.radii.get(value, np.nan)):
@@ -589,22 +591,7 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
              "work_systems_used": sorted(c.used_systems),
              "tool_table": tools.source if tools else None,
              "tools_used": {int(t): float(c.tooltab[t]) for t in sorted(c.used_tools)}}
-    notes.update({"dynamic_tool_lengths_mm": c.dynamic} if c.dynamic else {})  # G43.1: the offsets the program set
-    from .nc_expand import source_line  # G41.1/G42.1: D/2 mm, at the line a report names
-    radii = [f"line {source_line(program, e[0] + 1)}: {e[3]:g}" for e in events if e[2] == "cutter-dynamic"]
-    notes.update({"dynamic_cutter_radii_mm": radii} if radii else {})
-    notes["offsets_mm_deg"] = {s: [float(v) for v in _offset_vector(c.table.get(s, {}), words)]
-                               for s in sorted(c.used_systems)}
-    notes["g53_lines"] = [e[0] + 1 for e in events if e[2] == "g53"]
-    notes["g92_lines"] = [e[0] + 1 for e in events if e[2].startswith("g92")]
-    notes["g52_lines"] = [e[0] + 1 for e in events if e[2] == "g52"]
-    notes["probe_lines"] = [e[0] + 1 for e in events if e[2] == "probe"]  # G38.2-G38.5: written as programmed
-    notes["dialect_modes"] = sorted({e[3] for e in events if e[2] == "mode"})
-    notes["machine_m_codes"] = [f"line {e[0] + 1}: {e[4]}" for e in events if e[2] == "machine-m"]
-    t = getattr(program, "table", None)  # written as programmed before their axes were known (a first G0 Z5)
-    notes["moves_before_position_known"] = ([int(i) + 1 for i in t.line[~t.compensate & ~t.known.all(axis=1)]]
-                                            if t is not None else [m.index + 1 for m in program.moves
-                                                                   if not m.compensate and not np.all(m.known)])
+    notes.update(event_notes(program, events, c))
     offs, tls, rads, txs, rots = zip(*frames)
     rots = np.array(rots, dtype=float)
     if np.any(np.nan_to_num(rots) != 0.0):
@@ -622,6 +609,34 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
                          np.array(tls, dtype=float), notes, np.array(rads, dtype=float),
                          np.array(txs, dtype=float) if c.lathe() and (c.used_tools or c.dynamic) else None,
                          rots if np.any(rots != 0.0) else None)
+
+
+def event_notes(program, events, c) -> dict:
+    """The summary's notes from a program's ``events`` replayed by ``c`` (:class:`_Controller`). Every line is named
+    by :func:`compensation.nc_expand.source_line`: an int for a program read as it is (or expanded line for line),
+    for an expanded one whose lines shift the text ``'12 (expanded line 40, called from line 3)'`` (its source
+    line, the flat program's line, the call sites): ``dynamic_tool_lengths_mm`` (G43.1) and
+    ``dynamic_cutter_radii_mm`` (G41.1/G42.1: D/2) where any, ``offsets_mm_deg``, ``g53_lines``, ``g92_lines``
+    (G92-G92.3), ``g52_lines``, ``probe_lines`` (G38.2-G38.5, written as programmed), ``dialect_modes``,
+    ``machine_m_codes`` and ``moves_before_position_known`` (written as programmed: a first ``G0 Z5``)."""
+    def named(kind):
+        return source_lines(program, [e[0] + 1 for e in events if kind(e[2])])
+    notes = {"dynamic_tool_lengths_mm": [f"line {source_line(program, k)}: {text}" for k, text in c.dynamic],
+             "dynamic_cutter_radii_mm": [f"line {source_line(program, e[0] + 1)}: {e[3]:g}" for e in events
+                                         if e[2] == "cutter-dynamic"]}
+    notes = {k: v for k, v in notes.items() if v}
+    notes["offsets_mm_deg"] = {s: [float(v) for v in _offset_vector(c.table.get(s, {}), c.words)]
+                               for s in sorted(c.used_systems)}
+    notes.update({"g53_lines": named(lambda k: k == "g53"), "g92_lines": named(lambda k: k.startswith("g92")),
+                  "g52_lines": named(lambda k: k == "g52"), "probe_lines": named(lambda k: k == "probe"),
+                  "dialect_modes": sorted({e[3] for e in events if e[2] == "mode"}),
+                  "machine_m_codes": [f"line {source_line(program, e[0] + 1)}: {e[4]}" for e in events
+                                      if e[2] == "machine-m"]})
+    t = getattr(program, "table", None)
+    unknown = (t.line[~t.compensate & ~t.known.all(axis=1)] + 1 if t is not None else
+               [m.index + 1 for m in program.moves if not m.compensate and not np.all(m.known)])
+    notes["moves_before_position_known"] = source_lines(program, unknown)
+    return notes
 
 
 class FrameReplay:
@@ -679,8 +694,9 @@ def _refuse_set_from_compensated(program, events) -> None:
         k = int(np.searchsorted(lines, line)) - 1
         if kind in FROM_POSITION and k >= 0 and comp[k]:
             raise InputError(f"{program.path}: line {line + 1}, column {col}: '{text}' takes its offset from the current "
-                             f"position, the end of the compensated move of line {int(lines[k]) + 1} (every later "
-                             "move would shift by its correction): reach it by a G0 kept with --rapids keep")
+                             "position, the end of the compensated move of line "
+                             f"{source_line(program, int(lines[k]) + 1)} (every later move would shift by its "
+                             "correction): reach it by a G0 kept with --rapids keep")
 
 
 def _set_offset(table, name, vals, words, offsets, rotates: bool = False) -> None:
@@ -754,9 +770,9 @@ def refuse_unknown_frames(program, frames: ProgramFrames, offsets: WorkOffsets |
     where = f"{program.path}: line {first + 1}"
     end = next((e for e in (getattr(program, "events", ()) or ()) if e[2] == "shift-end" and e[0] < first), None)
     if end is not None:
-        raise InputError(f"{where}: a move after '{end[4]}' of line {end[0] + 1}, with a G52/G92 shift in force: "
-                         "whether the program end clears it is the controller's parameter or version; cancel the shift "
-                         "(G52 X0 Y0 Z0, G92.1) before the program end")
+        raise InputError(f"{where}: a move after '{end[4]}' of line {source_line(program, end[0] + 1)}, with a G52/G92 "
+                         "shift in force: whether the program end clears it is the controller's parameter or version; "
+                         "cancel the shift (G52 X0 Y0 Z0, G92.1) before the program end")
     if offsets is None:  # (program_frames refused any other system no G10 L2 set: this is the first move)
         give = "--work-offsets FILE, or --work-offsets machine" if tables else "--work-offsets machine"
         raise InputError(f"{where}: the first move, with no work offset table (a controller runs G54 at power-on, "

@@ -40,6 +40,7 @@ import numpy as np
 
 from .gcode_state import MM_PER_INCH, _Refuse
 from .nc_contour import LatheExpansion, _word_text, expand_lines
+from .nc_expand import source_line
 from .nc_g76 import g76_lines
 
 THREADING = {"G32": "thread cutting", "G92": "thread cutting cycle", "G76": "multiple threading cycle"}
@@ -159,7 +160,6 @@ def lead_notes(program, counts, axes, taps=None) -> list:
     (c,) vertices per compensated move, before the written rounding; a block whose start is a kept move's end is left
     out); a G33.1's the error left along the hole, ``taps`` {0-based line: μm}
     (:func:`compensation.chain_gcode.tap_bend_um`)."""
-    from .nc_expand import source_line
     order = {id(m): k for k, m in enumerate(program.moves)}
     comp = [m for m in program.moves if m.compensate]
     ends = np.cumsum(counts)

@@ -305,8 +305,11 @@ def test_a_fanuc_post_drill_and_tap_program_reaches_its_holes(tmp_path, truth_fi
     out = tmp_path / "o"
     assert _compensate(prog, out, truth_file, "--truth", str(truth_file), "--dialect", "fanuc",
                        "--tool-table", str(tools)) == 0
-    cyc = json.loads((out / "compensate_summary.json").read_text())["files"][0]["cycles"]
+    entry = json.loads((out / "compensate_summary.json").read_text())["files"][0]
+    cyc = entry["cycles"]
     assert cyc["holes"] == 4 and cyc["true_bottom"]["max_um"] < TOL_POINT_UM
+    # the XY rapids before Z is known (N50, N135) named by the source's lines: kept cycles are written line for line
+    assert entry["moves_before_position_known"] == [14, 33]
     src = prog.read_text().splitlines()
     dst = [ln for ln in (out / prog.name).read_text().splitlines() if not ln.startswith("(volcomp:")]
     at = 0  # every line but the holes and the feed moves (split where long) written as it was, in order

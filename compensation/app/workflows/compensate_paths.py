@@ -20,6 +20,7 @@ from errormap.units import check_units
 from compensation.app.validate import UsageError
 
 from ...chain_gcode import parse_chain_program, plan_chain_gcode, render_chain_axes
+from ...nc_expand import source_line
 from ...nc_state import MACHINE, program_frames, refuse_unknown_frames
 from ...pathio import DECIMALS_MM, TARGET_COLUMNS, _render_csv, check_move_extent, is_csv
 from ...solvers.chain_exact import chain_inverse, nominal_and_jacobian
@@ -92,8 +93,12 @@ def read_tool_path(path, machine, s, field_=None) -> ToolPath:
     else:
         prog = parse_chain_program(path, machine, rapids=s.rapids, block_delete=s.block_delete, dialect=s.dialect,
                                    cycles=s.cycles, tables=(s.work_offsets, s.tool_table), subprograms=s.subprograms)
-    frames = program_frames(prog, s.work_offsets, s.tool_table)
-    refuse_unknown_frames(prog, frames, s.work_offsets)
+    try:
+        frames = program_frames(prog, s.work_offsets, s.tool_table)
+        refuse_unknown_frames(prog, frames, s.work_offsets)
+    except InputError as exc:  # an expanded program's flat lines named at the source, as the reader's refusals
+        exp = getattr(prog, "expanded", None)
+        raise (exp.relocate(exc) if exp is not None else exc) from None
     k = len(machine.axes)
     columns = tuple(machine.axis_words.index(w) for w in prog.axis_words.words)
     if columns == tuple(range(k)):  # a likely unit typo (a move longer than the strokes allow), before planning
@@ -133,7 +138,6 @@ def read_tool_path(path, machine, s, field_=None) -> ToolPath:
         turning = np.repeat(comp, job.counts)
         off = np.flatnonzero(~turning & np.isfinite(tool_xz).all(axis=1))
         if off.size:
-            from ...nc_expand import source_line
             raise UsageError(f"{path}: line {source_line(prog, int(job.lines[off[0]]))}: a lathe tool offset in C-axis mode (the spindle "
                              "stopped): only turning moves are compensated at a tool's offsets; cancel the offset "
                              "(G49, T..00) for the C-axis moves")
@@ -176,7 +180,6 @@ def source_line_of(tp: ToolPath, line):
     """A point's line as the report names it (the source line of an expanded program)."""
     if tp.kind != "gcode":
         return int(line)
-    from ...nc_expand import source_line
     return source_line(tp.source.program, int(line))
 
 
