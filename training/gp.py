@@ -9,7 +9,6 @@ from functools import lru_cache
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
 from scipy.linalg.lapack import dpotri
-from numba import njit
 from scipy.optimize import minimize
 
 GP_KERNELS = {"gp": "rbf", "gp_matern52": "matern52", "gp_matern32": "matern32", "gp_sum": "rbf_sum",
@@ -209,84 +208,6 @@ def _se_layout(d, kind, terms):
     return tuple(range(d)), atom_of, term_atoms
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _se_lower(XT, inv_l2, atom_of, term_atoms, sf2, k_diag, K, E):
-    """K's diagonal (``k_diag``) and strict lower triangle, and each pair's atom exponentials, column by column (the
-    innermost loops run over a column's rows: contiguous, vectorised).
-
-    XT (dv, n) virtual columns, inv_l2 (dv,), atom_of (dv,), term_atoms (T, A), sf2 (T,); K (n, n) Fortran-ordered,
-    written; E (A, m), written: pair p = the p-th of :class:`_Pairs`."""
-    dv, n = XT.shape
-    T, A = term_atoms.shape
-    S = np.empty((A, n))
-    p0 = 0
-    for j in range(n):
-        K[j, j] = k_diag
-        L = n - j - 1
-        S[:, :L] = 0.0
-        for c in range(dv):
-            a, f, xj = atom_of[c], inv_l2[c], XT[c, j]
-            for r in range(L):
-                diff = XT[c, j + 1 + r] - xj
-                S[a, r] += f * (diff * diff)
-        for a in range(A):
-            for r in range(L):
-                E[a, p0 + r] = np.exp(-0.5 * S[a, r])
-        for r in range(L):
-            K[j + 1 + r, j] = 0.0
-        for t in range(T):
-            for r in range(L):
-                S[0, r] = sf2[t]   # S is free now: the term's product
-            for a in range(A):
-                if term_atoms[t, a]:
-                    for r in range(L):
-                        S[0, r] *= E[a, p0 + r]
-            for r in range(L):
-                K[j + 1 + r, j] += S[0, r]
-        p0 += L
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _se_pair_sums(XT, atom_of, term_atoms, sf2, E, alpha, Kinv, g):
-    """Over the pairs (i > j), with w = α_i α_j − K⁻¹_ij: g[c] = Σ w Δ_c² Σ_{t ∋ atom of c} K_t and
-    g[dv + t] = Σ w K_t (g (dv + T,), written). Kinv (n, n) Fortran-ordered, its lower triangle read."""
-    dv, n = XT.shape
-    T, A = term_atoms.shape
-    M = np.empty((A, n))
-    w = np.empty(n)
-    kt = np.empty(n)
-    g[:] = 0.0
-    p0 = 0
-    for j in range(n):
-        L = n - j - 1
-        for r in range(L):
-            w[r] = alpha[j + 1 + r] * alpha[j] - Kinv[j + 1 + r, j]
-        M[:, :L] = 0.0
-        for t in range(T):
-            for r in range(L):
-                kt[r] = sf2[t]
-            for a in range(A):
-                if term_atoms[t, a]:
-                    for r in range(L):
-                        kt[r] *= E[a, p0 + r]
-            acc = 0.0
-            for r in range(L):
-                acc += w[r] * kt[r]
-            g[dv + t] += acc
-            for a in range(A):
-                if term_atoms[t, a]:
-                    for r in range(L):
-                        M[a, r] += kt[r]
-        for c in range(dv):
-            a, xj = atom_of[c], XT[c, j]
-            acc = 0.0
-            for r in range(L):
-                diff = XT[c, j + 1 + r] - xj
-                acc += w[r] * M[a, r] * (diff * diff)
-            g[c] += acc
-        p0 += L
-
-
 def _factored(K, y):
     """A zero-mean GP with covariance K (n, n), Fortran-ordered, its lower triangle read (and overwritten), at y (n,)
     → (nll, α = K⁻¹y, K⁻¹ (its lower triangle)); None where K is not positive definite."""
@@ -309,6 +230,7 @@ def _gp_nll(theta, X, y, pairs, kind="rbf", terms=None):
     derivative zero (Δ = 0), which leaves −½ sf² tr W and −½ sn² tr W."""
     if kind in ("matern52", "matern32"):
         return _matern_nll(theta, X, y, pairs, kind)
+    from ._gp_kernels import _se_lower, _se_pair_sums   # numba: imported when a fit runs, not with the module
     cols, atom_of, term_atoms = _se_layout(X.shape[1], kind, terms)
     XT = pairs.columns_t(cols)
     dv, (T, A), n = len(cols), term_atoms.shape, len(y)
