@@ -3,8 +3,7 @@ _ga_kernels, compensation.gcode_kernels, the GP marginal likelihood's training._
 ``.ci/run`` starts this in the background after the install, while Chromium's install ends, so that the fast tier's two
 workers find the kernels in numba's cache instead of each compiling them (tens of CPU seconds a worker on a fresh
 clone). It runs the public API on the built-in machines the tests use; a kernel it misses is compiled by the tests as
-before (nothing is asserted
-here, nothing changes but the cache)."""
+before (nothing is asserted here, nothing changes but the cache)."""
 from __future__ import annotations
 
 import tempfile
