@@ -106,11 +106,23 @@ def _unit_wall_s(unit: str) -> float:
     return UNIT_WALL_S.get(unit, UNIT_WALL_S.get(unit.split("[", 1)[0], 0.0))
 
 
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node):
+    """The controller's ``--dist`` handed to each xdist worker (``workerinput``): a worker's own option reads
+    ``"no"`` (xdist sets it so), and the worker's collection order is the one the scheduler hands out."""
+    node.workerinput["volcomp_dist"] = node.config.getvalue("dist")
+
+
+def _dist(config) -> str:
+    """The run's ``--dist``, in the controller or in a worker (:func:`pytest_configure_node`)."""
+    return getattr(config, "workerinput", {}).get("volcomp_dist", config.getvalue("dist"))
+
+
 def pytest_collection_modifyitems(config, items):
-    """Under ``--dist loadscope`` the units are handed out in collection order: the longest ones first
-    (``UNIT_WALL_S``), then the others by their number of tests (xdist's own order), each unit's tests in
+    """Under ``--dist loadscope`` the units are handed out in the workers' collection order: the longest ones
+    first (``UNIT_WALL_S``), then the others by their number of tests (xdist's own order), each unit's tests in
     their order (a stable sort)."""
-    if config.getvalue("dist") == "loadscope":
+    if _dist(config) == "loadscope":
         units = [_unit(item.nodeid) for item in items]
         n_tests = {u: units.count(u) for u in set(units)}
         key = {id(item): (-_unit_wall_s(u), -n_tests[u]) for item, u in zip(items, units)}

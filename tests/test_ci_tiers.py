@@ -49,3 +49,41 @@ def test_ci_warms_the_kernel_cache_before_the_tiers_and_only_waits_for_it():
     assert apt < pip < warm < wait_apt < fast and warm < wait_warm < fast
     assert ci[apt:pip].count(" &\n") == 1   # in the background
     assert 'if ! wait "$warm"' in ci and '! wait "$chromium"' in ci
+
+
+def test_a_worker_sorts_the_slow_tiers_units_longest_first():
+    """xdist runs its workers with ``--dist no`` and hands out the units in a worker's collection order: the
+    controller's ``--dist`` reaches the workers through ``workerinput`` (conftest.pytest_configure_node), so a worker
+    sorts the units longest first (``UNIT_WALL_S``; the Ray unit, then the benchmark suite, then the rest), each
+    unit's tests in their order. Without it the units ran alphabetically (the tutorials, 74 s, last)."""
+    import conftest
+
+    class Node:
+        def __init__(self):
+            self.config, self.workerinput = Config("loadscope", None), {}
+
+    class Config:
+        def __init__(self, dist, workerinput):
+            self.dist = dist
+            if workerinput is not None:
+                self.workerinput = workerinput
+
+        def getvalue(self, name):
+            assert name == "dist"
+            return self.dist
+
+    class Item:
+        def __init__(self, nodeid):
+            self.nodeid = nodeid
+
+    node = Node()
+    conftest.pytest_configure_node(node)
+    assert node.workerinput == {"volcomp_dist": "loadscope"}
+    ids = ["tests/test_api_example.py::test_a", "tests/test_benchmarks_suite.py::test_b",
+           "tests/test_cluster.py::test_c", "tests/test_api_example.py::test_d", "tests/test_cluster.py::test_e"]
+    items = [Item(i) for i in ids]
+    conftest.pytest_collection_modifyitems(Config("no", node.workerinput), items)
+    assert [i.nodeid for i in items] == [ids[2], ids[4], ids[1], ids[0], ids[3]]
+    unsorted = [Item(i) for i in ids]   # the fast tier (--dist load) keeps the collection order
+    conftest.pytest_collection_modifyitems(Config("no", {"volcomp_dist": "load"}), unsorted)
+    assert [i.nodeid for i in unsorted] == ids
