@@ -22,7 +22,7 @@ from errormap.io import InputError, not_a_file
 from . import gcode_kernels as gscan
 from .gcode_classify import _classify, _State
 from .gcode_state import MM_PER_INCH, _Refuse
-from .nc_state import FrameReplay
+from .nc_state import ToolTable, WorkOffsets, _Controller
 from .gcode_table import _BULK_PASS, MoveTable, _bulk_move, _forward_fill, _LazyMoves, _Lines, _piece_from_move
 from .gcode_words import (AxisWords, BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, GProgram, RAPIDS_CHOICES, _err,
                           check_program_bytes, cr_line_ends, default_axis_words, g80_note, split_lines)
@@ -138,6 +138,44 @@ def _parse_data(path: Path, data: bytes, rapids, block_delete, fast: bool, ax: A
     return prog
 
 
+class FrameReplay:
+    """Machine minus program axes (k,) after a program's events so far (a ``G53`` move's end placed in the
+    program's frame while it is read): the work offset, ``G92``, the tool length on Z (a lathe tool's offset on X), as
+    :meth:`compensation.nc_state.ProgramFrames.shift`, by the controller state
+    :func:`compensation.nc_state.program_frames` walks (:class:`compensation.nc_state._Controller`); NaN where not
+    known (a table not given; a refused event: :func:`compensation.nc_state.program_frames` refuses it with its
+    words)."""
+
+    def __init__(self, path, words, offsets: WorkOffsets | None, tools: ToolTable | None):
+        self.c, self.seen, self.failed = _Controller(path, words, offsets, tools), 0, False
+
+    @property
+    def system(self) -> str:
+        """The work system in force after the events replayed (the power-on ``G54`` before any)."""
+        return self.c.system
+
+    @property
+    def offsets_given(self) -> bool:
+        return self.c.offsets is not None
+
+    def shift(self, events) -> np.ndarray:
+        try:
+            for event in events[self.seen:]:
+                self.c.apply(event)
+        except InputError:
+            self.failed = True
+        self.seen = len(events)
+        off, tool, _, tool_x, rotation = self.c.frame()
+        if np.nan_to_num(rotation) != 0.0:  # a rotated system: the G53 point's X Y in it is not carried
+            self.failed = True
+        out, words = np.array(off, dtype=float), list(self.c.words)
+        if "Z" in words and np.isfinite(tool):
+            out[words.index("Z")] += tool
+        if "X" in words and np.isfinite(tool_x):
+            out[words.index("X")] += tool_x
+        return np.full(len(words), np.nan) if self.failed else out
+
+
 def _dialect_of(path, data: bytes, dialect) -> tuple:
     """``(Dialect, evidence)`` for :func:`parse_program`'s ``dialect``."""
     from .dialects import RS274, UNRECOGNISED, detect_dialect
@@ -165,7 +203,7 @@ def _lathe_x(dia, lathe_x) -> tuple:
 def _parse_lines(path, rapids, block_delete, data: bytes, ax: AxisWords, dia, lathe_x=None, replay=None,
                  contours=None) -> GProgram:
     """The per-line reader (the reference). ``replay``: None, or a maker of the
-    :class:`compensation.nc_state.FrameReplay` that places a ``G53`` move's end (:func:`parse_program`'s ``tables``)."""
+    :class:`FrameReplay` that places a ``G53`` move's end (:func:`parse_program`'s ``tables``)."""
     lines = split_lines(data.decode("latin-1"))
     st = _State(len(ax.words))
     st.replay = replay() if replay is not None else None

@@ -53,7 +53,7 @@ class _State:
         self.g92 = np.zeros(k)     # the G92 offset in force (mm / deg; gcode_state._g92)
         self.g92_stored = np.zeros(k)  # the G92 offset stored (LinuxCNC parameters 5211-5219; G92.3 restores it)
         self.last_given = {}       # axis letter -> index of the last move line that gave it (the refusals say why)
-        self.replay = None         # nc_state.FrameReplay: a G53 move's end in the program's frame (None: no tables)
+        self.replay = None         # gcode.FrameReplay: a G53 move's end in the program's frame (None: no tables)
         self.contours = ContourState()  # a Fanuc/Haas lathe's G70-G73 contour cycles (compensation.nc_contour)
         self.thread = None         # a modal G92 thread cutting cycle in force (compensation.nc_thread)
         self.thread_lead = None    # (value, text) of the lead a G32 without F takes (compensation.nc_thread)
@@ -526,7 +526,7 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
 
 def _g53_end(st: _State, axis_words, ax: AxisWords) -> None:
     """A ``G53`` move's end in the program's frame: machine axis minus the frame the controller has then (work
-    offset, ``G92``, tool length on Z; :class:`compensation.nc_state.FrameReplay`), so that later moves start
+    offset, ``G92``, tool length on Z; :class:`compensation.gcode.FrameReplay`), so that later moves start
     from it exactly. Left unknown without tables, under ``G91`` (LinuxCNC refuses G53 there, Fanuc ignores
     it), with cutter compensation on (LinuxCNC refuses) or for a lathe's X in diameter mode."""
     if st.replay is None or st.incremental or st.cutter != "G40" or not axis_words:

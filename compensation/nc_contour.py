@@ -35,7 +35,8 @@ import dataclasses
 import numpy as np
 
 from .gcode_state import MM_PER_INCH, _Refuse
-from .nc_expand import Expanded
+from .nc_expand import Expanded, source_line
+from .nc_notes import line_span, note
 
 CONTOUR_DIALECTS = ("fanuc", "haas")
 ROUGHING = {"G71": "stock removal in turning", "G72": "stock removal in facing", "G73": "pattern repeating"}
@@ -136,8 +137,8 @@ def cycle_line(words, idx: int, st, ax) -> str | None:
         st.events.append((idx, w.start + 1, "lathe-finish", (c.first + 1, c.last + 1, idx + 1, _xz(st, ax),
                                                              st.inch, st.diameter, st.incremental, ns, nf), "G70"))
         st.events.append((idx, w.start + 1, "lathe-cycle", "G70",
-                          f"line {idx + 1}: G70 P{ns} Q{nf}: finishing pass: exactly the compensated contour "
-                          f"(lines {c.first + 1}-{c.last + 1})"))
+                          note("line ", idx + 1, f": G70 P{ns} Q{nf}: finishing pass: exactly the compensated contour "
+                               "(lines ", (c.first + 1, c.last + 1), ")")))
         st.mode = None  # as after N(nf): the next move names its G0-G3
         return "state"
     start = _xz(st, ax)
@@ -203,9 +204,9 @@ def after_line(words, idx: int, st, ax, move=None) -> None:
         st.pos[ax.words.index(a)] = c.start[j]
     what = ROUGHING[c.code] + (f", {c.kind}" if c.kind else "")
     st.events.append((idx, c.col, "lathe-cycle", c.code,  # at N(nf): the events stay in line order
-                      f"line {c.line + 1}: {c.code} P{c.ns} Q{c.nf} ({what}): roughing passes computed by the "
-                      f"controller from the compensated contour (lines {c.first + 1}-{c.last + 1}) plus its U/W "
-                      "allowance"))
+                      note("line ", c.line + 1, f": {c.code} P{c.ns} Q{c.nf} ({what}): roughing passes computed by the "
+                           "controller from the compensated contour (lines ", (c.first + 1, c.last + 1), ") plus its "
+                           "U/W allowance")))
     st.events.append((idx, c.col, "lathe-contour", (c.first + 1, c.last + 1, c.line + 1, c.kind, c.ns, c.nf), c.code))
 
 
@@ -227,12 +228,13 @@ def _direction(steps: np.ndarray) -> int:
     return 1 if nz[0] > 0 else -1
 
 
-def hold_back_steps(path, events, lines, axes_d, axes, x_col: int, z_col: int) -> tuple:
+def hold_back_steps(path, events, lines, axes_d, axes, x_col: int, z_col: int, name=int) -> tuple:
     """A ``G71``/``G72`` contour monotonic along an axis the control checks (type I: X and Z; type II:
     :data:`MAIN_AXIS`) as programmed (:func:`_direction`) kept monotonic after compensation: a compensated step
     back along it of at most :data:`HOLD_UM` is written as no step (the point takes
     the previous point's value on that axis); a larger one is refused (InputError, the line and axis: the controller
-    would alarm). ``lines`` (n,) 1-based source line of each compensated point, ``axes_d``/``axes`` (n, k)
+    would alarm). ``lines`` (n,) 1-based line of each compensated point (of the program read: ``name(line)`` as the
+    summary and the refusal name it, :func:`compensation.nc_expand.source_line`), ``axes_d``/``axes`` (n, k)
     programmed / compensated machine axes. Returns ``(axes (n, k), rows changed, [summary line per hold])``."""
     from errormap.io import InputError
     lines, out, held, rows = np.asarray(lines), np.array(axes, dtype=float), [], []
@@ -241,29 +243,29 @@ def hold_back_steps(path, events, lines, axes_d, axes, x_col: int, z_col: int) -
             continue
         sel = np.flatnonzero((lines >= span[0]) & (lines <= span[1]))
         checked = ("X", "Z") if span[3] == "type I" else (MAIN_AXIS[code],)  # type II: pockets across
-        for name, col in ((a, x_col if a == "X" else z_col) for a in checked):
+        for axis, col in ((a, x_col if a == "X" else z_col) for a in checked):
             d = _direction(np.diff(axes_d[sel, col]))
             for a, b in zip(sel[:-1], sel[1:]) if d else ():
                 back_um = -(out[b, col] - out[a, col]) * d * 1e3
                 if back_um <= MONOTONIC_TOL_MM * 1e3:
                     continue
                 if back_um > HOLD_UM:
-                    raise InputError(f"{path}: line {int(lines[b])}: compensation moves {name} back by {back_um:.3g} "
-                                     f"um in the {code} contour of line {span[2]}, monotonic in {name} as programmed "
-                                     f"(the controller would alarm; up to {HOLD_UM:g} um is held); use --expand-cycles "
-                                     "(G70 written as its moves), G73, or post the passes as G1/G2/G3")
+                    raise InputError(f"{path}: line {int(lines[b])}: compensation moves {axis} back by {back_um:.3g} "
+                                     f"um in the {code} contour of line {name(span[2])}, monotonic in {axis} as "
+                                     f"programmed (the controller would alarm; up to {HOLD_UM:g} um is held); use "
+                                     "--expand-cycles (G70 written as its moves), G73, or post the passes as G1/G2/G3")
                 out[b, col] = out[a, col]
                 rows.append(b)
-                held.append(f"line {int(lines[b])}: {name} held at the previous point's ({back_um:.3g} um back-step "
-                            f"of the {code} contour of line {span[2]})")
+                held.append(f"line {name(int(lines[b]))}: {axis} held at the previous point's ({back_um:.3g} um "
+                            f"back-step of the {code} contour of line {name(span[2])})")
     return out, np.unique(np.array(rows, dtype=np.intp)), held
 
 
-def refuse_other_tool(path, events, lines, contour_tool, finish_tool) -> None:
+def refuse_other_tool(path, events, lines, contour_tool, finish_tool, name=int) -> None:
     """Refuse (InputError) a ``G70`` whose tool offsets (X, Z mm) differ from those its contour was compensated at
-    (the roughing cycle's tool): its points would be the other tool's. ``lines`` (n,) 1-based source line of each
+    (the roughing cycle's tool): its points would be the other tool's. ``lines`` (n,) 1-based line of each
     compensated point, ``contour_tool`` (n, 2) their tool offsets (NaN: none), ``finish_tool(line)`` (2,) the
-    offsets in force on a 1-based line."""
+    offsets in force on a 1-based line; ``name`` names the contour's lines (:func:`hold_back_steps`)."""
     from errormap.io import InputError
     lines = np.asarray(lines)
     for _, col, kind, span, _ in events:
@@ -274,16 +276,10 @@ def refuse_other_tool(path, events, lines, contour_tool, finish_tool) -> None:
         for t in np.asarray(contour_tool, dtype=float)[sel]:
             if not np.allclose(np.nan_to_num(t, nan=np.inf), np.nan_to_num(at, nan=np.inf), rtol=0, atol=1e-9):
                 raise InputError(f"{path}: line {span[2]}, column {col}: 'G70': its tool's offsets (X, Z) "
-                                 f"{np.round(at, 6).tolist()} mm differ from the contour's (lines {span[0]}-{span[1]}: "
-                                 f"{np.round(t, 6).tolist()} mm), compensated for the roughing tool; use "
-                                 "--expand-cycles (G70 as its moves, at its tool's offsets) or give both the same "
-                                 "offsets")
-
-
-def cycle_notes(events) -> list:
-    """The summary's line per contour cycle (roughing: the controller's passes from the compensated contour;
-    finishing: exactly the compensated contour)."""
-    return [e[4] for e in events if e[2] == "lathe-cycle"]
+                                 f"{np.round(at, 6).tolist()} mm differ from the contour's (lines "
+                                 f"{line_span(name(span[0]), name(span[1]))}: {np.round(t, 6).tolist()} mm), "
+                                 "compensated for the roughing tool; use --expand-cycles (G70 as its moves, at its "
+                                 "tool's offsets) or give both the same offsets")
 
 
 FEED_WORDS = ("F", "S")
@@ -324,7 +320,7 @@ def _feed_refusals(path, lines, first: int, last: int, g70: int, g70_named: int)
     """Refuse (InputError) a G70 expansion whose feed moves would run at an F or S the manual leaves open
     (:data:`FEED_WORDS`): a G1-G3 block of the contour before its first F, or, where the contour gives F (S), a
     G1-G3 block after the G70 before the program's next F (S). ``first``/``last``/``g70`` 0-based lines,
-    ``g70_named`` the G70's line as the messages name it (its source line)."""
+    ``g70_named`` the G70's line as the messages name it (:func:`compensation.nc_expand.source_line`)."""
     from errormap.io import InputError
     from .gcode_words import tokenize
 
@@ -365,33 +361,34 @@ def expand_finishing(prog, path, reparse):
     if not finishes:
         return prog
     return expand_lines(_roughing_as_written(prog), path, reparse, finishes,
-                        lambda i, src: _finish_lines(prog, path, finishes[i], src), FinishExpansion)
+                        lambda i: _finish_lines(prog, path, finishes[i]), FinishExpansion)
 
 
 def expand_lines(prog, path, reparse, by_line, lines_of, cls, compensated: bool = False):
     """The one step that writes a lathe program's cycles of one kind as the controller's moves (``--expand-cycles``:
     G70 :func:`expand_finishing`, G92 :func:`compensation.nc_thread.expand_threading`, G74/G75
     :func:`compensation.nc_groove.expand_grooves`): ``prog``'s text with each line ``i`` of ``by_line`` (its event:
-    column ``[1]``, code ``[4]``) replaced by the lines ``lines_of(i, src) -> (lines, summary note)`` give (``src(i)``:
-    line i's ``origin`` entry, its source line first; an InputError named at ``prog``'s line, re-addressed here to
-    the source), read again by ``reparse(text)`` with its expansion (a :class:`LatheExpansion` ``cls``) attached, and
-    what ``prog`` held beyond its text carried (:func:`_carry`); ``compensated``: every move of the lines written
-    compensated (else as read). Returns the program read."""
+    column ``[1]``, code ``[4]``) replaced by the lines ``lines_of(i) -> (lines, summary note)`` give (the note a
+    :class:`compensation.nc_notes.LineNote` at ``prog``'s lines; an InputError named at ``prog``'s line, re-addressed
+    here to the source), read again by ``reparse(text)`` with its expansion (a :class:`LatheExpansion` ``cls``)
+    attached, and what ``prog`` held beyond its text carried (:func:`_carry`); ``compensated``: every move of the lines
+    written compensated (else as read). Returns the program read."""
     from errormap.io import InputError
     inner = prog.expanded
     src = (lambda i: inner.origin[i]) if inner is not None else (lambda i: (i + 1, True, ()))
-    text, origin, copied, added, notes = [], [], {}, set(), []
+    text, origin, copied, added, notes, at = [], [], {}, set(), [], {}
     for i, line in enumerate(prog.lines):
+        at[i + 1] = len(text) + 1  # prog's line i + 1 in the text written: the first of its lines there
         if i not in by_line:
             copied[len(text)] = i
             text.append(line)
             origin.append(src(i))
             continue
         try:
-            new, note = lines_of(i, src)
+            new, written = lines_of(i)
         except InputError as exc:  # on the flat lines of a program whose calls were expanded: named at the source
             raise (inner.relocate(exc) if inner is not None else exc) from None
-        notes.append((len(text), by_line[i][1], "lathe-cycle", by_line[i][4], note))
+        notes.append((len(text), by_line[i][1], "lathe-cycle", by_line[i][4], written))
         if compensated:
             added.update(range(len(text), len(text) + len(new)))
         text += new
@@ -403,15 +400,16 @@ def expand_lines(prog, path, reparse, by_line, lines_of, cls, compensated: bool 
     except InputError as exc:
         raise exp.relocate(exc) from None
     out.expanded = exp
-    return _carry(prog, out, copied, added, notes)
+    return _carry(prog, out, copied, added, notes, at.__getitem__)
 
 
-def _carry(prog, out, copied: dict, added: set, notes: list):
+def _carry(prog, out, copied: dict, added: set, notes: list, to):
     """``out`` (:func:`expand_lines`' text read) with what ``prog`` held beyond its text: the moves of each copied
     line (``copied``: output line to ``prog``'s line) compensated or not as ``prog``'s were (an earlier step's
     roughing contour stays as written), those of the ``added`` output lines compensated; its cycle notes ``prog``'s
-    of the copied lines and ``notes`` (the written lines'), in output line order (``out``'s reading's own dropped:
-    it sees neither the cycles written nor what an earlier step decided)."""
+    of the copied lines and ``notes`` (the written lines'), in output line order, their lines moved to ``out``'s by
+    ``to`` (1-based; :meth:`compensation.nc_notes.LineNote.moved`; ``out``'s reading's own dropped: it sees neither
+    the cycles written nor what an earlier step decided)."""
     flags = {}
     for m in prog.moves:
         flags.setdefault(m.index, []).append(m.compensate)
@@ -425,12 +423,12 @@ def _carry(prog, out, copied: dict, added: set, notes: list):
             m.compensate = was[k] if k < len(was) else m.compensate
     at = {i: j for j, i in copied.items()}
     kept = [(at[e[0]],) + tuple(e[1:]) for e in prog.events if e[2] == "lathe-cycle" and e[0] in at]
-    notes = sorted(kept + notes, key=lambda e: e[0])
+    notes = sorted([e[:4] + (e[4].moved(to),) for e in kept + notes], key=lambda e: e[0])
     out.events = tuple(e for e in out.events if e[2] != "lathe-cycle") + tuple(notes)
     return out
 
 
-def _finish_lines(prog, path, e, src) -> tuple:
+def _finish_lines(prog, path, e) -> tuple:
     """``(lines, summary note)`` of the G70 of event ``e`` as the controller runs it: a copy of its contour's lines
     (their leading ``N`` word dropped; the G70 line's own on the first), then ``G0`` to the G70's start point in
     absolute X Z words. Refused (InputError): a G70 under incremental distance (``G91``) or from an unknown position,
@@ -450,7 +448,7 @@ def _finish_lines(prog, path, e, src) -> tuple:
         raise InputError(f"{path}: line {i + 1}, column {other[0].start + 1}: '{other[0].letter}{other[0].text}' on "
                          "a G70 line: the manuals' G70 is 'G70 P(ns) Q(nf)' (F S T from its contour): leave "
                          "--expand-cycles out")
-    _feed_refusals(path, lines, first - 1, last - 1, i, src(i)[0])
+    _feed_refusals(path, lines, first - 1, last - 1, i, source_line(prog, i + 1))
     n = re.match(r"[ \t/]*([nN]\s*\d+\s*)?", line).group(1) or ""
     out = [re.sub(r"^([ \t/]*)([nN]\s*\d+\s*)?", lambda m, j=j: m.group(1) + (n if j == first - 1 else ""),
                   lines[j], count=1) for j in range(first - 1, last)]
@@ -458,9 +456,9 @@ def _finish_lines(prog, path, e, src) -> tuple:
     ending = line[len(line.rstrip("\r\n")):] or "\n"
     out.append(f"G00 X{_word_text(start[0] * (2.0 if diameter else 1.0) / unit)} Z{_word_text(start[1] / unit)}"
                + ending)
-    return out, (f"line {src(i)[0]}: G70 P{ns} Q{nf} expanded: the contour's blocks (lines {src(first - 1)[0]}-"
-                 f"{src(last - 1)[0]}) written as their {last - first + 1} line(s) of moves, compensated point by "
-                 "point, then G0 back to its start point")
+    return out, note("line ", i + 1, f": G70 P{ns} Q{nf} expanded: the contour's blocks (lines ", (first, last),
+                     f") written as their {last - first + 1} line(s) of moves, compensated point by point, then G0 "
+                     "back to its start point")
 
 
 def _roughing_as_written(prog):
@@ -471,13 +469,11 @@ def _roughing_as_written(prog):
     for m in prog.moves:
         if any(e[3][0] - 1 <= m.index <= e[3][1] - 1 for e in spans):
             m.compensate = False
-    inner = prog.expanded
-    src = (lambda line: inner.origin[line - 1][0]) if inner is not None else (lambda line: line)
     notes = [(e[3][2] - 1, e[1], "lathe-cycle", e[4],
-              f"line {src(e[3][2])}: {e[4]} P{e[3][4]} Q{e[3][5]} ({ROUGHING[e[4]]}"
-              f"{', ' + e[3][3] if e[3][3] else ''}): kept "
-              f"as written with its contour (lines {src(e[3][0])}-{src(e[3][1])}) uncompensated: the controller "
-              "roughs from the programmed contour, leaving its U/W allowance (roughing accuracy is not the part's)")
+              note("line ", e[3][2], f": {e[4]} P{e[3][4]} Q{e[3][5]} ({ROUGHING[e[4]]}"
+                   f"{', ' + e[3][3] if e[3][3] else ''}): kept as written with its contour (lines ", e[3][:2],
+                   ") uncompensated: the controller roughs from the programmed contour, leaving its U/W allowance "
+                   "(roughing accuracy is not the part's)"))
              for e in spans]
     prog.events = tuple(e for e in prog.events if e[2] != "lathe-cycle" or e[3] not in ROUGHING) + tuple(notes)
     return prog

@@ -85,21 +85,17 @@ class Expanded:
     ``first line`` (1-based, in the numbering of ``origin``) on are that file's, from its line 1."""
     contours: tuple = ()
     """``(output line (0-based), ((source line, text), ...))`` for each LinuxCNC ``G70``-``G72`` line written: the
-    lines of the o-subroutine its Q names, values evaluated, an O-word line's text None (:func:`compensation.nc_flow.
-    g7x_contour`), which the cycle reads without running them (:mod:`compensation.nc_g7x`)."""
+    lines of the o-subroutine its Q names (each named as reports name a source line: :meth:`named`), values
+    evaluated, an O-word line's text None (:func:`compensation.nc_flow.g7x_contour`), which the cycle reads without
+    running them (:mod:`compensation.nc_g7x`)."""
 
     def at(self, src: int) -> tuple:
         """``(path, line)`` of a source line in the numbering of ``origin``."""
-        for first, path, _ in reversed(self.files):
-            if src >= first:
-                return path, src - first + 1
-        return self.path, src
+        return file_line(self.files, self.path, src)
 
     def named(self, src: int):
-        """A source line in the numbering of ``origin`` as a report names it: its line ``k`` (int) in the main file,
-        ``'k of PATH'`` in a subprogram file."""
-        path, k = self.at(src)
-        return k if path == self.path else f"{k} of {path}"
+        """A source line in the numbering of ``origin`` as a report names it (:func:`named_line`)."""
+        return named_line(self.files, self.path, src)
 
     @cached_property
     def line_for_line(self) -> bool:
@@ -142,6 +138,22 @@ class Expanded:
             return exc
         col = int(m.group(2)) if m.group(2) else None
         return InputError(f"{self.where(int(m.group(1)), col)}: {msg[m.end():]}")
+
+
+def file_line(files, path: str, src: int) -> tuple:
+    """``(path, line)`` of source line ``src`` in the numbering of the lines run: the main file's (``path``) lines,
+    then each subprogram file's of ``files`` ``(first line, path, sha256)`` from its ``first line`` on."""
+    for first, sub, _ in reversed(files):
+        if src >= first:
+            return sub, src - first + 1
+    return path, src
+
+
+def named_line(files, path: str, src: int):
+    """Source line ``src`` (:func:`file_line`) as reports and refusals name it: its line ``k`` (int) in the main file
+    ``path``, ``'k of FILE'`` in a subprogram file."""
+    sub, k = file_line(files, path, src)
+    return k if sub == path else f"{k} of {sub}"
 
 
 def source_line(program, line: int):
@@ -616,15 +628,16 @@ class _Machine:
                 return j
         return None
 
-    def _at(self, i) -> str:
-        for first, path, _ in reversed(self.files):
-            if i + 1 >= first:
-                return f"{path}: line {i + 2 - first}"
-        return f"{self.path}: line {i + 1}"
+    def named(self, i: int):
+        """0-based line ``i`` of the lines run as a refusal names it (:func:`named_line`)."""
+        return named_line(self.files, self.path, i + 1)
 
     def _err(self, i, col, msg) -> InputError:
-        at = self._at(i) + (f", column {col}" if col else "")
-        return InputError(at + "".join(f" (called from {self._at(c)})" for c in reversed(self.calls)) + f": {msg}")
+        """A refusal at 0-based line ``i`` (its file and line; column ``col``), the call sites as
+        :meth:`Expanded.where` names them."""
+        at = "{}: line {}".format(*file_line(self.files, self.path, i + 1)) + (f", column {col}" if col else "")
+        return InputError(at + "".join(f" (called from line {self.named(c)})" for c in reversed(self.calls))
+                          + f": {msg}")
 
     def load(self, path) -> int:
         """Append the subprogram file ``path`` to the lines run (its programs and subroutines indexed); the index of

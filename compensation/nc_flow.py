@@ -374,15 +374,15 @@ def g7x_contour(m, pc, words, vals):
         if s[0] == "o" and s[3] == "endsub":  # the reading ends at the first endsub, whichever
             break
         if s[0] == "o":  # read, not run: no motion (a loop's body is read once, both branches of an if)
-            lines.append((j + 1, None))
+            lines.append((m.named(j), None))
         elif s[0] == "plain" and not s[1]:
-            lines.append((j + 1, m.lines[j].rstrip("\r")))
+            lines.append((m.named(j), m.lines[j].rstrip("\r")))
         elif s[0] == "words" and not s[3] and s[4] is None and not s[5] and all(w[0] not in "@^" for w in s[2]):
             got = {id(w): evaluate(m, w[3], j, fr, True) for w in s[2] if w[3] is not None}
-            lines.append((j + 1, _spliced(m.lines[j].rstrip("\r"), m._cuts(j, s[2], (), got))))
+            lines.append((m.named(j), _spliced(m.lines[j].rstrip("\r"), m._cuts(j, s[2], (), got))))
         else:
             col = s[3][0][2] + 1 if s[0] == "words" and s[3] else s[5] if s[0] == "o" else None
-            raise m._err(j, col, f"in o{name}, the contour of the G7x cycle on {m._at(pc)}: the cycle reads its "
+            raise m._err(j, col, f"in o{name}, the contour of the G7x cycle on line {m.named(pc)}: the cycle reads its "
                                  "subroutine's lines without running them (LinuxCNC never sets the parameter); only "
                                  "motion and O-word lines are read there, not a parameter setting, a call or a "
                                  "program end")

@@ -32,6 +32,7 @@ import numpy as np
 
 from .gcode_state import MM_PER_INCH, _Refuse
 from .nc_contour import _word_text
+from .nc_notes import note
 
 LETTERS = frozenset("NGPZIJKRQHEL")
 """Words a G76 line may hold here (module docstring)."""
@@ -160,11 +161,10 @@ def _check_values(by, z0, p, z, e, i, j, k) -> None:
         bad("E", "the taper length must be ≥ 0 and at most half the thread's length (LinuxCNC's reference)")
 
 
-def g76_lines(line, e, src) -> tuple:
+def g76_lines(line, e, i: int) -> tuple:
     """``(lines, summary note)`` of the G76 of event ``e`` on ``line`` (:func:`compensation.nc_thread.
     expand_threading`): its moves (:func:`passes`) in absolute X Z of the program's units (X as the program writes
-    it), each G33 with its lead K (the main cut's as P is written); ``src`` the line's origin entry (its source line
-    first)."""
+    it), each G33 with its lead K (the main cut's as P is written); ``i`` the line's 0-based index."""
     cut, p_mm, p_text, inch, diameter = e[3]
     unit = MM_PER_INCH if inch else 1.0
     ending = line[len(line.rstrip("\r\n")):] or "\n"
@@ -176,5 +176,5 @@ def g76_lines(line, e, src) -> tuple:
         else:
             k = p_text if lead == p_mm else _word_text(lead / unit)
             out.append(f"G33 {xz} K{k}{ending}")
-    return out, (f"line {src[0]}: G76 expanded: {len(cut)} passes written as G0 moves and G33 pieces (each "
-                 "compensated with its own K; the G0 to each pass's start compensated)")
+    return out, note("line ", i + 1, f": G76 expanded: {len(cut)} passes written as G0 moves and G33 pieces (each "
+                     "compensated with its own K; the G0 to each pass's start compensated)")

@@ -39,6 +39,7 @@ from .gcode_state import MM_PER_INCH, _Refuse
 from .gcode_words import tokenize
 from .nc_contour import LatheExpansion, _word_text, expand_lines
 from .nc_g7x_path import Arc, G7xError, Straight, finishing, roughing
+from .nc_notes import note
 
 CODES = {"G70": (70, 0), "G71": (71, 0), "G71.1": (71, 1), "G71.2": (71, 2), "G72": (72, 0), "G72.1": (72, 1),
          "G72.2": (72, 2)}
@@ -128,7 +129,8 @@ def _words(words, code, cycle: int) -> dict:
 
 def contour(lines, x: float, z: float, arc_abs: bool, name) -> tuple:
     """``(segments, unrun)``: the cycle's segments (:mod:`compensation.nc_g7x_path`) from (``x``, ``z``) along
-    ``lines`` ``[(source line, text)]`` (the subroutine's lines, values evaluated; text None: an O-word line, read
+    ``lines`` ``[(source line, text)]`` (the subroutine's lines, named as reports name them: an int, ``'k of FILE'``
+    in a subprogram file; values evaluated; text None: an O-word line, read
     and not run), as ``convert_g7x`` reads them (module docstring): its first segment from the start point to the
     contour's first point; ``unrun`` the source lines of the O-word lines."""
     segs, at, unrun = [], complex(z, x), []
@@ -215,14 +217,13 @@ def expand_g7x(prog, path, reparse):
     cycles = {e[0]: e for e in prog.events if e[2] == "lathe-g7x"}
     if not cycles:
         return prog
-    return expand_lines(prog, path, reparse, cycles, lambda i, src: g7x_lines(prog.lines[i], cycles[i], src(i)),
-                        G7xExpansion)
+    return expand_lines(prog, path, reparse, cycles, lambda i: g7x_lines(prog.lines[i], cycles[i], i), G7xExpansion)
 
 
-def g7x_lines(line, e, src) -> tuple:
-    """``(lines, summary note)`` of the cycle of event ``e`` on ``line``: its moves as ``G00``/``G01`` and ``G02``/
-    ``G03`` lines in absolute X Z of the program's units (arc centres I K as the arc distance mode in force says);
-    ``src`` the line's origin entry (its source line first)."""
+def g7x_lines(line, e, i: int) -> tuple:
+    """``(lines, summary note)`` of the cycle of event ``e`` on ``line`` (0-based ``i``): its moves as ``G00``/
+    ``G01`` and ``G02``/``G03`` lines in absolute X Z of the program's units (arc centres I K as the arc distance mode
+    in force says)."""
     moves, _, arc_abs, name, unrun = e[3]
     ending = line[len(line.rstrip("\r\n")):] or "\n"
     out, at = [], None
@@ -235,5 +236,5 @@ def g7x_lines(line, e, src) -> tuple:
         at = p
     read = (f"; its O-word lines {', '.join(map(str, unrun))} read and not run, as the interpreter reads a contour "
             "(a loop's body once)") if unrun else ""
-    return out, (f"line {src[0]}: {e[4]} (contour o{name}) expanded: {len(moves)} moves as LinuxCNC's interpreter "
-                 f"computes them, each compensated point by point{read}")
+    return out, note("line ", i + 1, f": {e[4]} (contour o{name}) expanded: {len(moves)} moves as LinuxCNC's "
+                     f"interpreter computes them, each compensated point by point{read}")

@@ -44,6 +44,7 @@ import numpy as np
 from .gcode_state import MM_PER_INCH, _Refuse
 from .gcode_words import GMove
 from .nc_contour import HOLD_UM, LatheExpansion, _word_text, applies, expand_lines
+from .nc_notes import note
 
 GROOVING = {"G74": "face peck drilling / grooving cycle", "G75": "diameter grooving cycle"}
 PLUNGE = {"G74": "Z", "G75": "X"}
@@ -251,14 +252,14 @@ def expand_grooves(prog, path, reparse):
     cycles = {e[0]: e for e in prog.events if e[2] == "lathe-groove"}
     if not cycles:
         return prog
-    return expand_lines(prog, path, reparse, cycles, lambda i, src: _groove_lines(prog, path, cycles[i], src(i)),
+    return expand_lines(prog, path, reparse, cycles, lambda i: _groove_lines(prog, path, cycles[i]),
                         GrooveExpansion, compensated=True)
 
 
-def _groove_lines(prog, path, e, src) -> tuple:
+def _groove_lines(prog, path, e) -> tuple:
     """``(lines, summary note)`` of the second block of event ``e`` (:func:`cycle_points`) in absolute X Z of the
     program's units, G1 at the cycle's F for the pecks, G0 for the returns, ending in the G0-G3 in force before it
-    (one-shot cycles); ``src`` its line's origin entry. Refused (InputError): :func:`_expansion_refusal`."""
+    (one-shot cycles). Refused (InputError): :func:`_expansion_refusal`."""
     from errormap.io import InputError
     idx, col, _, g, code = e
     why = _expansion_refusal(g, str(path))
@@ -276,6 +277,6 @@ def _groove_lines(prog, path, e, src) -> tuple:
         feed = "" if code_ == "G1" else feed
     if g.mode not in (None, "G0"):
         new.append(g.mode + ending)  # one-shot: the G0-G3 in force before the cycle stays after it
-    return new, (f"line {src[0]}: {code} ({GROOVING[code]}) expanded: {len(g.columns())} column(s), "
-                 f"{sum(c == 'G1' for c, _, _ in pts)} feed(s), written as {len(pts)} moves compensated point by "
-                 "point (the rapids too)")
+    return new, note("line ", idx + 1, f": {code} ({GROOVING[code]}) expanded: {len(g.columns())} column(s), "
+                     f"{sum(c == 'G1' for c, _, _ in pts)} feed(s), written as {len(pts)} moves compensated point by "
+                     "point (the rapids too)")

@@ -40,13 +40,15 @@ import csv
 import io
 import re
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from errormap.io import InputError, decode_text, not_a_file
 
-from .nc_expand import source_line, source_lines
+from .nc_expand import source_line
+from .nc_notes import event_notes
 
 MACHINE = "machine"
 """``--work-offsets machine``: the program is written in machine coordinates (every offset zero)."""
@@ -407,6 +409,7 @@ class _Controller:
         self.system, self.tool, self.cutter = "G54", None, None
         self.used_systems, self.used_tools = set(), set()
         self.dynamic = []  # (line, text) of the summary's note per G43.1 (dynamic_length)
+        self.name = int  # a 1-based line as refusals name it (program_frames: compensation.nc_expand.source_line)
         self.g92, self.g92_stored = np.zeros(len(words)), np.zeros(len(words))  # G92 offset: added to every system
 
     def offset(self) -> np.ndarray:
@@ -488,7 +491,7 @@ class _Controller:
     def dynamic_length(self, value, line, where) -> None:
         """LinuxCNC ``G43.1`` (:func:`compensation.gcode_state.dynamic_length`, ``value`` {axis: mm}): the active
         tool's offsets replaced along the axes given (the others kept; none active: 0), as a tool of its own."""
-        on, key = self.tool is not None, f"G43.1 line {line + 1}"
+        on, key = self.tool is not None, ("G43.1", line + 1)  # a tool of its own, keyed by its line
         self.tooltab[key] = value.get("Z", self.tooltab[self.tool] if on else 0.0)
         self.tool_x[key] = value.get("X", self.tool_x.get(self.tool, 0.0) if on else 0.0)
         self.tool = key
@@ -551,7 +554,7 @@ class _Controller:
         elif kind == "tool-dynamic":
             self.dynamic_length(value, line, where)
         elif kind == "cutter-dynamic":  # G41.1/G42.1 (gcode_state.dynamic_cutter): the line's radius, a tool's own
-            self.cutter = f"G41.1/G42.1 line {line + 1}"
+            self.cutter = ("G41.1/G42.1", line + 1)
             self.radii[self.cutter] = value
         elif kind.startswith("g10-"):
             self.g10(kind, value, where)
@@ -563,13 +566,27 @@ class _Controller:
             self.g92_event(kind, value)
 
     def check_active(self, where) -> None:
-        """The active tool and cutter radius are still known after a G10 line changed the tables."""
+        """The active tool and cutter radius are still known after a G10 line changed the tables (a ``G43.1``'s or
+        ``G41.1``/``G42.1``'s, the program's own values, named by its line: :meth:`named`)."""
         if self.tool is not None and self.tool not in self.tooltab:
-            raise InputError(f"{where}: the length of the active tool {self.tool} (G43 H{self.tool}) is no longer "
-                             "known: " + _unknown_tool(self.tool, self.tools, self.parts))
+            raise InputError(f"{where}: the length of the active tool {self.named(self.tool, '{0} (G43 H{0})')} is "
+                             "no longer known" + self.why(self.tool, ": " + _unknown_tool(self.tool, self.tools,
+                                                                                          self.parts)))
         if self.cutter is not None and not np.isfinite(self.radii.get(self.cutter, np.nan)):
-            raise InputError(f"{where}: the radius of the active cutter compensation D{self.cutter} is no longer "
-                             "known" + _part_note(self.cutter, "radius", self.parts))
+            raise InputError(f"{where}: the radius of the active cutter compensation {self.named(self.cutter, 'D{0}')}"
+                             " is no longer known" + self.why(self.cutter, _part_note(self.cutter, "radius",
+                                                                                      self.parts)))
+
+    def named(self, key, table: str) -> str:
+        """A tool or cutter key as a refusal names it: a table's number by ``table`` (``'{0} (G43 H{0})'``:
+        ``'3 (G43 H3)'``), a ``G43.1``'s or ``G41.1``/``G42.1``'s by its line (:attr:`name`): ``'set by the G43.1 on
+        line 12 (expanded line 40)'``."""
+        return f"set by the {key[0]} on line {self.name(key[1])}" if isinstance(key, tuple) else table.format(key)
+
+    @staticmethod
+    def why(key, text: str) -> str:
+        """``text`` (what gives a table's tool) for a table's key, nothing for a program's own (a tuple)."""
+        return "" if isinstance(key, tuple) else text
 
 
 def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None) -> ProgramFrames:
@@ -582,6 +599,7 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
     events = sorted(getattr(program, "events", ()) or (), key=lambda e: e[0])
     _refuse_set_from_compensated(program, events)
     c = _Controller(path, words, offsets, tools)
+    c.name = partial(source_line, program)
     first, frames = [0], [c.frame()]
     for event in events:
         c.apply(event)
@@ -591,7 +609,8 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
              "work_systems_used": sorted(c.used_systems),
              "tool_table": tools.source if tools else None,
              "tools_used": {int(t): float(c.tooltab[t]) for t in sorted(c.used_tools)}}
-    notes.update(event_notes(program, events, c))
+    offsets = {s: [float(v) for v in _offset_vector(c.table.get(s, {}), words)] for s in sorted(c.used_systems)}
+    notes.update(event_notes(program, events, c.dynamic, offsets))
     offs, tls, rads, txs, rots = zip(*frames)
     rots = np.array(rots, dtype=float)
     if np.any(np.nan_to_num(rots) != 0.0):
@@ -609,70 +628,6 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
                          np.array(tls, dtype=float), notes, np.array(rads, dtype=float),
                          np.array(txs, dtype=float) if c.lathe() and (c.used_tools or c.dynamic) else None,
                          rots if np.any(rots != 0.0) else None)
-
-
-def event_notes(program, events, c) -> dict:
-    """The summary's notes from a program's ``events`` replayed by ``c`` (:class:`_Controller`). Every line is named
-    by :func:`compensation.nc_expand.source_line`: an int for a program read as it is (or expanded line for line),
-    for an expanded one whose lines shift the text ``'12 (expanded line 40, called from line 3)'`` (its source
-    line, the flat program's line, the call sites): ``dynamic_tool_lengths_mm`` (G43.1) and
-    ``dynamic_cutter_radii_mm`` (G41.1/G42.1: D/2) where any, ``offsets_mm_deg``, ``g53_lines``, ``g92_lines``
-    (G92-G92.3), ``g52_lines``, ``probe_lines`` (G38.2-G38.5, written as programmed), ``dialect_modes``,
-    ``machine_m_codes`` and ``moves_before_position_known`` (written as programmed: a first ``G0 Z5``)."""
-    def named(kind):
-        return source_lines(program, [e[0] + 1 for e in events if kind(e[2])])
-    notes = {"dynamic_tool_lengths_mm": [f"line {source_line(program, k)}: {text}" for k, text in c.dynamic],
-             "dynamic_cutter_radii_mm": [f"line {source_line(program, e[0] + 1)}: {e[3]:g}" for e in events
-                                         if e[2] == "cutter-dynamic"]}
-    notes = {k: v for k, v in notes.items() if v}
-    notes["offsets_mm_deg"] = {s: [float(v) for v in _offset_vector(c.table.get(s, {}), c.words)]
-                               for s in sorted(c.used_systems)}
-    notes.update({"g53_lines": named(lambda k: k == "g53"), "g92_lines": named(lambda k: k.startswith("g92")),
-                  "g52_lines": named(lambda k: k == "g52"), "probe_lines": named(lambda k: k == "probe"),
-                  "dialect_modes": sorted({e[3] for e in events if e[2] == "mode"}),
-                  "machine_m_codes": [f"line {source_line(program, e[0] + 1)}: {e[4]}" for e in events
-                                      if e[2] == "machine-m"]})
-    t = getattr(program, "table", None)
-    unknown = (t.line[~t.compensate & ~t.known.all(axis=1)] + 1 if t is not None else
-               [m.index + 1 for m in program.moves if not m.compensate and not np.all(m.known)])
-    notes["moves_before_position_known"] = source_lines(program, unknown)
-    return notes
-
-
-class FrameReplay:
-    """Machine minus program axes (k,) after a program's events so far (a ``G53`` move's end placed in the
-    program's frame while it is read): the work offset, ``G92``, the tool length on Z (a lathe tool's offset
-    on X), as :meth:`ProgramFrames.shift`; NaN where not known (a table not given; a refused event: the
-    reader's :func:`program_frames` refuses it with its words)."""
-
-    def __init__(self, path, words, offsets: WorkOffsets | None, tools: ToolTable | None):
-        self.c, self.seen, self.failed = _Controller(path, words, offsets, tools), 0, False
-
-    @property
-    def system(self) -> str:
-        """The work system in force after the events replayed (the power-on ``G54`` before any)."""
-        return self.c.system
-
-    @property
-    def offsets_given(self) -> bool:
-        return self.c.offsets is not None
-
-    def shift(self, events) -> np.ndarray:
-        try:
-            for event in events[self.seen:]:
-                self.c.apply(event)
-        except InputError:
-            self.failed = True
-        self.seen = len(events)
-        off, tool, _, tool_x, rotation = self.c.frame()
-        if np.nan_to_num(rotation) != 0.0:  # a rotated system: the G53 point's X Y in it is not carried
-            self.failed = True
-        out, words = np.array(off, dtype=float), list(self.c.words)
-        if "Z" in words and np.isfinite(tool):
-            out[words.index("Z")] += tool
-        if "X" in words and np.isfinite(tool_x):
-            out[words.index("X")] += tool_x
-        return np.full(len(words), np.nan) if self.failed else out
 
 
 FROM_POSITION = ("g92", "g10-here", "g10-tool-here")

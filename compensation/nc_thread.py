@@ -42,6 +42,7 @@ from .gcode_state import MM_PER_INCH, _Refuse
 from .nc_contour import LatheExpansion, _word_text, expand_lines
 from .nc_expand import source_line
 from .nc_g76 import g76_lines
+from .nc_notes import note
 
 THREADING = {"G32": "thread cutting", "G92": "thread cutting cycle", "G76": "multiple threading cycle"}
 """Fanuc/Haas lathe threading codes (Fanuc 0i-TF G-code system A, Haas lathe manual)."""
@@ -117,7 +118,7 @@ def _start_compensated(st, prev, move) -> None:
     if prev is not None and not prev.compensate and prev.kind == "rapid" and np.array_equal(prev.end, move.start):
         prev.compensate = True
         st.events.append((prev.index, 1, "lathe-cycle", move.synced,
-                          f"line {prev.index + 1}: rapid {RAPID_NOTE}"))
+                          note("line ", prev.index + 1, f": rapid {RAPID_NOTE}")))
 
 
 def feed_word_seen(st, by, code) -> None:
@@ -317,20 +318,20 @@ def expand_threading(prog, path, reparse):
     if not passes:
         return prog
 
-    def lines_of(i, src):
-        return (g76_lines if passes[i][4] == "G76" else _pass_lines)(prog.lines[i], passes[i], src(i))
+    def lines_of(i):
+        return (g76_lines if passes[i][4] == "G76" else _pass_lines)(prog.lines[i], passes[i], i)
     return expand_lines(prog, path, reparse, passes, lines_of, ThreadExpansion)
 
 
-def _pass_lines(line, e, src) -> tuple:
-    """``(lines, note)`` of the G92 pass of event ``e`` on ``line`` (:func:`expand_threading`); ``src`` the line's
-    origin entry (its source line first)."""
+def _pass_lines(line, e, i: int) -> tuple:
+    """``(lines, note)`` of the G92 pass of event ``e`` on ``line`` (0-based ``i``; :func:`expand_threading`)."""
     sx, sz, x, z, f, inch, diameter = e[3]
     unit = MM_PER_INCH if inch else 1.0
     xw = lambda v: _word_text(v * (2.0 if diameter else 1.0) / unit)  # noqa: E731
     ending = line[len(line.rstrip("\r\n")):] or "\n"
     new = [f"G00 X{xw(x)}", f"G32 Z{_word_text(z / unit)} F{f}", f"G00 X{xw(sx)}", f"G00 Z{_word_text(sz / unit)}"]
-    return [t + ending for t in new], (f"line {src[0]}: G92 pass expanded: G0 X{xw(x)}, G32 Z{_word_text(z / unit)} "
-                                       f"F{f} in compensated pieces (each its own F; the G0 to its start compensated), "
-                                       "G0 back to the start point; written without a chamfer out of the thread (the "
-                                       "control's G92 chamfer, its amount Fanuc parameter 5130, must be 0)")
+    return [t + ending for t in new], note("line ", i + 1, f": G92 pass expanded: G0 X{xw(x)}, G32 "
+                                           f"Z{_word_text(z / unit)} F{f} in compensated pieces (each its own F; the "
+                                           "G0 to its start compensated), G0 back to the start point; written without "
+                                           "a chamfer out of the thread (the control's G92 chamfer, its amount Fanuc "
+                                           "parameter 5130, must be 0)")

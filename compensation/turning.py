@@ -13,6 +13,7 @@ program rules (C words, turning codes): docs/reference/tool-paths.md ("Turning m
 from __future__ import annotations
 
 import dataclasses
+from functools import partial
 
 import numpy as np
 
@@ -21,6 +22,7 @@ from errormap.io import InputError
 from .evaluate import gradient_norm
 from .gcode import AxisWords, GProgram, parse_program, tokenize
 from .nc_contour import expand_finishing, refuse_open
+from .nc_expand import source_line
 from .nc_g7x import expand_g7x, refuse_kept as refuse_kept_g7x
 from .nc_groove import expand_grooves, refuse_kept as refuse_kept_groove
 from .nc_thread import expand_threading, refuse_kept as refuse_kept_thread
@@ -408,14 +410,19 @@ def hold_contours(res, tp, field, machine):
     ``res.info["contour_held"]`` lists them. A ``G70`` run with other tool offsets than its contour was compensated
     for is refused (:func:`compensation.nc_contour.refuse_other_tool`)."""
     from .nc_contour import hold_back_steps, refuse_other_tool
-    events = tp.source.program.events  # a G-code program's (the caller's test)
+    prog = tp.source.program
+    events = prog.events  # a G-code program's (the caller's test)
     if not any(e[2] == "lathe-contour" for e in events):
         return res
-    if tp.tool_xz is not None:  # G70 with another tool than its contour was compensated for
-        refuse_other_tool(tp.path, events, tp.lines, tp.tool_xz,
-                          lambda line: tp.source.frames.lathe_tool(np.array([line - 1]))[0])
-    xc, zc = machine.axis_words.index("X"), machine.axis_words.index("Z")
-    axes, rows, held = hold_back_steps(tp.path, events, tp.lines, tp.axes, res.axes, xc, zc)
+    name = partial(source_line, prog)  # the summary's and the refusals' lines: the source's
+    try:
+        if tp.tool_xz is not None:  # G70 with another tool than its contour was compensated for
+            refuse_other_tool(tp.path, events, tp.lines, tp.tool_xz,
+                              lambda line: tp.source.frames.lathe_tool(np.array([line - 1]))[0], name)
+        xc, zc = machine.axis_words.index("X"), machine.axis_words.index("Z")
+        axes, rows, held = hold_back_steps(tp.path, events, tp.lines, tp.axes, res.axes, xc, zc, name)
+    except InputError as exc:  # on the program's flat lines: named at the source, as the reader's
+        raise (prog.expanded.relocate(exc) if prog.expanded is not None else exc) from None
     if rows.size:
         txz = None if tp.tool_xz is None else np.asarray(tp.tool_xz)[rows]
         mean, _ = surface_residual_by_tool(field, machine, axes[rows], tp.axes[rows], txz)

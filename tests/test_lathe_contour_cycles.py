@@ -332,9 +332,12 @@ def test_expand_cycles_writes_g70_as_its_moves_where_in_place_is_refused(tmp_pat
     assert err_um <= TOL_POINT_UM and n == len(contour) == 6
     assert finish[-1].index == last and finish[-1].end[:2] == pytest.approx([55.0, 3.0], abs=1e-9)  # radius, Z
     summary = json.loads((written.parent / "compensate_summary.json").read_text())["files"][0]
-    assert summary["lathe_cycles"][0].startswith("line 6: G71 P100 Q200") and "uncompensated" in \
+    # --expand-cycles: the program is written as its flat one, so every note names the source line and the written
+    # line (docs/reference/tool-paths.md, "Line numbers in the summary"); G71 and its contour come before the G70
+    assert summary["lathe_cycles"][0].startswith("line 6 (expanded line 6): G71 P100 Q200") and "uncompensated" in \
         summary["lathe_cycles"][0] and "roughing accuracy is not the part's" in summary["lathe_cycles"][0]
-    assert summary["lathe_cycles"][1].startswith("line 14: G70 P100 Q200 expanded")
+    assert summary["lathe_cycles"][1].startswith("line 14 (expanded line 14): G70 P100 Q200 expanded: the contour's "
+                                                 "blocks (lines 7 (expanded line 7) to 13 (expanded line 13))")
     assert summary["true"]["max_um"] <= TOL_POINT_UM < summary["true_uncompensated"]["max_um"]
 
 

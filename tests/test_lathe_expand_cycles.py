@@ -138,10 +138,16 @@ def test_g70_g92_g75_expanded_together(tmp_path):
         assert len(errs) == len(points) and max(errs) <= TOL_POINT_UM
     summary = json.loads((written.parent / "compensate_summary.json").read_text())["files"][0]
     notes = [n for n in summary["lathe_cycles"] if ": G32 F1.5 written as " not in n]  # the cycles' (then the leads')
-    heads = [n.split(" (")[0].split(" expanded")[0] for n in notes]
+    heads = [n.split(": ")[0] for n in notes]  # the source line and the written (flat) program's: the first of its own
+    codes = [n.split(": ")[1].split(" (")[0].split(" expanded")[0] for n in notes]
     g71 = SRC.index("G71 P100 Q200 U0.4 W0.1 F0.25") + 1
-    assert heads == [f"line {g71}: G71 P100 Q200", f"line {G70_AT + 1}: G70 P100 Q200",
-                     *(f"line {G92_AT + k}: G92 pass" for k in (1, 2, 3)), f"line {G75_AT + 1}: G75"]
+    # the flat program's lines (before the compensated moves are split): the G70 written as its contour's 7 lines and
+    # a G0 (7 lines more), each G92 pass as G0 X, G32, G0 X, G0 Z (3 more each)
+    g70 = SRC.index("N200 X80.") - SRC.index("N100 G00 X20.") + 1
+    assert heads == [f"line {g71} (expanded line {g71})", f"line {G70_AT + 1} (expanded line {G70_AT + 1})",
+                     *(f"line {G92_AT + 1 + k} (expanded line {G92_AT + 1 + g70 + 4 * k})" for k in range(3)),
+                     f"line {G75_AT + 1} (expanded line {G75_AT + 1 + g70 + 3 * 3})"]
+    assert codes == ["G71 P100 Q200", "G70 P100 Q200", "G92 pass", "G92 pass", "G92 pass", "G75"]
     assert "uncompensated" in notes[0] and "roughing accuracy is not the part's" in notes[0]
     assert len(summary["lathe_cycles"]) == len(notes) + 3  # one lead line per G92 pass's thread
     assert summary["true"]["max_um"] <= TOL_POINT_UM < summary["true_uncompensated"]["max_um"]

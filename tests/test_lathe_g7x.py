@@ -274,5 +274,5 @@ def test_contour_o_words_read_not_run_as_the_interpreter_reads_them(tmp_path, cy
     prog = _read(src)
     got = [(m.kind, m.end[0], m.end[1]) for m in prog.moves[1:-1]]
     _same(got, flat)
-    note = next(e[4] for e in prog.events if e[2] == "lathe-cycle")
+    note = next(e[4].text(prog) for e in prog.events if e[2] == "lathe-cycle")
     assert "O-word lines 10, 11, 13, 14, 15 read and not run" in note, note

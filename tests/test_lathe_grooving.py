@@ -128,7 +128,8 @@ def test_g75_series_expanded_reaches_every_point_of_the_manuals_moves(tmp_path, 
     assert n == len(expected) == 65 and err <= TOL_POINT_UM
     summary = json.loads((tmp_path / "out" / "compensate_summary.json").read_text())["files"][0]
     assert summary["true"]["max_um"] <= TOL_POINT_UM < summary["true_uncompensated"]["max_um"]  # the check has teeth
-    assert summary["lathe_cycles"] == [f"line {at + 1}: G75 (diameter grooving cycle) expanded: 5 column(s), "
+    assert summary["lathe_cycles"] == [f"line {at + 1} (expanded line {at + 1}): G75 (diameter grooving cycle) "
+                                       "expanded: 5 column(s), "
                                        "30 feed(s), written as 65 moves compensated point by point (the rapids too)"]
 
 

@@ -5,9 +5,11 @@ expanded (flat) line and the call sites where the lines shift; a program read as
 The program is written here (LinuxCNC O-codes, "O Codes: Subroutines", and numbered parameters): a subroutine holding
 a G53 move, called twice, then G92, G38.2, G43.1 and G41.1 lines after it, so the flat program's line numbers fall
 behind the source's."""
+import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from compensation.gcode import AxisWords, parse_program
 from compensation.nc_state import program_frames, read_work_offsets
@@ -95,3 +97,108 @@ def test_a_refusal_after_reading_names_the_source_lines(tmp_path, capsys, monkey
     err = capsys.readouterr().err
     assert "p.ngc: line 12, column 1: 'G92' takes its offset" in err
     assert "the end of the compensated move of line 11 (expanded line 7) (every later move" in err
+
+
+LATHE_SOURCE = """%
+O0300
+G21 G18 G40 G99
+T0101
+G96 S180 M03
+M98 P2000
+G71 U1. R0.5
+G71 P100 Q200 U0.4 W0.1 F0.25
+N100 G00 X20.
+G01 Z-30. F0.15
+N200 X40.
+G70 P100 Q200
+G00 X64. Z-62.
+G75 R0.5
+G75 X52. Z-62. P2000 F0.08
+G00 X150. Z50.
+M30
+O2000
+G00 X120. Z10.
+G00 X110. Z3.
+M99
+%
+"""
+"""A Fanuc lathe program (0i-TF formats: two-block G71 type I, G70, a one-column G75) whose call on line 6 writes the
+subprogram's two lines in its place (the call line and the program numbers are not written): from line 7 on the
+flat program's line is the source's plus one, and --expand-cycles writes the G70 as its contour's 3 lines and a G0
+(the G75 R0.5 after it at flat line 14 + 3 = 17 + 1)."""
+
+
+def test_lathe_cycle_notes_name_the_source_line_whether_kept_or_expanded(tmp_path):
+    """The lathe cycles' notes (the summary's ``lathe_cycles``: compensation/nc_notes.py) follow the same convention:
+    kept (noted while reading, on the flat lines) and written as moves (noted by each expansion step) alike."""
+    from compensation.nc_notes import cycle_notes
+    from compensation.turning import parse_lathe_program
+    (tmp_path / "p.nc").write_text(LATHE_SOURCE)
+
+    def heads(cycles):
+        prog, _ = parse_lathe_program(tmp_path / "p.nc", load_machine("lathe-xzc"), "keep", None, "fanuc",
+                                      "diameter", cycles=cycles)
+        return [n.split(" (stock")[0].split(" written as")[0].split(": roughing")[0] for n in cycle_notes(prog)]
+    contour = "(lines 9 (expanded line 10) to 11 (expanded line 12))"
+    assert heads("keep") == ["line 8 (expanded line 9): G71 P100 Q200",
+                             f"line 12 (expanded line 13): G70 P100 Q200: finishing pass: exactly the compensated "
+                             f"contour {contour}"]
+    assert heads("expand") == ["line 8 (expanded line 9): G71 P100 Q200",
+                               f"line 12 (expanded line 13): G70 P100 Q200 expanded: the contour's blocks {contour}",
+                               "line 15 (expanded line 19): G75 (diameter grooving cycle) expanded: 1 column(s), 3 "
+                               "feed(s),"]
+
+
+def test_a_kept_cycles_tilt_in_a_subprogram_file_is_keyed_by_that_file_line(tmp_path, monkeypatch):
+    """``cycles.tilt_um`` (compensation/app/workflows/compensate_report.py) of a G81 kept in a ``--subprograms``
+    file called twice: one key, the file's line 2 named as every note names it, its largest tilt over both calls."""
+    from compensation.app.cli import main
+    from test_chain_compensate import chain_elements
+    el = chain_elements(load_machine("mill-xyz"), 5).save(tmp_path / "el.json")
+    (tmp_path / "off.csv").write_text("system,x_mm,y_mm,z_mm\nG54,300,200,-300\n")
+    (tmp_path / "subs").mkdir()
+    (tmp_path / "subs" / "hole.ngc").write_text("o<hole> sub\nG81 X#1 Y#2 Z-3 R2 F100\nG80\no<hole> endsub\nM2\n")
+    monkeypatch.chdir(tmp_path)
+    Path("p.ngc").write_text("G21 G90 G17 G54 G98\nG0 X0 Y0 Z5\no<hole> call [10] [10]\no<hole> call [40] [25]\n"
+                             "G0 Z20\nM2\n")
+    assert main(["compensate", "p.ngc", "--machine", "mill-xyz", "--model", str(el), "--method", "exact",
+                 "--dialect", "linuxcnc", "--work-offsets", "off.csv", "--subprograms", "subs", "--out", "o"]) == 0
+    cyc = json.loads(Path("o/compensate_summary.json").read_text())["files"][0]["cycles"]
+    name = "2 of subs/hole.ngc"  # the file as read, its folder as --subprograms gave it (before: '8', past p.ngc's 6)
+    assert cyc["holes"] == 2 and list(cyc["tilt_um"]) == [name] and cyc["tilt_max_line"] == name
+
+
+def test_the_expanders_refusal_names_the_call_sites_as_the_notes_do(tmp_path):
+    """A refusal inside a subprogram file called from another one: its file and line, then each call site as the notes
+    name it, innermost first ('k of FILE' in a subprogram file, the main file's line as an int)."""
+    from compensation.nc_expand import expand_program
+    from compensation.nc_subfiles import SubprogramFiles
+    from errormap.io import InputError
+    (tmp_path / "outer.ngc").write_text("o<outer> sub\nG0 X1\no<inner> call\no<outer> endsub\nM2\n")
+    (tmp_path / "inner.ngc").write_text("o<inner> sub\nG0 X#7 Y0\no<inner> endsub\nM2\n")
+    outer = SubprogramFiles([tmp_path])
+    with pytest.raises(InputError) as exc:
+        expand_program("G21 G90\nG0 X0 Y0 Z5\no<outer> call\nM2\n", "m.ngc", "linuxcnc", None, outer)
+    inner, called = (str(Path(tmp_path / f).resolve()) for f in ("inner.ngc", "outer.ngc"))
+    assert str(exc.value).startswith(f"{inner}: line 2, column 5 (called from line 3 of {called}) "
+                                     "(called from line 3): #7 is not passed")
+
+
+def test_a_dynamic_offset_is_named_by_its_source_line_in_a_refusal():
+    """The G43.1 / G41.1 offsets a program sets are tools of its own (compensation.nc_state._Controller), named in a
+    refusal by the line that set them (as every refusal names a line), never by an internal key. No G10 changes them
+    today, so this drives the controller's check directly."""
+    from compensation.nc_state import _Controller
+    from errormap.io import InputError
+    c = _Controller("p.ngc", MILL.words, None, None)
+    c.name = lambda k: f"{k - 2} (expanded line {k})"
+    c.apply((15, 1, "tool-dynamic", {"Z": 10.0}, "G43.1 Z10"))
+    c.apply((17, 1, "cutter-dynamic", 2.0, "G41.1 D4"))
+    del c.tooltab[c.tool]
+    with pytest.raises(InputError, match=r"^w: the length of the active tool set by the G43\.1 on line 14 \(expanded "
+                                         r"line 16\) is no longer known$"):
+        c.check_active("w")
+    c.tool, c.radii[c.cutter] = None, np.nan
+    with pytest.raises(InputError, match=r"^w: the radius of the active cutter compensation set by the G41\.1/G42\.1 "
+                                         r"on line 16 \(expanded line 18\) is no longer known$"):
+        c.check_active("w")

@@ -83,7 +83,7 @@ def test_number_not_found_two_files_with_the_number_and_a_missing_ngc_are_refuse
 
 def test_a_refusal_inside_the_file_names_the_file_and_its_line(tmp_path):
     (tmp_path / "drill_man.ngc").write_text("o<drill_man> sub\nG0 X#7 Y0\no<drill_man> endsub\n")
-    with pytest.raises(InputError, match=r"drill_man\.ngc: line 2, column 5.*\(called from m\.ngc: line 4\)"):
+    with pytest.raises(InputError, match=r"drill_man\.ngc: line 2, column 5 \(called from line 4\): #7 "):
         expand_program((DATA / "linuxcnc_main.ngc").read_text(), "m.ngc", None, None, SubprogramFiles([tmp_path]))
 
 

@@ -180,8 +180,8 @@ def reason_of(message: str, name: str) -> str:
     """The product's refusal without its file, line and column; numbers of the program's own words
     kept, call sites dropped (one reason per kind of refusal)."""
     msg = message.split(name + ":", 1)[-1]
-    msg = re.sub(r"^\s*line \d+(?: \(expanded as .*?\))?(?:, column \d+)?(?: of that)?(?: \(called from line \d+\))*: ",
-                 "", msg.strip())
+    msg = re.sub(r"^\s*line \d+(?: \(expanded as .*?\))?(?:, column \d+)?(?: of that)?"
+                 r"(?: \(called from line \d+(?: of [^)]*)?\))*: ", "", msg.strip())
     msg = re.sub(r"^\s*line \d+: ", "", msg)
     return msg[:110]
 

@@ -493,8 +493,8 @@ def gcode_entry(entry, tp: ToolPath, res, true_r, true_base, field_, truth, mach
     if tp.turning is not None:  # a lathe: what its X words are and who said it (option or machine file)
         from ...turning import lathe_x_entry
         entry.update(lathe_x_entry(machine, getattr(s, "lathe_x", None), job.program.dialect))
-        from ...nc_contour import cycle_notes  # G70-G73: the contour's points compensated, the cycles kept
-        notes = cycle_notes(job.program.events) + leads
+        from ...nc_notes import cycle_notes  # lathe cycles kept or written as moves, at their source lines
+        notes = cycle_notes(job.program) + leads
         if notes:
             entry["lathe_cycles"] = notes
             entry["lathe_contour_held"] = res.info.get("contour_held", [])

@@ -147,8 +147,9 @@ def tcp_entry(tp: ToolPath, res, machine, truth) -> dict:
 
 def cycle_report(tp: ToolPath, res, true_r, true_base):
     """The summary's ``cycles`` entry of a program with canned cycles (None: none): holes, and for kept
-    cycles the tilt per cycle line (|XY correction at R − at the bottom|, μm, the largest of its holes)
-    and, with a truth, the TRUE residual at the hole bottoms before/after."""
+    cycles the tilt per source cycle line (|XY correction at R − at the bottom|, μm, the largest of its holes over
+    the calls that ran it; keyed as :meth:`compensation.nc_expand.Expanded.named` names it: ``'12'``, ``'3 of
+    FILE'`` for a ``--subprograms`` file) and, with a truth, the TRUE residual at the hole bottoms before/after."""
     job = tp.source
     exp = job.program.expanded
     if getattr(exp, "holes", None) is None:
@@ -164,7 +165,7 @@ def cycle_report(tp: ToolPath, res, true_r, true_base):
     for h in exp.holes:
         d_r, d_b = (comp[ln][j] - nominal[ln][j] for ln in (h.out_r, h.out_bottom))
         t = float(np.linalg.norm(d_r - d_b) * 1e3)
-        key = int(exp.origin[h.out_bottom - 1][0])
+        key = exp.named(exp.origin[h.out_bottom - 1][0])  # the source cycle line, over every call that ran it
         per[key] = max(per.get(key, 0.0), t)
     worst = max(per, key=per.get)
     out.update({"tilt_um": {str(k): v for k, v in per.items()}, "tilt_max_um": per[worst], "tilt_max_line": worst,
