@@ -115,12 +115,13 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
 
 
 def _g80_noted(prog: GProgram, line_end: str = "\n") -> GProgram:
-    """``prog`` with the line of its group-09 ``G80`` reading in the source's numbering and in its evidence, and
-    the file's line end (:attr:`GProgram.line_end`)."""
+    """``prog`` with the line of its group-09 ``G80`` reading named as the source's (its line in the main file, or
+    ``'k of FILE'`` in a ``--subprograms`` file: :meth:`compensation.nc_expand.Expanded.named`) and in its evidence,
+    and the file's line end (:attr:`GProgram.line_end`)."""
     prog.line_end = line_end
     if prog.g80_line:
         if prog.expanded is not None:
-            prog.g80_line = prog.expanded.origin[prog.g80_line - 1][0]
+            prog.g80_line = prog.expanded.named(prog.expanded.origin[prog.g80_line - 1][0])
         prog.dialect_evidence += f"; {g80_note(prog.g80_line)}"
     return prog
 

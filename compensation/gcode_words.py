@@ -341,9 +341,10 @@ class GProgram:
     line_end: str = "\n"
     """The file's line end: ``"\r"`` for a CR-only file (old Mac style, :func:`cr_line_ends`: read with LF in its
     place, ``lines`` end with ``"\n"``); the writer ends every written line with it again."""
-    g80_line: int = 0
+    g80_line: int | str = 0
     """Recognised as no dialect (:data:`compensation.dialects.UNRECOGNISED`): the first line (1-based, of the
-    file) whose bare axis word after ``G80`` was read in the G0-G3 of before it (group 09); 0: none."""
+    file; ``'k of FILE'`` in a ``--subprograms`` file) whose bare axis word after ``G80`` was read in the G0-G3 of
+    before it (group 09); 0: none."""
 
     def notes(self) -> tuple:
         """Header lines every written program carries: what was expanded, how ``G80`` was read."""

@@ -413,7 +413,7 @@ def attach(prog, pre: TcpProgram, flat=None) -> None:
                          "TCP, subprograms or macros) were expanded: not supported (post the 5-axis path flat)")
     if flat is not None:
         prog.expanded = flat
-        prog.g80_line = flat.origin[prog.g80_line - 1][0] if prog.g80_line else prog.g80_line
+        prog.g80_line = flat.named(flat.origin[prog.g80_line - 1][0]) if prog.g80_line else prog.g80_line
     check_mode_changes(prog, pre)
     prog.lines = pre.lines
     prog.data = None

@@ -202,3 +202,19 @@ def test_a_dynamic_offset_is_named_by_its_source_line_in_a_refusal():
     with pytest.raises(InputError, match=r"^w: the radius of the active cutter compensation set by the G41\.1/G42\.1 "
                                          r"on line 16 \(expanded line 18\) is no longer known$"):
         c.check_active("w")
+
+
+def test_the_g80_reading_in_a_subprogram_file_names_that_files_line(tmp_path):
+    """A program of no dialect word whose ``G80 G0`` line (read as the controllers that run it read it, the header
+    and the evidence say where) is in a ``--subprograms`` file: named there (line 5 of the file), not by the line's
+    place among all the lines run (13: the main file's 8, then the file's 5)."""
+    from compensation.nc_subfiles import SubprogramFiles
+    (tmp_path / "subs").mkdir()
+    (tmp_path / "main.nc").write_text("%\nO0047\nG21 G90 G17 G54\nG0 X20. Y20. Z5.\nM98 P9100\nG0 X60. Y40.\nM30\n%\n")
+    sub = tmp_path / "subs" / "slot.nc"
+    sub.write_text("%\nO9100 (SLOT)\nG91 G1 Z-7. F200.\nX15. Y5.\nG80 G0 Z7.\nG90\nM99\n%\n")
+    prog = parse_program(tmp_path / "main.nc", axis_words=MILL, dialect="auto",
+                         subprograms=SubprogramFiles([tmp_path / "subs"]))
+    assert prog.g80_line == f"5 of {sub}"
+    assert f"first at line 5 of {sub})" in prog.dialect_evidence
+    assert any(f"first at line 5 of {sub})" in note for note in prog.notes())
