@@ -37,7 +37,8 @@ class Compensation:
     * ``residual_um`` — points: the MODEL residual (n, 3) μm (the field's predicted position error left at
       the commands); an arm: its norm (n,) μm; a program: ``{input file: {"model_max_um",
       "model_mean_um"[, "true_…"]}}`` as the summary states them (TRUE figures only with a ``truth`` setting);
-    * ``notes`` — one line each: the solver's notes, overridden guards, what the run read;
+    * ``notes`` — one line each: the solver's notes, overridden guards, a lathe's points on the spindle axis
+      (written where the tool tip passes nearest it), what the run read;
     * ``refused`` — ``{guard or input file: one-line reason}``; empty when every output is accepted;
     * ``overrides`` — the guard names overridden (``allow``), sorted;
     * ``correction_um`` (n,) the tool-point move, ``success`` (n,) converged inside the ball, ``violations``
@@ -176,6 +177,8 @@ def _program_result(summary: dict) -> Compensation:
     notes = [f"{e['input']}: {e['note']}" for e in entries if e.get("note")]
     notes += [f"{e['input']}: overridden " + ", ".join(f"{g} {n}" for g, n in e["overridden"].items())
               for e in entries if e.get("overridden")]
+    notes += [f"{e['input']}: {e['spindle_axis_points']['count']} point(s) on the spindle axis written where the tool "
+              f"tip passes nearest it: {e['spindle_axis_points']['why']}" for e in entries if e.get("spindle_axis_points")]
     return Compensation(commands, residual, notes, refused, tuple(sorted(summary.get("allow", ()))), summary=summary)
 
 

@@ -242,9 +242,10 @@ def height_um(field, machine, axes, compiled=None) -> np.ndarray:
     return (np.abs(u[..., 0] * P[..., 1] - u[..., 1] * P[..., 0]) * 1e3).mean(axis=1)
 
 
-def _closest_approach(field, machine, q, axes_d, compiled=None) -> np.ndarray:
-    """``q`` (n, k) moved in X and Z so that the tip crosses the slide's plane at the spindle axis (its mean position
-    along the slide 0) at the programmed Z: where the tip passes nearest the axis (its radius the height error)."""
+def _closest_approach(field, machine, q, axes_d, compiled=None) -> tuple:
+    """``(q, ok)``: ``q`` (n, k) moved in X and Z so that the tip crosses the slide's plane at the spindle axis (its
+    mean position along the slide 0) at the programmed Z: where the tip passes nearest the axis (its radius the height
+    error); ``ok`` (n,) where that converged (both within :data:`TOL_UM`)."""
     P0, _ = _tip_over_turn(None, machine, axes_d, compiled)
     z0 = P0[..., 2].mean(axis=1)
 
@@ -252,24 +253,33 @@ def _closest_approach(field, machine, q, axes_d, compiled=None) -> np.ndarray:
         P, u = _tip_over_turn(field, machine, qq, compiled)
         s = (u * P[..., :2]).sum(axis=2).mean(axis=1)
         return np.stack([s, P[..., 2].mean(axis=1) - z0[idx]], axis=1) * 1e3, np.zeros(len(idx))
-    return _newton(along, np.array(q, dtype=float), _indices(machine)[1], TOL_UM, MAX_ITER)[0]
+    q, g, _, ok, _ = _newton(along, np.array(q, dtype=float), _indices(machine)[1], TOL_UM, MAX_ITER)
+    return q, ok & (np.linalg.norm(g, axis=1) <= TOL_UM)
 
 
 def unreachable_radius(field, machine, q, axes_d, bad) -> tuple:
-    """``(indices, reasons, axes)`` of the points ``bad`` (indices into ``q``/``axes_d`` (n, k)) whose programmed
-    radius is nearer the spindle axis than the tool tip passes it (:func:`height_um` at ``q``): no X and Z reach it;
-    ``axes`` (m, k) theirs where the tip passes nearest the axis (written only where the guard is overridden)."""
+    """``(indices, height_um, axes)`` of the points ``bad`` (indices into ``q``/``axes_d`` (n, k)) whose programmed
+    radius is nearer the spindle axis than the tool tip passes it (:func:`height_um` at ``q``): no X and Z reach it
+    (a point on the axis, X0: centre drilling, drilling, tapping, facing to the centre). ``axes`` (m, k): theirs
+    where the tip passes nearest the axis (:func:`_closest_approach`; a point where that does not converge is left
+    out: a solver failure), what is written for them, ``height_um`` (m,) the centre height there: what is left is
+    that height error, physics, not a solver failure (:data:`SPINDLE_AXIS_WHY`)."""
     from .solvers.chain_exact import nominal_and_jacobian
     bad = np.asarray(bad, dtype=np.intp)
     if not len(bad):
-        return bad, [], q[bad]
+        return bad, np.zeros(0), q[bad]
     r0 = np.hypot(*nominal_and_jacobian(machine, axes_d[bad])[0][:, :2].T) * 1e3
     h = height_um(field, machine, q[bad])
-    hit = r0 < h - TOL_UM
-    why = [f"the programmed radius {round(r / 1e3, 6):.4g} mm is nearer the spindle axis than the tool tip passes it "
-           f"({v:.3g} μm off centre height, which X and Z cannot correct: the least radius they reach)"
-           for r, v in zip(r0[hit], h[hit])]
-    return bad[hit], why, _closest_approach(field, machine, q[bad[hit]], axes_d[bad[hit]])
+    hit = np.flatnonzero(r0 < h - TOL_UM)
+    nearest, ok = _closest_approach(field, machine, q[bad[hit]], axes_d[bad[hit]])
+    return bad[hit[ok]], height_um(field, machine, nearest[ok]), nearest[ok]
+
+
+SPINDLE_AXIS_WHY = ("the tool tip passes {h:.3g} um off centre height (the plane through the spindle axis in which X "
+                    "moves it), which X and Z cannot correct: written where it passes nearest the axis (its mean "
+                    "radius there, at least that height, is the residual left); adjust the tool's centre height")
+"""Why a point nearer the spindle axis than the tip passes it is written, not refused (``{h}``: the largest centre
+height, μm; ASCII: it goes into a G-code program's header too)."""
 
 
 def _newton(fun, q, lin, tol_um: float, max_iter: int) -> tuple:
@@ -358,7 +368,10 @@ def nominal_by_tool(machine, axes, tool_xz) -> np.ndarray:
 def solve_with_turning(solve_rest, field, machine, targets, axes_d, turning, ball_um, tool_xz=None):
     """One :class:`~compensation.solvers.base.SolveResult` over all points: ``turning`` (n,) points by
     :func:`solve_turning` (each at its lathe tool's offsets, ``tool_xz`` (n, 2), None: none), the others by
-    ``solve_rest(targets, axes_d)`` (the chosen chain method)."""
+    ``solve_rest(targets, axes_d)`` (the chosen chain method). A turning point nearer the spindle axis than the tip
+    passes it (:func:`unreachable_radius`) is written where the tip passes nearest the axis, ``success`` False (its
+    target is not reached), listed in ``info["spindle_axis"]`` ({point: centre height μm}), which the convergence
+    guard does not count (:func:`compensation.guards.convergence_violations`)."""
     import time
     from .solvers._common import make_result
     t0 = time.perf_counter()
@@ -377,13 +390,13 @@ def solve_with_turning(solve_rest, field, machine, targets, axes_d, turning, bal
                 info[key] = rest[np.asarray(info[key], dtype=np.intp)]
         info.pop("iterations", None)
     if len(turn):
-        spread, unreachable = np.zeros(len(turn)), {}
+        spread, on_axis = np.zeros(len(turn)), {}
         for x, z, idx in tool_groups(None if tool_xz is None else np.asarray(tool_xz)[turn], len(turn)):
             f, mt = at_tool(field, machine, x, z)
             q, res, conv, spread[idx], _ = solve_turning(f, mt, axes_d[turn[idx]], ball_um)
             axes[turn[idx]], residual[turn[idx]], converged[turn[idx]] = q, res, conv
-            hit, why, nearest = unreachable_radius(f, mt, q, axes_d[turn[idx]], np.flatnonzero(~conv))
-            unreachable.update(zip(turn[idx][hit].tolist(), why))
+            hit, h, nearest = unreachable_radius(f, mt, q, axes_d[turn[idx]], np.flatnonzero(~conv))
+            on_axis.update(zip(turn[idx][hit].tolist(), h.tolist()))
             if len(hit):  # where the tip passes nearest the axis: its radius is what is left
                 axes[turn[idx][hit]] = nearest
                 g, spread[idx[hit]] = surface_residual_um(f, mt, nearest, axes_d[turn[idx][hit]])
@@ -396,8 +409,8 @@ def solve_with_turning(solve_rest, field, machine, targets, axes_d, turning, bal
         info.setdefault("kept_axes", [names[c]])
         info["turning_points"] = int(len(turn))
         info["turning_roundness_max_um"] = float(spread.max())
-        if unreachable:
-            info["turning_unreachable"] = unreachable  # {point: why}: compensation.guards.convergence_violations
+        if on_axis:  # {point: centre height um}: not converged, yet not a solver failure (compensation.guards)
+            info["spindle_axis"] = on_axis
         info["note"] = ((info["note"] + "; ") if info.get("note") else "") + (
             f"turning mode: {len(turn)} point(s) compensated with {', '.join(names[j] for j in lin)} against the "
             f"surface of revolution, {names[c]} untouched (the spindle)")

@@ -38,8 +38,10 @@ seeded simulated truth (element set of the machine, ±10 μm / μrad 1 σ, seed 
 accepted programs run end to end, not that their frames are right — the tests check those independently).
 ``--check`` (implies ``--compensate``): every compensated ``mill-xyz`` program is then checked independently of
 the reader's frames (:func:`independent_check`, tests/program_checks.py), every ``lathe-xzc`` one in turning mode
-by :func:`lathe_check`: a program off by more than 1 um at a programmed point, or with a non-motion line changed,
-is counted silently wrong. A file that moves nothing when run
+by :func:`lathe_check` (at the tool offset in force; a point on the spindle axis, which no X reaches where the tool
+is off centre height, judged against the least radius any X reaches there: the model residual when the model is the
+truth): a program off by more than 1 um at a programmed point, or with a non-motion line changed, is counted
+silently wrong. A file that moves nothing when run
 (subroutine libraries whose subroutines it never calls, tool-change and probing macros) is counted ``no motion``.
 
 ``--manifest program_corpus/NC_FILES.csv``: LinuxCNC's ``nc_files`` as Debian ships them (package
@@ -63,6 +65,8 @@ Counted (2026-12-02; before = main at the start of this work, after = this tree;
 | the same, ``--expand-cycles`` | 24 | 125 | 36 | 0 | 0 of 16 checked (max 0.49 um); newly read: `g76`, `lathe-g76`, `lathe_g7x_quadrants`, whose compensation the convergence guard refuses at 9, 9 and 6 points on the spindle axis (as `lathecomp`'s 25 within 20 um of it): the tip passes the axis at its centre-height error (10-21 um on the count's truth), which X and Z cannot correct |
 | NC_FILES.csv (185), 2026-12-04 (LinuxCNC ``G41.1``/``G42.1 D`` read, radius D/2; ``G70`` under cutter compensation read) | 21 | 125 | 39 | 0 | 0 of 16 checked (max 0.49 um), as before; `lathe_g70_71_demo` now stops at its `G71.1` kept as a cycle (naming ``--expand-cycles``) |
 | the same, ``--expand-cycles`` | 25 | 125 | 35 | 0 | 0 of 16 checked (max 0.49 um); newly read: `lathe_g70_71_demo` (its `G42.1 D0.3 L2` and the `G70` under it; TRUE 8.8e-5 um at 1064 points vs 41 um uncompensated; ``lathe_check`` reads its source with the cycles kept, so not checkable here: checked apart (tool offsets 0), every one of its 150 compensated programmed points within 0.001 um, its non-moves byte for byte) |
+| NC_FILES.csv (185), 2026-12-04 (a lathe's points on the spindle axis written where the tool tip passes nearest it, not refused; ``lathe_check`` at the tool offset in force, on-axis points against the least radius any X reaches) | 21 | 125 | 39 | 0 | 0 of 17 checked (14 mill, 3 lathe; max 0.49 um); `lathecomp` now compensated (main: refused by the convergence guard at its 25 on-axis points): 552 points, TRUE max 22.4 um (uncompensated 25.0 um), the largest at its on-axis points (centre height up to 21.2 um on the count's truth), checked: 19 programmed points within 0.021 um, 6 of them on the axis |
+| the same, ``--expand-cycles`` | 25 | 125 | 35 | 0 | 0 of 17 checked (max 0.49 um); `g76`, `lathe-g76`, `lathe_g7x_quadrants` now compensated (9, 9 and 6 points on the axis; TRUE max 12.9, 12.9, 22.5 um vs 21.0, 21.0, 41.8 um uncompensated), not checkable here (``lathe_check`` reads the source with the cycles kept); checked apart against the reader's expansion of the source: `g76` 132 programmed points within 0.45 um (9 on the axis), `lathe_g7x_quadrants` 226 within 0.025 um (4 on the axis) |
 | MANIFEST.csv (101), before | 40 | 25 | 36 | 0 | - |
 | MANIFEST.csv (101), after | 42 | 25 | 34 | 0 | 0 of 34 checked (3 not checkable) |
 | MANIFEST.csv (101), with CAM-post words (G80 with G0, bare G43 with the modal H, …; kept cycles checked) | 43 | 25 | 33 | 0 | 0 of 38 checked |
@@ -479,9 +483,11 @@ def lathe_check(src: Path, written: Path, dialect: str, truth_file: Path) -> str
     of the count's tables (:data:`PART_ZERO_MM`, every system), the lines that are not compensated moves the
     source's byte for byte, and every programmed end point (radius, Z) reached, in order, by some written move:
     the TRUE tool tip averaged over one turn of the spindle on the programmed surface of revolution within 1 um
-    (``compensation.turning.surface_residual_um``). A program with C words is not checked here."""
+    (``compensation.turning.surface_residual_um``), at the tool offset in force (``G43 H`` / ``G49`` read by pattern,
+    tests/program_checks.py ``_frame``: the count's tool table, every tool :data:`TOOL_LENGTH_MM` along Z, no X
+    offset). A point on the spindle axis: :func:`lathe_points_reached`. A program with C words is not checked here."""
     sys.path.insert(0, str(HERE.parent / "tests"))
-    from program_checks import TOL_POINT_UM
+    from program_checks import TOL_POINT_UM, _frame
     from compensation.turning import parse_lathe_program
     from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
@@ -502,28 +508,81 @@ def lathe_check(src: Path, written: Path, dialect: str, truth_file: Path) -> str
     keep_out = [ln for i, ln in enumerate(p_out.lines) if i not in {m.index for m in m_out}]
     if keep_src != keep_out:
         return "WRONG: a line that is not a compensated move changed"
-    field = ChainField(lathe, ChainElementSet.load(truth_file, lathe))
-    errs, missed = lathe_points_reached(field, lathe, m_src, m_out, (zero[0], zero[2]), TOL_POINT_UM)
+    systems, tools = _count_tables()
+    try:
+        f_src, f_out = (_frame(p.lines, {s: zero for s in systems}, tools, "G54") for p in (p_src, p_out))
+    except KeyError as exc:  # a tool or work system the count's tables do not hold
+        return f"not checkable: {exc} not in the count's tables"
+    z_of = lambda frames, moves: [frames[m.index][1] or 0.0 for m in moves]  # noqa: E731 - the tool's Z offset
+    field, on_axis = ChainField(lathe, ChainElementSet.load(truth_file, lathe)), []
+    errs, missed = lathe_points_reached(field, lathe, m_src, m_out, (zero[0], zero[2]), TOL_POINT_UM, on_axis,
+                                        (z_of(f_src, m_src), z_of(f_out, m_out)))
     if missed is not None:
         return f"WRONG: line {missed} reached by no written move"
-    return f"ok: max {max(errs):.3g} um at {len(errs)} points" if errs else "not checkable: no compensated move"
+    axis = (f" ({len(on_axis)} on the spindle axis: off it by the least radius any X reaches, up to "
+            f"{max(f for _, f in on_axis):.3g} um)") if on_axis else ""
+    return f"ok: max {max(errs):.3g} um at {len(errs)} points{axis}" if errs else "not checkable: no compensated move"
 
 
-def lathe_points_reached(field, lathe, m_src, m_out, zero_xz_mm, tol_um: float) -> tuple:
+AXIS_ZONE_MM = 1.0
+"""A programmed radius beyond this is reachable by X (a tool's centre-height error is tens of um): only nearer the
+spindle axis does :func:`lathe_points_reached` look for the least radius the tip can reach."""
+
+
+def least_radial_um(field, lathe, q, target) -> float:
+    """The least radial deviation (um) from the programmed radius of ``target`` (1, 3) that any X reaches, Z as at
+    ``q`` (1, 3) (bounded Brent over X within :data:`AXIS_ZONE_MM`; the tip's mean radius over the turn is convex
+    in X near the axis); 0 where X reaches the programmed radius."""
+    from scipy.optimize import minimize_scalar
+    from compensation.turning import surface_residual_um
+
+    def radial(x_mm):
+        qx = q.copy()
+        qx[0, 0] = x_mm
+        return float(surface_residual_um(field, lathe, qx, target)[0][0, 0])
+    best = minimize_scalar(radial, bounds=(target[0, 0] - AXIS_ZONE_MM, target[0, 0] + AXIS_ZONE_MM),
+                           method="bounded", options={"xatol": 1e-7})
+    return max(0.0, float(best.fun))
+
+
+def lathe_points_reached(field, lathe, m_src, m_out, zero_xz_mm, tol_um: float, on_axis: list | None = None,
+                         tools_z_mm: tuple | None = None) -> tuple:
     """``(errors um, missed line)``: per programmed move of ``m_src``, in order, the TRUE error of the first later move
     of ``m_out`` that reaches it within ``tol_um`` — the tool tip driven to the written (radius, Z), averaged over one
     turn of the spindle, against the programmed surface of revolution (``compensation.turning.surface_residual_um``);
     the moves' ends are in the work frame, ``zero_xz_mm`` the part zero's (X, Z) in the machine. ``missed``: the
-    1-based line of the first programmed point no written move reaches (its errors so far), else None."""
-    from compensation.turning import surface_residual_um
-    place = lambda e: np.array([[e[0] + zero_xz_mm[0], e[1] + zero_xz_mm[1], 0.0]])  # noqa: E731 - X radius, Z, C
+    1-based line of the first programmed point no written move reaches (its errors so far), else None.
+    ``tools_z_mm``: ``(per move of m_src, per move of m_out)`` the tool offset along Z in force (mm; 0: none): the
+    machine's Z is the program's plus it, the tool tip that far back (``compensation.turning.at_tool``); a written
+    move reaches only a point programmed with the same offset.
+
+    A programmed radius nearer the spindle axis than the TRUE tip passes it (a point on the axis, X0; the tool's
+    centre-height error) is reached by no X and Z: there the error left whatever is written is the least radial
+    deviation any X reaches at the written Z (:func:`least_radial_um`, found here by a search over X, not by the
+    compensator's closest approach; the model residual there when the model is the truth). Such a point counts as
+    reached when its error less that floor (its radial deviation less the floor, its axial deviation in full) is within
+    ``tol_um``; that is its error, and ``(line, floor um)`` is appended to ``on_axis`` (a list, when given)."""
+    from compensation.turning import at_tool, surface_residual_um
+    tz_src, tz_out = tools_z_mm if tools_z_mm is not None else ([0.0] * len(m_src), [0.0] * len(m_out))
+    at = {}
+    place = lambda e, tz: np.array([[e[0] + zero_xz_mm[0], e[1] + zero_xz_mm[1] + tz, 0.0]])  # noqa: E731 - X, Z, C
     errs, j = [], 0
-    for m in m_src:
+    for m, tz in zip(m_src, tz_src):
+        if tz not in at:
+            at[tz] = at_tool(field, lathe, 0.0, tz) if tz else (field, lathe)
+        f, mt = at[tz]
+        target = place(m.end, tz)
         while j < len(m_out):
-            e = float(np.linalg.norm(surface_residual_um(field, lathe, place(m_out[j].end), place(m.end))[0][0]))
+            q = place(m_out[j].end, tz)
+            r = surface_residual_um(f, mt, q, target)[0][0] if tz_out[j] == tz else np.full(2, np.inf)
+            near = np.isfinite(r).all() and np.hypot(*r) > tol_um and abs(target[0, 0]) < AXIS_ZONE_MM
+            floor = least_radial_um(f, mt, q, target) if near else 0.0
+            e = float(np.hypot(r[0] - floor, r[1]))  # the axial error in full: only the radius has a floor
             j += 1
-            if e <= tol_um:
+            if np.isfinite(e) and e <= tol_um:
                 errs.append(e)
+                if floor > 0.0 and on_axis is not None:
+                    on_axis.append((m.index + 1, floor))
                 break
         else:
             return errs, m.index + 1

@@ -36,6 +36,7 @@ from ...fields import FAILED_VERDICT, check_verdict, resolve_model, verdict_note
 from ...gcode import DEFAULT_RAPIDS
 from ...gcode_spline import spline_lines
 from ...held_axes import held_points, held_to_write, merge_held, solve_held
+from ...nc_expand import source_lines
 from ...nc_state import MACHINE, field_with_tool, machine_with_tool
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, compensated_sidecar
 from ...solvers import METHODS, solver_spec
@@ -43,7 +44,8 @@ from ...solvers.chain_exact import nominal_and_jacobian, solved_and_kept
 from ...solvers.threads import small_batch_threads
 from .compensate_paths import ToolPath, read_tool_path, render, source_line_of
 from .compensate_report import (PATH_SAMPLES, cutter_radius_bound_um, cycle_report, orientation_pass, rotary_refusals,
-                                stats, tcp_entry, true_path_residual_um, true_residual_um)
+                                spindle_axis_entry, spindle_axis_line, stats, tcp_entry, true_path_residual_um,
+                                true_residual_um)
 
 WORK_OFFSETS_MACHINE_NOTE = "volcomp: work offsets taken as machine zero (--work-offsets machine)"
 
@@ -399,6 +401,8 @@ def compensate_one(p, dst, tp: ToolPath, res, targets, true_r, true_base, field_
         comments = []  # a clean G-code output gets no added lines (but the frame the user gave, below)
     if tp.kind == "gcode" and s.work_offsets is not None and s.work_offsets.source == MACHINE:
         comments = [WORK_OFFSETS_MACHINE_NOTE] + comments
+    if "spindle_axis_points" in entry:  # said in the program, as an override is
+        comments = [spindle_axis_line(entry["spindle_axis_points"])] + comments
     comments = verdict_notes(verdict) + comments   # a failed verdict used on request: said in the program
     held = held_to_write(tp, res.axes) if res.info.get("held", {}).get("points") else None
     o.text = render(tp, res.axes, res.commands_mm, machine, comments, held)
@@ -427,18 +431,23 @@ def kept_rapids(tp: ToolPath, machine) -> list:
 def file_entry(p, tp: ToolPath, res, report, kept, machine, s: CompensateSettings) -> dict:
     """The summary record of one file: points, model residual, correction, guards, axes moved."""
     norm = np.linalg.norm(res.residual_um, axis=1)
+    unsolved = ~np.asarray(res.success, bool)
+    unsolved[np.fromiter(res.info.get("spindle_axis", {}), dtype=np.intp)] = False  # apart: spindle_axis_points
     viol = {g: int(len(v)) for g, v in report.violations.items()}
     viol["stroke"] += len(kept)
     entry = {"input": str(p), "output": None, "format": tp.kind, "points": len(tp.axes), "machine": machine.name,
              "residual": "model", "model_max_um": float(norm.max()), "model_mean_um": float(norm.mean()),
              "max_correction_um": float(res.correction_um.max()),
-             "failures": int(np.count_nonzero(~np.asarray(res.success, bool))), "guard_violations": viol,
+             "failures": int(np.count_nonzero(unsolved)), "guard_violations": viol,
              "allowed_guards": sorted(report.allowed),
              "overridden": {g: n for g, n in viol.items() if n and g in report.allowed},
              "compensated_axes": res.info.get("compensated_axes"), "kept_axes": res.info.get("kept_axes"),
              "seconds": float(res.seconds), "chunks": res.info.get("chunks", 1)}
     if res.info.get("note"):
         entry["note"] = res.info["note"]
+    on_axis = spindle_axis_entry(res, lambda idx: source_lines(tp.source.program, np.unique(tp.lines[idx])))
+    if on_axis is not None:  # a lathe's points on the spindle axis: written, not failures (compensation.turning)
+        entry["spindle_axis_points"] = on_axis
     if res.info.get("held", {}).get("points"):  # axes held at a G53 value: how many points, what is left along them
         entry["held"] = dict(res.info["held"])
     if res.info.get("conditions"):
@@ -574,6 +583,8 @@ def print_file(o: FileOutcome) -> None:
           f"{entry['failures']}, guard violations {sum(entry['guard_violations'].values())} {status}")
     if entry.get("note"):
         print(f"  {entry['note']}")
+    if "spindle_axis_points" in entry:
+        print(f"  {spindle_axis_line(entry['spindle_axis_points']).removeprefix('volcomp: ')}")
     retry = entry.get("ga_retry")
     if retry and retry["retried"]:
         print(f"  {retry['retried']} point(s) above the GA tolerance after its generations: retried "

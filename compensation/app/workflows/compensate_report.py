@@ -195,3 +195,43 @@ def rotary_refusals(res, report) -> int:
     report.reasons["convergence"] = np.array([why.get(int(i), r) for i, r in zip(conv, report.reasons["convergence"])],
                                              dtype=object)
     return int(len(idx))
+
+
+def spindle_axis_entry(res, lines_of) -> dict | None:
+    """The summary's ``spindle_axis_points`` of one lathe file (None: none): its turning points nearer the spindle
+    axis than the tool tip passes it (``res.info["spindle_axis"]``, :func:`compensation.turning.unreachable_radius`),
+    written where the tip passes nearest the axis: ``count``, their source ``lines`` (``lines_of(points)``), the
+    largest centre height ``height_max_um``, the MODEL residual left there ``residual_max_um`` (the tip's least
+    mean radius: the height and its wobble over the turn), ``model_max_here`` (the file's largest model residual is
+    one of them), ``why``."""
+    from ...turning import SPINDLE_AXIS_WHY
+    on_axis = res.info.get("spindle_axis") or {}
+    if not on_axis:
+        return None
+    idx = np.array(sorted(on_axis), dtype=np.intp)
+    h = float(max(on_axis.values()))
+    norm = np.linalg.norm(np.asarray(res.residual_um), axis=1)
+    return {"count": int(len(idx)), "lines": lines_of(idx), "height_max_um": h,
+            "residual_max_um": float(norm[idx].max()), "model_max_here": bool(norm[idx].max() >= norm.max()),
+            "why": SPINDLE_AXIS_WHY.format(h=h)}
+
+
+NOTE_CHARS = 250
+"""The longest spindle-axis note (with its parentheses): a LinuxCNC line holds at most 255 characters."""
+
+
+def spindle_axis_line(e: dict) -> str:
+    """One line (ASCII, at most :data:`NOTE_CHARS`) of a ``spindle_axis_points`` entry: the console's and the written
+    program's header; it names as many of their source lines as fit, without an expanded program's detail (the summary
+    names them all: ``'6 (expanded line 9)'`` is line 6 here)."""
+    names = list(dict.fromkeys(str(line).split(" ", 1)[0] for line in e["lines"]))
+    largest = ", the largest" if e["model_max_here"] else ""
+    for k in range(min(len(names), 4), 0, -1):
+        lines = ", ".join(names[:k]) + (", ..." if len(names) > k else "")
+        text = (f"volcomp: {e['count']} point(s) on the spindle axis (line(s) {lines}), not failures: written where "
+                f"the tool tip passes nearest it, {e['height_max_um']:.3g} um off centre height, which X and Z cannot "
+                f"correct (residual left max {e['residual_max_um']:.4g} um{largest}); "
+                "adjust the tool's centre height").encode("ascii", "replace").decode()
+        if len(text) + 2 <= NOTE_CHARS:
+            break
+    return text
