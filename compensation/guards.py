@@ -144,15 +144,20 @@ def volume_violations(axes, field, tol: float = 1e-9, names=AXIS_NAMES):
     return _box_violations(axes, lo, hi, free, tol, "calibrated volume", names)
 
 
+def solver_failures(result) -> np.ndarray:
+    """(n,) bool: the points a solver reported as not successful, but a lathe's turning point nearer the spindle axis
+    than the tool tip passes it (``info["spindle_axis"]``, :func:`compensation.turning.unreachable_radius`): its least
+    radius is solved exactly, what is left is the centre-height error, which no X and Z remove (reported apart: the
+    summary's ``spindle_axis_points``)."""
+    failed = ~np.asarray(result.success, dtype=bool)
+    failed[np.fromiter(result.info.get("spindle_axis", {}), dtype=np.intp)] = False
+    return failed
+
+
 def convergence_violations(result):
-    """Points a solver reported as not successful strictly inside the ball; (indices, reasons). A lathe's turning
-    point nearer the spindle axis than the tool tip passes it (``info["spindle_axis"]``,
-    :func:`compensation.turning.unreachable_radius`) is not counted: its least radius is solved exactly, what is left
-    is the centre-height error, which no X and Z remove (reported apart: the summary's ``spindle_axis_points``)."""
+    """The :func:`solver_failures` strictly inside the ball; (indices, reasons)."""
     ball = float(result.info.get("ball_um", BALL_RADIUS_UM))
-    unsolved = ~np.asarray(result.success, dtype=bool) & (result.correction_um < ball * (1.0 - ON_BALL_REL))
-    unsolved[np.fromiter(result.info.get("spindle_axis", {}), dtype=np.intp)] = False
-    bad = np.flatnonzero(unsolved)
+    bad = np.flatnonzero(solver_failures(result) & (result.correction_um < ball * (1.0 - ON_BALL_REL)))
     r = np.linalg.norm(np.asarray(result.residual_um)[bad], axis=1)
     tol = result.info.get("tol_um")
     retry = result.info.get("retry")

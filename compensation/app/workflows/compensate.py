@@ -431,14 +431,12 @@ def kept_rapids(tp: ToolPath, machine) -> list:
 def file_entry(p, tp: ToolPath, res, report, kept, machine, s: CompensateSettings) -> dict:
     """The summary record of one file: points, model residual, correction, guards, axes moved."""
     norm = np.linalg.norm(res.residual_um, axis=1)
-    unsolved = ~np.asarray(res.success, bool)
-    unsolved[np.fromiter(res.info.get("spindle_axis", {}), dtype=np.intp)] = False  # apart: spindle_axis_points
     viol = {g: int(len(v)) for g, v in report.violations.items()}
     viol["stroke"] += len(kept)
     entry = {"input": str(p), "output": None, "format": tp.kind, "points": len(tp.axes), "machine": machine.name,
              "residual": "model", "model_max_um": float(norm.max()), "model_mean_um": float(norm.mean()),
              "max_correction_um": float(res.correction_um.max()),
-             "failures": int(np.count_nonzero(unsolved)), "guard_violations": viol,
+             "failures": int(np.count_nonzero(guards.solver_failures(res))), "guard_violations": viol,
              "allowed_guards": sorted(report.allowed),
              "overridden": {g: n for g, n in viol.items() if n and g in report.allowed},
              "compensated_axes": res.info.get("compensated_axes"), "kept_axes": res.info.get("kept_axes"),
