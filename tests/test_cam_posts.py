@@ -1,7 +1,7 @@
 """Programs as CAM posts write them (benchmarks/nc_styles/p*: Fusion 360 Haas and Fanuc, Mastercam, SOLIDWORKS CAM,
 NX, FeatureCAM, Makino, Siemens ISO, Mach3, grbl, a Haas shop program), each written for this project from its
 post's or controller's manual wording: read with --dialect auto and the shop's tables (nc_styles/tables),
-compensated, and judged independently of the reader (benchmarks/suite/gcode_corpus.py ``independent_check``:
+compensated, and judged independently of the reader (benchmarks/suite/gcode_checks.py ``independent_check``:
 non-motion lines byte-identical, every programmed point and every hole bottom reached by the TRUE machine within
 1 μm). The words they need, one test each from the manual's wording; what stays ambiguous refused by line,
 column and word with the option that reads it."""
@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks.suite.gcode_corpus import FAMILIES, STYLE_TABLES, STYLES, independent_check, style_tables
+from benchmarks.suite.gcode_checks import independent_check
+from benchmarks.suite.gcode_corpus import FAMILIES, STYLE_TABLES, STYLES, style_tables
 from compensation.app.cli import main
 from compensation.dialects import detect_dialect
 from compensation.gcode import AxisWords, parse_program

@@ -13,7 +13,7 @@ import json
 import numpy as np
 import pytest
 
-from benchmarks.suite.gcode_corpus import independent_check
+from benchmarks.suite.gcode_checks import independent_check
 from compensation.app.cli import main
 from compensation.gcode import AxisWords, move_points, parse_program
 from compensation.nc_state import read_tool_table, read_work_offsets

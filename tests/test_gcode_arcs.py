@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.suite.gcode_corpus import STYLE_TABLES, independent_check, style_tables
+from benchmarks.suite.gcode_checks import independent_check
+from benchmarks.suite.gcode_corpus import STYLE_TABLES, style_tables
 from benchmarks.suite.toolpath import TruthField
 from compensation.app.cli import main
 from compensation.nc_state import MACHINE, read_work_offsets

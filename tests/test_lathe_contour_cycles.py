@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 
-from benchmarks.suite.gcode_corpus import lathe_points_reached
+from benchmarks.suite.gcode_checks import lathe_points_reached
 from benchmarks.suite.lathe import G70_LINE, STEPS  # the stepped shaft the lathe benchmark counts
 from compensation.app.cli import main
 from compensation.nc_contour import HOLD_UM

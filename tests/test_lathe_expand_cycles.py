@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from test_lathe_grooving import hand_moves
 
-from benchmarks.suite.gcode_corpus import lathe_points_reached
+from benchmarks.suite.gcode_checks import lathe_points_reached
 from compensation.app.cli import main
 from compensation.turning import parse_lathe_program
 from errormap.chain_elements import ChainElementSet

@@ -19,7 +19,7 @@ import json
 import numpy as np
 import pytest
 
-from benchmarks.suite.gcode_corpus import lathe_points_reached
+from benchmarks.suite.gcode_checks import lathe_points_reached
 from benchmarks.suite.lathe import true_leads
 from compensation.app.cli import main
 from compensation.nc_thread import LEAD_TOL_REL

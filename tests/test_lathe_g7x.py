@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 from test_lathe_g33 import LATHE, PART_Z_MM, TOL_POINT_UM, _compensate, _field
 
-from benchmarks.suite.gcode_corpus import lathe_points_reached
+from benchmarks.suite.gcode_checks import lathe_points_reached
 from compensation.turning import parse_lathe_program
 from errormap.io import InputError
 from errormap.machine import load_machine

@@ -14,7 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from benchmarks.suite.gcode_corpus import lathe_points_reached
+from benchmarks.suite.gcode_checks import lathe_points_reached
 from compensation.app.cli import main
 from compensation.nc_groove import ACROSS_UM
 from compensation.turning import parse_lathe_program

@@ -13,7 +13,7 @@ import re
 
 import numpy as np
 
-from benchmarks.suite.gcode_corpus import lathe_points_reached
+from benchmarks.suite.gcode_checks import lathe_points_reached
 from compensation.turning import _tip_over_turn, height_um, surface_residual_um
 from test_lathe_g33 import PART_Z_MM, TOL_POINT_UM, _compensate, _field, _read
 
@@ -135,9 +135,10 @@ moves the radius only to second order, √(h² + d²) − h, which the check rig
 
 
 def test_the_corpus_check_follows_tool_offsets_and_the_axis(tmp_path):
-    """``lathe_check`` (benchmarks/suite/gcode_corpus.py) on a compensated program with a tool offset and points on the
+    """``lathe_check`` (benchmarks/suite/gcode_checks.py) on a compensated program with a tool offset and points on the
     axis: ok, each on-axis point named; a written word moved by :data:`SHIFT_MM` off or on the axis: WRONG."""
-    from benchmarks.suite.gcode_corpus import _tables, lathe_check
+    from benchmarks.suite.gcode_checks import lathe_check
+    from benchmarks.suite.gcode_corpus import _tables
     from compensation.app.cli import main
     from compensation.nc_state import read_tool_table, read_work_offsets
     from errormap.chain_elements import ChainElementSet

@@ -230,10 +230,11 @@ def test_what_the_controllers_refuse_is_refused_naming_their_rule(tmp_path, text
 @pytest.mark.parametrize("src", ["linuxcnc_blanks.ngc", "fanuc_nested_loops.nc"])
 def test_expanded_macro_programs_are_compensated_where_they_cut(tmp_path, src):
     """Compensated on mill-xyz with the TRUE machine as the model and G54 from the shop's table, then judged by the
-    independent check (benchmarks/suite/gcode_corpus.py ``independent_check``: the lines that are not compensated moves
+    independent check (benchmarks/suite/gcode_checks.py ``independent_check``: the lines that are not compensated moves
     the reader's flat program's byte for byte, every programmed point reached by the TRUE machine within
     ``TOL_POINT_UM``)."""
-    from benchmarks.suite.gcode_corpus import STYLE_TABLES, independent_check, style_tables
+    from benchmarks.suite.gcode_checks import independent_check
+    from benchmarks.suite.gcode_corpus import STYLE_TABLES, style_tables
     from compensation.app.cli import main
     from errormap.chain_elements import ChainElementSet
     from program_checks import TOL_POINT_UM

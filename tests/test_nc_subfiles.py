@@ -91,9 +91,10 @@ def test_a_refusal_inside_the_file_names_the_file_and_its_line(tmp_path):
 @pytest.mark.parametrize("main,folder,name", CASES)
 def test_compensated_on_mill_xyz_per_call_where_it_cuts(tmp_path, main, folder, name):
     """As tests/test_nc_expand.py's macro programs: the TRUE machine as the model, G54 from the shop's table, judged by
-    the independent check (benchmarks/suite/gcode_corpus.py ``independent_check``) against the program with its
+    the independent check (benchmarks/suite/gcode_checks.py ``independent_check``) against the program with its
     subprogram in the file: other lines byte for byte, every programmed point reached within ``TOL_POINT_UM``."""
-    from benchmarks.suite.gcode_corpus import STYLE_TABLES, independent_check, style_tables
+    from benchmarks.suite.gcode_checks import independent_check
+    from benchmarks.suite.gcode_corpus import STYLE_TABLES, style_tables
     from compensation.app.cli import main as cli
     from errormap.chain_elements import ChainElementSet
     from program_checks import TOL_POINT_UM

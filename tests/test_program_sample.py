@@ -8,8 +8,9 @@ import json
 
 import pytest
 
-from benchmarks.suite.gcode_corpus import (HERE, MANIFEST, SAMPLE_MARK, STYLE_TABLES, independent_check,
-                                           sample_figures, sample_of, style_tables)
+from benchmarks.suite.gcode_checks import independent_check
+from benchmarks.suite.gcode_corpus import (HERE, MANIFEST, SAMPLE_MARK, STYLE_TABLES, sample_figures, sample_of,
+                                           style_tables)
 from compensation.app.cli import main
 from compensation.gcode import AxisWords, parse_program
 from errormap.chain_elements import ChainElementSet

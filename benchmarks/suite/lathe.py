@@ -27,7 +27,7 @@ also the model (``--method exact``), compensated on the user's path twice: by de
 place: accepted while the type I contour stays monotonic, else refused naming ``--expand-cycles``) and with
 ``--expand-cycles`` (the G71 and its contour written as they are, the G70 written as its compensated moves). TRUE
 residual judged here, not by the compensator: the true machine driven to the written axes of each G70 move, the tip
-(mean over one turn) beside the programmed contour point that move reaches (``gcode_corpus.lathe_points_reached``,
+(mean over one turn) beside the programmed contour point that move reaches (``gcode_checks.lathe_points_reached``,
 the corpus count's lathe check); beside it the program as written (uncompensated) at the same points.
 
 Threading (Fanuc G32, compensation/nc_thread.py; LinuxCNC G76 with ``--expand-cycles``, compensation/nc_g76.py):
@@ -61,7 +61,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .gcode_corpus import lathe_points_reached
+from .gcode_checks import lathe_points_reached
 
 HERE = Path(__file__).resolve().parent
 NOISE = 0.3
