@@ -591,129 +591,12 @@ def render_tcp(program, vertices, header=()) -> str:
     return "".join(out[:1] + head + out[1:])
 
 
-# ---------------------------------------------------------------------------- orientation
-def tool_axis(machine, axes, values=None) -> np.ndarray:
-    """The tool axis (unit, spindle direction) in the workpiece frame, (n, 3), of ``machine`` at ``axes``
-    (n, k) with slot ``values`` (n, P) μm/μrad (None: nominal)."""
-    Rw, _ = machine.side_frames("work", axes, values)
-    Rt, _ = machine.side_frames("tool", axes, values)
-    return np.einsum("nji,nj->ni", Rw, Rt[:, :, 2])
-
-
-def orientation_residual_urad(truth, machine, axes, nominal_axes, tool_mm) -> np.ndarray | None:
-    """TRUE orientation residual (n,) μrad: the angle between the truth machine's tool axis at ``axes`` and the
-    nominal tool axis at ``nominal_axes`` (the programmed orientation), at each point's tool length. None
-    where the truth is not an element set nor a simulated truth without effects (its orientation is not known)."""
-    elements = getattr(truth, "elements", None)
-    sim = getattr(truth, "truth", None)  # simulate --machine's truth.json at the reference conditions
-    if elements is None and sim is not None and not getattr(sim, "effects", None):
-        elements = sim.elements
-    if elements is None:
-        return None
-    from .nc_state import machine_with_tool
-    out = np.empty(len(axes))
-    for length, idx in by_length(tool_mm):
-        mt = machine if length is None else machine_with_tool(machine, length)
-        a = tool_axis(mt, axes[idx], elements.values(axes[idx]))
-        b = tool_axis(mt, nominal_axes[idx])
-        out[idx] = np.arcsin(np.clip(np.linalg.norm(np.cross(a, b), axis=1), 0.0, 1.0)) * 1e6
-    return out
-
-
-ORIENT_ROTARY_LIMIT_DEG = 0.05
-"""Largest rotary correction the orientation solve may make (deg): the rotary axes' own errors are tens of
-μrad (0.002°); a larger correction means the orientation error lies along a direction the rotary axes cannot
-turn the tool (near ``A = 0`` the C axis turns the tool about itself) and the point keeps its programmed
-rotary axes (position-only, counted in the summary)."""
-ORIENT_TOL_URAD = 0.01
-"""The orientation solve's convergence on the MODEL's tool axis (μrad)."""
-ORIENT_POS_TOL_UM = 1e-4
-"""... and on the MODEL's tool tip (μm)."""
-ORIENT_STEPS = {"linear": 1e-3, "rotary": 1e-4}
-"""Central-difference steps of the orientation solve's Jacobian (mm, deg): the model varies over tens of mm /
-degrees, so their h² error is far below the tolerances."""
-ORIENT_MAX_ITER = 8
-
-
-def _pose_residual(field_, machine, q, targets, directions) -> np.ndarray:
-    """MODEL tool tip minus target (μm) and MODEL tool axis minus the programmed one (μrad), (n, 6)."""
-    p = machine.nominal(q) + 1e-3 * field_.predict(q)
-    n = tool_axis(machine, q, field_.elements.values(q))
-    return np.concatenate([(p - targets) * 1e3, (n - directions) * 1e6], axis=1)
-
-
-def solve_orientation(field_, machine, axes0, targets, directions) -> tuple:
-    """Tool tip AND tool axis compensated with all five axes (Gauss-Newton over the MODEL, an element set at
-    the tool's length: ``field_`` a :class:`errormap.chain_field.ChainField` on ``machine``), from the
-    position-only solution ``axes0`` (n, k); ``targets`` (n, 3) mm the programmed tips, ``directions`` (n, 3)
-    the programmed tool axes (nominal, at the programmed axes). Returns ``(axes (n, k), solved (n,) bool)``:
-    a point that does not converge or needs a rotary correction over :data:`ORIENT_ROTARY_LIMIT_DEG` keeps
-    ``axes0`` (solved False)."""
-    rot = np.array([a.kind != "linear" for a in machine.axes])
-    h = np.where(rot, ORIENT_STEPS["rotary"], ORIENT_STEPS["linear"])
-    q = np.array(axes0, dtype=float)
-    k = q.shape[1]
-    for _ in range(ORIENT_MAX_ITER):
-        r = _pose_residual(field_, machine, q, targets, directions)
-        J = np.empty(r.shape + (k,))
-        for j in range(k):
-            d = np.zeros(k)
-            d[j] = h[j]
-            J[:, :, j] = (_pose_residual(field_, machine, q + d, targets, directions)
-                          - _pose_residual(field_, machine, q - d, targets, directions)) / (2 * h[j])
-        JtJ = np.einsum("nij,nik->njk", J, J)
-        g = np.einsum("nij,ni->nj", J, r)
-        scale = np.sqrt(np.einsum("njj->nj", JtJ)) + 1e-300
-        A = JtJ / scale[:, :, None] / scale[:, None, :] + 1e-12 * np.eye(k)
-        dq = -np.linalg.solve(A, (g / scale)[:, :, None])[:, :, 0] / scale
-        q += dq
-        if np.abs(dq).max() < 1e-12:
-            break
-    r = _pose_residual(field_, machine, q, targets, directions)
-    ok = ((np.linalg.norm(r[:, :3], axis=1) <= ORIENT_POS_TOL_UM) & (np.linalg.norm(r[:, 3:], axis=1) <= ORIENT_TOL_URAD)
-          & (np.abs(q[:, rot] - axes0[:, rot]).max(axis=1) <= ORIENT_ROTARY_LIMIT_DEG))
-    q[~ok] = axes0[~ok]
-    return q, ok
-
-
-def compensate_orientation(field_, machine, tp_axes, tool_mm, res, targets):
-    """:func:`solve_orientation` over every point of a solved file at its tool length (NaN: the machine file's
-    tool): ``(SolveResult with the new axes, commands and MODEL position residual, solved (n,) bool)``.
-    ``field_`` must be an element set (``TypeError`` otherwise: only an element set gives the tool's
-    orientation)."""
-    import dataclasses
-
-    from errormap.chain_field import ChainField
-
-    from .nc_state import field_with_tool, machine_with_tool
-    if not isinstance(field_, ChainField):
-        raise TypeError(f"the model is a {type(field_).__name__}: the tool's orientation error needs an element set")
-    axes = np.array(res.axes, dtype=float)
-    solved = np.zeros(len(axes), bool)
-    commands = np.array(res.commands_mm, dtype=float)
-    resid = np.array(res.residual_um, dtype=float)
-    for length, idx in by_length(tool_mm):
-        mt = machine if length is None else machine_with_tool(machine, length)
-        f = field_ if length is None else field_with_tool(field_, mt)
-        q, ok = solve_orientation(f, mt, axes[idx], targets[idx], tool_axis(mt, tp_axes[idx]))
-        axes[idx], solved[idx] = q, ok
-        commands[idx] = mt.nominal(q)
-        resid[idx] = (commands[idx] - targets[idx]) * 1e3 + f.predict(q)
-    out = dataclasses.replace(res, axes=axes, commands_mm=commands, residual_um=resid,
-                              correction_um=np.linalg.norm((commands - targets) * 1e3, axis=1),
-                              info={**res.info, "orientation_solved": solved,
-                                    "compensated_axes": list(machine.axis_columns), "kept_axes": [],
-                                    "note": ("tool tip and tool orientation compensated with every axis "
-                                             f"({', '.join(machine.axis_columns)}); {int((~solved).sum())} point(s) "
-                                             "whose orientation error the rotary axes cannot turn out within "
-                                             f"{ORIENT_ROTARY_LIMIT_DEG:g} deg keep the programmed rotary axes "
-                                             "(position only)")})
-    return out, solved
-
-
-def report(pre: TcpProgram, points_on: np.ndarray, before_urad=None, after_urad=None, solved=None) -> dict:
+def report(pre: TcpProgram, points_on: np.ndarray, before_urad=None, after_urad=None, solved=None,
+           partly=None) -> dict:
     """The summary's ``tcp`` entry (``pre`` None: a joint-mode program compensated with its orientation:
-    ``points_on`` every point)."""
+    ``points_on`` every point); ``solved`` / ``partly`` (n,) bool of ``--compensate-orientation``
+    (:func:`compensation.tcp_orientation.solve_orientation`): the points whose tool axis was turned out, and those
+    near a rotary singularity where it was turned out only in the other rotary axis's plane."""
     out = {"words": sorted(set(pre.words)) if pre else [], "points": int(points_on.sum()),
            "inverse_time_lines": int(pre.inverse_time.sum()) if pre else 0,
            "form": "TCP points written in TCP form: tool tip X Y Z in the workpiece frame (compensated), rotary "
@@ -731,9 +614,18 @@ def report(pre: TcpProgram, points_on: np.ndarray, before_urad=None, after_urad=
         out["true_orientation"] = st(after_urad)
         out["true_orientation_uncompensated"] = st(before_urad)
     if solved is not None:
+        partly = np.zeros_like(solved) if partly is None else partly
         out["orientation_solved_points"] = int(solved.sum())
-        out["orientation_kept_points"] = int((~solved).sum())
-        if before_urad is not None and solved.any():
-            out["true_orientation_solved"] = st(after_urad[solved])
-            out["true_orientation_solved_uncompensated"] = st(before_urad[solved])
+        out["orientation_partly_points"] = int(partly.sum())
+        out["orientation_kept_points"] = int((~solved & ~partly).sum())
+        for name, mask in (("solved", solved), ("partly", partly)):
+            if before_urad is not None and mask.any():
+                out[f"true_orientation_{name}"] = st(after_urad[mask])
+                out[f"true_orientation_{name}_uncompensated"] = st(before_urad[mask])
+        if partly.any():
+            out["orientation_partly"] = (
+                "points near a rotary singularity (the tool axis along the last rotary axis: A = 0 on an A/C table): "
+                "that axis turns the tool about itself, so the other rotary axis turns out the tilt in its own plane "
+                "and that axis is held; the tilt toward the other axis's line is left (turning it out would need the "
+                "held axis to swing by tens of degrees from point to point)")
     return out

@@ -23,7 +23,7 @@ from compensation.app.cli import main
 from compensation.chain_gcode import parse_chain_program
 from compensation.nc_state import machine_with_tool
 from compensation.solvers.base import BALL_RADIUS_UM
-from compensation.tcp import ORIENT_ROTARY_LIMIT_DEG
+from compensation.tcp_orientation import ORIENT_ROTARY_LIMIT_DEG
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import ChainField
 from errormap.io import InputError
@@ -353,7 +353,8 @@ PROBE_MM = 10.0
 def test_tcp_with_orientation_turns_the_b_c_trunnion(tmp_path):
     """``--compensate-orientation`` on five-axis-bc: B and C are corrected too; at every block end the TRUE tool
     tip is the programmed one within 1 μm and the TRUE tool axis the programmed (nominal) one within 0.1 μrad, the
-    rotary corrections inside the orientation solve's limit (compensation/tcp.py ORIENT_ROTARY_LIMIT_DEG)."""
+    rotary corrections inside the orientation solve's limit (compensation/tcp_orientation.py
+    ORIENT_ROTARY_LIMIT_DEG)."""
     dialect, zero, text = TCP_CASES["five-axis-bc"]
     mt, truth_file, prog, written, _ = _compensate(tmp_path, "five-axis-bc", text, dialect, {"G54": zero},
                                                    ("--compensate-orientation",))

@@ -130,12 +130,14 @@ def test_m428_without_g43_runs_at_the_machine_files_tool_point(setup):
 
 
 def test_orientation_solved_where_the_tool_is_tilted(setup):
-    """With --compensate-orientation the finish pass (A from -15° to -30°) has its tool axis corrected; the
-    roughing at A0 keeps its rotary axes (C turns the tool about itself there) and is counted as kept."""
+    """With --compensate-orientation the finish pass (A from -15° to -30°) has its tool axis corrected; at the
+    roughing at A0, where C turns the tool about itself, A turns out the tilt in its own plane and C is held: the
+    tool axis brought nearer (counted as partly), none kept."""
     rc, entry, _ = _run(setup, "orient", extra=("--compensate-orientation",))
     assert rc == 0
     o = entry["tcp"]
-    assert o["orientation_solved_points"] > 0 and o["orientation_kept_points"] > 0
+    assert o["orientation_solved_points"] > 0 and o["orientation_partly_points"] > 0 == o["orientation_kept_points"]
+    assert o["true_orientation_partly"]["max_urad"] < o["true_orientation_partly_uncompensated"]["max_urad"]
     assert o["true_orientation_solved"]["max_urad"] <= ORIENT_TRUE_URAD
     assert o["true_orientation_solved_uncompensated"]["max_urad"] > 100 * ORIENT_TRUE_URAD
     assert entry["true"]["max_um"] <= TRUE_EXACT_UM

@@ -21,9 +21,9 @@ The helical contour (written here): the tool tip on a circle of 40 mm radius ris
 Truth: a seeded element set of ``five-axis-ac`` (seed ``--seed``, ±10 μm / μrad 1 σ); model: the truth with
 seeded station noise of 0.5 μm / μrad 1 σ (seed + 1: a model's own error). Residual kind: TRUE (the product's
 ``--truth``: the truth machine driven with the written program, against the programmed tip and tool axis).
-Where the tool is vertical (A = 0: the demos' roughing) the C axis turns the tool about itself, so the rotary
-axes can turn only one of the two tilt components out; such points keep their programmed rotary axes
-(``compensation.tcp.ORIENT_ROTARY_LIMIT_DEG``) and are counted apart.
+Where the tool is vertical (A = 0: the demos' roughing) the C axis turns the tool about itself, so A turns out
+only the tilt in its own plane, C is held (``compensation.tcp_orientation.solve_orientation``), and such points
+are counted apart ("partly").
 
     python -m benchmarks.run tcp          # about a minute with the demos, 20 s without
     python -m benchmarks.run tcp --quick  # the LinuxCNC helix post and the demo-shaped program
@@ -174,8 +174,9 @@ def compensate(prog: Path, dialect: str, tables: tuple, model: Path, truth: Path
 
 def program_row(name, prog, dialect, tables, model, truth, work: Path) -> dict:
     """Position-only and position + orientation runs of one program: TRUE tip (μm) and tool axis (μrad) maxima
-    before / after; the points whose orientation the rotary axes turned out (solved) and the rest (kept); the
-    two written programs (``outputs``)."""
+    before / after; the points whose orientation the rotary axes turned out (solved), those near the singularity
+    where A turned out its own plane's part with C held (partly) and the rest (kept); the two written programs
+    (``outputs``)."""
     pos = compensate(prog, dialect, tables, model, truth, work / f"{name}-pos", False)
     ori = compensate(prog, dialect, tables, model, truth, work / f"{name}-ori", True)
     o, p = ori["tcp"], pos["tcp"]
@@ -184,13 +185,15 @@ def program_row(name, prog, dialect, tables, model, truth, work: Path) -> dict:
            "tip_ori_um": ori["true"]["max_um"],
            "axis_before_urad": p["true_orientation_uncompensated"]["max_urad"],
            "axis_pos_urad": p["true_orientation"]["max_urad"], "axis_ori_urad": o["true_orientation"]["max_urad"],
-           "solved": o["orientation_solved_points"], "kept": o["orientation_kept_points"],
+           "solved": o["orientation_solved_points"], "partly": o["orientation_partly_points"],
+           "kept": o["orientation_kept_points"],
            "g93_minutes_in_out": (inverse_time_minutes(prog.read_text(encoding="latin-1")),
                                   inverse_time_minutes(ori["output"])),
            "outputs": (pos["output"], ori["output"])}
-    if o["orientation_solved_points"]:
-        row["axis_solved_before_urad"] = o["true_orientation_solved_uncompensated"]["max_urad"]
-        row["axis_solved_ori_urad"] = o["true_orientation_solved"]["max_urad"]
+    for name in ("solved", "partly"):
+        if o[f"orientation_{name}_points"]:
+            row[f"axis_{name}_before_urad"] = o[f"true_orientation_{name}_uncompensated"]["max_urad"]
+            row[f"axis_{name}_ori_urad"] = o[f"true_orientation_{name}"]["max_urad"]
     return row
 
 
@@ -250,10 +253,15 @@ def figures(r) -> list:
            fig("tool axis, max — position only", r["axis_pos_urad"], "μrad", "uncompensated", r["axis_before_urad"]),
            fig(f"tool axis, max over all {r['points']} points — position + orientation", r["axis_ori_urad"], "μrad",
                "uncompensated", r["axis_before_urad"])]
-    if r["kept"] and r["solved"]:
-        out.append(fig(f"tool axis, max over the {r['solved']} points it turned out — position + orientation "
-                       f"(the other {r['kept']} keep their rotary axes)", r["axis_solved_ori_urad"], "μrad",
-                       "uncompensated", r["axis_solved_before_urad"]))
+    if r["partly"] and r["solved"]:
+        out.append(fig(f"tool axis, max over the {r['solved']} points it turned out — position + orientation",
+                       r["axis_solved_ori_urad"], "μrad", "uncompensated", r["axis_solved_before_urad"]))
+        out.append(fig(f"tool axis, max over the {r['partly']} points with the tool vertical (A turns out its own "
+                       "plane's tilt, C held) — position + orientation", r["axis_partly_ori_urad"], "μrad",
+                       "uncompensated", r["axis_partly_before_urad"]))
+    if r["kept"]:
+        out.append({"what": f"{r['program']}: points keeping their rotary axes (position only)", "value": r["kept"],
+                    "unit": "", "residual": "none", "anchor": "points", "anchor_value": r["points"]})
     return out
 
 
@@ -263,9 +271,11 @@ def run(quick: bool, seed: int) -> dict:
                            None if quick else corpus)
     figs = [f for r in rows for f in figures(r)]
     _, missing = fetched_demos(None if quick else corpus)
-    notes = ["Points that keep their rotary axes: where the tool is vertical (A = 0, the roughing), C turns the tool "
-             "about itself and only one of the two tilt components can be turned out (tests/test_tcp_demos.py: every "
-             "kept point at |A| ≤ 3°)."]
+    notes = ["Where the tool is vertical (A = 0, the roughing), C turns the tool about itself: A turns out the tilt "
+             "in its own plane and C is held (tests/test_tcp_demos.py: every such point at |A| ≤ 3°). What is left "
+             "there is the tilt toward A's axis line; turning it out would need C to swing by tens of degrees between "
+             "neighbouring points (to set the table's own tilt against the spindle's), rotating the part under the "
+             "tool mid-cut, which volcomp does not do."]
     notes += [("LinuxCNC's demos not fetched on this run (`$VOLCOMP_PROGRAM_CORPUS`, `program_corpus/TCP_DEMOS.csv`): "
               f"{', '.join(missing)}; the demo-shaped program stands in for them.") if missing else
              "LinuxCNC's demos run from `$VOLCOMP_PROGRAM_CORPUS` (sha256 as in `program_corpus/TCP_DEMOS.csv`)."]

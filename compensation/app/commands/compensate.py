@@ -85,8 +85,9 @@ def register(sub):
                         "the ball's bound asin(ball/r), r the target's distance from the axis)")
     p.add_argument("--compensate-orientation", action="store_true",
                    help="five-axis machine-tool chains with an element-set model: compensate the tool's orientation "
-                        "too, with the rotary axes (written back as corrected rotary words; a point whose "
-                        "orientation error the rotary axes cannot turn out keeps them, counted in the summary)")
+                        "too, with the rotary axes (written back as corrected rotary words; near a singularity, the "
+                        "tool along the last rotary axis, that axis is held and the other turns out what it can, "
+                        "counted in the summary)")
     p.add_argument("--dialect", default="auto", choices=("auto", *DIALECT_NAMES),
                    help="the controller the G-code is written for: its harmless M codes, program numbers, look-ahead "
                         "and block-delete rules (compensation/dialects.py); auto (default): recognised from the "

@@ -80,7 +80,7 @@ class CompensateSettings:
     work_offsets: object = None  # compensation.nc_state.WorkOffsets (None: not given)
     tool_table: object = None    # compensation.nc_state.ToolTable (None: not given)
     cycles: str = "keep"         # canned cycles: "keep" (holes compensated) or "expand" (compensation.nc_cycles)
-    orientation: bool = False    # the tool's orientation compensated too, by the rotary axes (compensation.tcp)
+    orientation: bool = False    # the tool axis compensated too, by the rotary axes (compensation.tcp_orientation)
     chunk_points: int = CHUNK_POINTS  # points per chunk of the batch (compensation.batch)
     max_segment_mm: object = "auto"   # "auto" (the field's curvature), None (no splitting) or a length in mm
     lathe_x: str | None = None   # a Fanuc/Haas/Siemens ISO lathe's X words: "diameter", "radius" (None: refused)

@@ -107,8 +107,9 @@ def cutter_radius_bound_um(field_, machine, tp: ToolPath):
 
 def orientation_pass(field_, truth, machine, tp: ToolPath, res, targets, true_r):
     """``--compensate-orientation``: tool tip and tool axis compensated with every axis
-    (:func:`compensation.tcp.compensate_orientation`); the TRUE position residual recomputed at the new axes."""
-    from ...tcp import compensate_orientation
+    (:func:`compensation.tcp_orientation.compensate_orientation`); the TRUE position residual recomputed at the new
+    axes."""
+    from ...tcp_orientation import compensate_orientation
     if not res.info.get("kept_axes"):
         raise UsageError(f"--compensate-orientation: the solver keeps no rotary axis on {machine.name!r} (it moves "
                          f"{', '.join(res.info.get('compensated_axes', []))}): there is no tool orientation to "
@@ -133,7 +134,8 @@ def orientation_pass(field_, truth, machine, tp: ToolPath, res, targets, true_r)
 def tcp_entry(tp: ToolPath, res, machine, truth) -> dict:
     """The summary's ``tcp`` entry of a program with tool-centre-point or G93 words (:func:`compensation.tcp.report`):
     with a truth element set, the TRUE orientation residual of the TCP points before/after (μrad)."""
-    from ...tcp import orientation_residual_urad, report
+    from ...tcp import report
+    from ...tcp_orientation import orientation_residual_urad
     tcp = tp.source.program.tcp
     on = tcp.active(tp.lines - 1) if tcp is not None else np.ones(len(tp.lines), bool)
     before = after = None
@@ -141,8 +143,9 @@ def tcp_entry(tp: ToolPath, res, machine, truth) -> dict:
         tool = tp.tool_mm[on]
         after = orientation_residual_urad(truth, machine, res.axes[on], tp.axes[on], tool)
         before = orientation_residual_urad(truth, machine, tp.axes[on], tp.axes[on], tool)
-    solved = res.info.get("orientation_solved")
-    return report(tcp, on, before, after, None if solved is None else np.asarray(solved)[on])
+    solved, partly = res.info.get("orientation_solved"), res.info.get("orientation_partly")
+    return report(tcp, on, before, after, None if solved is None else np.asarray(solved)[on],
+                  None if partly is None else np.asarray(partly)[on])
 
 
 def cycle_report(tp: ToolPath, res, true_r, true_base):
