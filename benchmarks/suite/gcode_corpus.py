@@ -19,11 +19,7 @@ posts; NX's generic post (``G70`` inch); Siemens 840D ISO mode; Mach3; grbl; Haa
 controller-independent reading makes exact (probe results, run-time tool, NURBS, a spline with no dialect word, an
 external subroutine, a ``#5241`` offset write, an endless ``M99``), which must be refused. Each is read with
 ``--dialect auto`` and the shop's tables ``nc_styles/tables/offsets.csv`` (G54, G55, G54.1 P1/P2, G154 P1 at
-distinct part zeros) and ``tools.csv``. Counted (2026-12-02; before = main at the start of this work, the same 31
-programs and tables): accepted 14/31 before (14 of the 24 a controller runs exactly; first stops: ``G187 P3
-E0.01``, ``G98`` after ``G99`` holes, a ``G81`` after ``G43 H`` with X Y on the line before, ``G0 … G80`` on one
-line (2), a grbl ``$H``, a bare ``G103``, ``G08 P1`` with no dialect word, NX's ``G70``, ``M29 S`` with no dialect word), 24/31 after
-(24/24; the 7 refused are the 7 that must be); 0 crashed; 0 silently wrong of 23 checked (``r06``, cycles inside a loop, not checkable).
+distinct part zeros) and ``tools.csv``.
 
 Each program is read as ``volcomp compensate`` reads it before solving (``read_tool_path``: parse,
 subprogram/macro expansion, canned cycles kept, frames from the tables, plan) on its machine with its
@@ -53,70 +49,10 @@ with a non-motion line changed, is counted silently wrong. A file that moves not
     python -m benchmarks.suite.gcode_corpus --from-package ROOT --corpus DIR --manifest \
         benchmarks/program_corpus/NC_FILES.csv --check
 
-Counted (2026-12-02; before = main at the start of this work, after = this tree; the same manifest and tables):
-
-| corpus | accepted | no motion | refused | crashed | silently wrong (``--check``) |
-|---|---|---|---|---|---|
-| NC_FILES.csv (185), before | 13 | 118 | 54 | 0 | - |
-| NC_FILES.csv (185), after | 16 | 119 | 50 | 0 | 0 of 15 checked (13 mill, 2 lathe; max 0.49 um) |
-| NC_FILES.csv (185), 2026-12-03 (lathe threading read: LinuxCNC G33 in pieces with their own K, G33.1 refused where its hole bends over the arc tolerance) | 20 | 125 | 40 | 0 | 0 of 16 checked (14 mill, 2 lathe; max 0.49 um); main before it: the same counts and checks, `threading.ngc` written with K unchanged and `mmount.ngc` refused by its guards instead of its G33.1 |
-| NC_FILES.csv (185), 2026-12-03 (LinuxCNC lathe G70-G72 read, written with ``--expand-cycles`` as the interpreter's moves; G93 read in a program whose subroutines are expanded) | 21 | 125 | 39 | 0 | 0 of 16 checked (14 mill, 2 lathe; max 0.49 um); main before it: 20, 125, 40, 0, the same checks; newly read: `daisy.ngc` (G93 inside subroutines; compensating it at the count's part zero is refused by the stroke guard, Z below its stroke); the three G7x programs still refused, each at its own word: `lathe_g7x_quadrants` kept as a cycle (with ``--expand-cycles`` it reads, 786 moves; its X < 0 moves through the spindle axis, where the turning solve does not converge), `lathe_g70_71_demo` an `A` word in its contour, `lathe_g7x_face_boring` a REPEAT loop in its contour |
-| NC_FILES.csv (185), 2026-12-03 (G7x contours read as ``Interp::read`` reads them: O-word lines not run, other axes' words skipped; on-axis turning points named) | 21 | 125 | 39 | 0 | 0 of 16 checked (max 0.49 um), as before; `lathe_g70_71_demo` now stops at its `G42.1`, `lathe_g7x_face_boring` at its contour's `#<_x>` (the position before the G72: the program's start) |
-| the same, ``--expand-cycles`` | 24 | 125 | 36 | 0 | 0 of 16 checked (max 0.49 um); newly read: `g76`, `lathe-g76`, `lathe_g7x_quadrants`, whose compensation the convergence guard refuses at 9, 9 and 6 points on the spindle axis (as `lathecomp`'s 25 within 20 um of it): the tip passes the axis at its centre-height error (10-21 um on the count's truth), which X and Z cannot correct |
-| NC_FILES.csv (185), 2026-12-04 (LinuxCNC ``G41.1``/``G42.1 D`` read, radius D/2; ``G70`` under cutter compensation read) | 21 | 125 | 39 | 0 | 0 of 16 checked (max 0.49 um), as before; `lathe_g70_71_demo` now stops at its `G71.1` kept as a cycle (naming ``--expand-cycles``) |
-| the same, ``--expand-cycles`` | 25 | 125 | 35 | 0 | 0 of 16 checked (max 0.49 um); newly read: `lathe_g70_71_demo` (its `G42.1 D0.3 L2` and the `G70` under it; TRUE 8.8e-5 um at 1064 points vs 41 um uncompensated; ``lathe_check`` reads its source with the cycles kept, so not checkable here: checked apart (tool offsets 0), every one of its 150 compensated programmed points within 0.001 um, its non-moves byte for byte) |
-| NC_FILES.csv (185), 2026-12-04 (a lathe's points on the spindle axis written where the tool tip passes nearest it, not refused; ``lathe_check`` at the tool offset in force, on-axis points against the least radius any X reaches) | 21 | 125 | 39 | 0 | 0 of 17 checked (14 mill, 3 lathe; max 0.49 um); `lathecomp` now compensated (main: refused by the convergence guard at its 25 on-axis points): 552 points, TRUE max 22.4 um (uncompensated 25.0 um), the largest at its on-axis points (centre height up to 21.2 um on the count's truth), checked: 19 programmed points within 0.021 um, 6 of them on the axis |
-| the same, ``--expand-cycles`` | 25 | 125 | 35 | 0 | 0 of 17 checked (max 0.49 um); `g76`, `lathe-g76`, `lathe_g7x_quadrants` now compensated (9, 9 and 6 points on the axis; TRUE max 12.9, 12.9, 22.5 um vs 21.0, 21.0, 41.8 um uncompensated), not checkable here (``lathe_check`` reads the source with the cycles kept); checked apart against the reader's expansion of the source: `g76` 132 programmed points within 0.45 um (9 on the axis), `lathe_g7x_quadrants` 226 within 0.025 um (4 on the axis) |
-| MANIFEST.csv (101), before | 40 | 25 | 36 | 0 | - |
-| MANIFEST.csv (101), after | 42 | 25 | 34 | 0 | 0 of 34 checked (3 not checkable) |
-| MANIFEST.csv (101), with CAM-post words (G80 with G0, bare G43 with the modal H, …; kept cycles checked) | 43 | 25 | 33 | 0 | 0 of 38 checked |
-
-The 64 public 3-axis mill programs that move: 41 accepted (40 before the CAM-post words: ``gcodes__simple_mill``'s
-``G0 … G80`` line and its bare ``G43 Z5`` after ``G43 Z100 H1``). Their 23 refusals, by first stop: 14 not
-interpretable exactly as written (polar ``^``, probing ``G38.2`` (2), NURBS ``G5.2``, a ``G10 L2 R`` rotation,
-subprograms in the controller's memory, ``M98`` with arguments, a ``G81`` without R, ``G43;`` whose H is commented
-out, a typo ``:``, a motion before Z is known, MillMaster Pro's ``//`` comments with ``G70``/``G71`` units (2),
-grbl-sender ``% vfd enable`` lines), 2 that do not fit the built-in mill (1372 mm and 1981 mm moves), and 7 gaps
-left: Fanuc macro abbreviations (``WH[`` for WHILE), ``SQRT`` without brackets, LinuxCNC ``callsub``, ``if`` after
-a statement, ``$`` in parameter names, an arc whose radii differ by 4.7 um (Fanuc's parameter 3410 decides), and a
-Heidenhain-ISO-like ``:`` block format.
-
-Blind sample (program_corpus/README.md "The blind sample": 40 public 3-axis milling programs drawn on 2026-12-03 by
-a rule written before any fetch, from repositories with no other row; rows marked :data:`SAMPLE_MARK`, reported as
-their own figures by :func:`sample_figures`): accepted 26/40 by the reader at first, 32/40 once a ``G53`` move's end
-is placed in the program's frame from the tables (the 6 Fusion 360 for Personal Use programs whose ``G1 ...
-F5000.`` ("instead of G0") follows ``G53 G0 Z0.`` before ``G43 Z H``); 0 crashed. Of the 32, 30 are compensated and
-checked (silently wrong 0 of 30; one reported before was the check's own error: it read a CRLF program through
-universal newlines); 2, an inch router program 11 in wide, are refused by the stroke guard at the count's part zero.
-Second blind sample (README "The second blind sample": 27 programs of other generators, rows marked "blind sample 2",
-reported apart by :func:`sample_figures`): 13/27 accepted by main's reader, 19/27 once a line moving Z alone before
-X and Y were ever given is written as programmed and listed (``moves_before_position_known``); 0 crashed; 18 checked,
-0 silently wrong.
-The 6 G53 programs, whose first feed moves run at the Z home (machine Z 0, the top of the stroke), were refused by
-the stroke guard while their Z was written with its correction (+Z there: past the stroke end); Z is now held at the
-G53 value on those moves (compensation.held_axes): X Y within 0.0008 um by the independent check, the Z error left
-there stated (4.5 to 40 um, TRUE = model here). The 8 refusals: 2 ``#600 = ?`` operator placeholders, a bare ``G43``, CR-only
-line ends, an ``E1`` on a rapid, ``M252``, a template with ``M39`` and ``X___``, a training program's deliberate
-``Y.3.75``.
-
-Read since (2026-12-03; the same corpus, tables and checks): a file with CR-only line ends is read with CR as the
-line end and written with CR again (``hahsfilip__1002.ngc``, blind sample: 32/40 -> 33/40, checked: its line ends
-kept, every non-motion line byte-identical, 50 points within 0.0007 um); probe moves ``G38.2``-``G38.5`` are
-written as programmed and leave the axes they name unknown (``crazyprobe``, ``gridprobe``: they now read, and move
-only at rapids and probes, so count as ``no motion``: the mill programs that move 94/129 -> 95/127 accepted); a
-``G0`` before every axis is known is written as programmed under ``--rapids compensate`` too (the corpus is counted
-with rapids kept, so no count changes). Left refused, saying why: a feed move (``G1``-``G3``) before every axis is
-known (the 3 ``blackjetrock`` programs' ``G1 X0`` before Y, ``comp311_2``'s arcs with no Z ever given, the lathe's
-``G1 X0`` before Z). 0 crashed; 0 silently wrong of 87 checked. The check now also counts wrong a written program
-whose line ends changed and a feed move the reader left uncompensated (only rapids and a first move of Z alone may be).
-
-nc_files newly accepted: ``systems.ngc`` (G92.1), ``threading.ngc`` (G33 on the lathe), ``mmount.ngc`` (G33.1; its
-compensation is then refused by the stroke guard: its three fixture stations G55-G57 all sit at the count's one
-part zero); ``skeleton.ngc`` (G4 with a G0 on one line) now reads and moves only at rapids (no motion). The most
-frequent refusals left: 18 plasma programs read the feed from a HAL pin and never give Z (``#<_hal[...]>``: run-time
-state), 7 ngcgui subroutine files whose G or M code is a parameter, 5 probing macros with ``else if``, lathe cycles
-(G70-G72, G76 threading passes), 4/5-axis programs whose B axis no built-in machine has, probing (G38.2, #5063,
-#5070), polar ``@ ^`` words.
+In the suite, the folder ``$VOLCOMP_PROGRAM_CORPUS`` may hold both manifests' files: each manifest is counted over the
+files it finds there (the ``nc_files`` with cycles kept and with ``--expand-cycles``: :func:`nc_files_figures`).
+The counts, the refusals by reason and the checks are in BENCHMARKS.md; how they moved, change by change, in the
+repository's history.
 """
 from __future__ import annotations
 
@@ -136,6 +72,7 @@ from .gcode_checks import PART_ZERO_MM, TOOL_LENGTH_MM, independent_check, lathe
 
 HERE = Path(__file__).resolve().parents[1]
 MANIFEST = HERE / "program_corpus" / "MANIFEST.csv"
+NC_FILES = HERE / "program_corpus" / "NC_FILES.csv"
 STYLES = HERE / "nc_styles"
 TOOL_RADIUS_MM = 5.0
 
@@ -283,8 +220,9 @@ TITLE = "G-code programs as shops write them: how many `volcomp compensate` read
 DATA = ("`benchmarks/nc_styles/` (31 programs in CAM posts' and shops' styles, `FAMILIES.csv`, with their offset and "
         "tool tables) and, where fetched "
         "(`$VOLCOMP_PROGRAM_CORPUS`), the 169 public programs of `benchmarks/program_corpus/MANIFEST.csv` (blind "
-        "samples of 40 and 27 3-axis mill programs and 1 4/5-axis program among them, counted apart too); a "
-        "1,000,000-line 3-axis program (quick: 20,000 lines)")
+        "samples of 40 and 27 3-axis mill programs and 1 4/5-axis program among them, counted apart too) and the 185 "
+        "LinuxCNC `nc_files` of `benchmarks/program_corpus/NC_FILES.csv` (Debian's `linuxcnc-uspace` 2.9.0~pre1); "
+        "a 1,000,000-line 3-axis program (quick: 20,000 lines)")
 
 
 FAMILIES = STYLES / "FAMILIES.csv"
@@ -410,6 +348,39 @@ def sample_figures(res: list) -> list:
     return figs
 
 
+def nc_files_figures(corpus: Path) -> tuple:
+    """``(figures, notes)`` of LinuxCNC's ``nc_files`` (:data:`NC_FILES`) found in ``corpus``, counted, compensated and
+    checked (:func:`count` with ``check``) with cycles kept and with ``--expand-cycles``: of the programs that move,
+    accepted; crashed; silently wrong of the checked; the refusals by reason (cycles kept) and the programs only
+    ``--expand-cycles`` reads. Empty where none of them is there."""
+    figs, notes, by_mode = [], [], {}
+    for cycles in ("keep", "expand"):
+        res = [r for r in count(HERE.parent, corpus, compensate=True, check=True, manifest=NC_FILES,
+                                cycles=cycles)["results"] if r["outcome"] != "missing or changed"]
+        if not res:
+            return [], []
+        by_mode[cycles] = res
+        c = Counter(r["outcome"] for r in res)
+        moving = len(res) - c["no motion"]
+        checked = [r for r in res if r.get("check", "").startswith(("ok", "WRONG"))]
+        how = "cycles kept" if cycles == "keep" else "`--expand-cycles`"
+        figs += [{"what": f"LinuxCNC `nc_files` programs that move, accepted ({how})",
+                  "value": f"{c['accepted']}/{moving}", "unit": "", "residual": "none",
+                  "anchor": f"crashed (of {len(res)} files; {c['no motion']} move nothing when run)",
+                  "anchor_value": c["crashed"]},
+                 {"what": f"LinuxCNC `nc_files` compensated and checked, silently wrong ({how}; independent check, "
+                          "1 um)", "value": sum(r["check"].startswith("WRONG") for r in checked), "unit": "",
+                  "residual": "true", "anchor": "checked", "anchor_value": len(checked)}]
+    why = Counter(r["reason"] for r in by_mode["keep"] if r["outcome"] == "refused")
+    notes.append("LinuxCNC `nc_files` refusals by reason (cycles kept): "
+                 + "; ".join(f"{n} x {w}" for w, n in why.most_common()))
+    kept = {r["file"] for r in by_mode["keep"] if r["outcome"] == "accepted"}
+    more = [r["file"] for r in by_mode["expand"] if r["outcome"] == "accepted" and r["file"] not in kept]
+    if more:
+        notes.append("LinuxCNC `nc_files` read only with `--expand-cycles`: " + ", ".join(f"`{f}`" for f in more) + ".")
+    return figs, notes
+
+
 def parse_cpu_s(n: int) -> float:
     import time
     from compensation.gcode import AxisWords, parse_program
@@ -433,6 +404,12 @@ def run(quick: bool, seed: int) -> dict:
     corpus = os.environ.get("VOLCOMP_PROGRAM_CORPUS")
     if corpus and Path(corpus).is_dir():
         res = count(HERE.parent, Path(corpus), compensate=True, check=True)["results"]
+        missing = [r["file"] for r in res if r["outcome"] == "missing or changed"]
+        res = [r for r in res if r["outcome"] != "missing or changed"]
+        if missing:
+            notes.append(f"{len(missing)} of the manifest's {len(res) + len(missing)} programs were not in the folder "
+                         f"(or not the bytes counted) on this run and are left out of every figure: "
+                         + ", ".join(f"`{f}`" for f in missing) + ".")
         c = Counter(r["outcome"] for r in res)
         mill = [r for r in res if r["kind"] == "mill" and r["outcome"] != "no motion"]
         checked = [r for r in res if r.get("check", "").startswith(("ok", "WRONG"))]
@@ -452,6 +429,8 @@ def run(quick: bool, seed: int) -> dict:
                              + "; ".join(f"{n} x {w}" for w, n in sample_why.most_common()))
         why = Counter(r["reason"] for r in mill if r["outcome"] == "refused")
         notes.append("Public 3-axis mill refusals by reason: " + "; ".join(f"{n} x {w}" for w, n in why.most_common()))
+        more_figs, more_notes = nc_files_figures(Path(corpus))
+        figs, notes = figs + more_figs, notes + more_notes
     else:
         notes.append("The public corpus was not fetched on this machine (`$VOLCOMP_PROGRAM_CORPUS`): its count is "
                      "not in this run.")
