@@ -338,9 +338,13 @@ class ResidualRegressor:
             out.y_scale_ = float(np.sqrt(np.mean(Y * Y))) or 1.0
             rng = spawn_rngs(self.seed if seed is None else seed, 4)[3]
             Xs, Ys = (X - out.x_mean_) / out.x_scale_, Y / out.y_scale_
-            out.model_ = self._new(out.chosen_, rng).fit(Xs, Ys)
-        if isinstance(out.model_, _GP):   # the weights solved as from_dict solves them (same BLAS threads):
-            out.model_ = _GP(1, None, out.model_.kernel, out.model_.groups).set_state(Xs, Ys, out.model_.theta_)   # shipped == reloaded
+            new = self._new(out.chosen_, rng)
+            if isinstance(new, _GP):
+                theta = new.hyperparameters(Xs, Ys)
+            else:
+                out.model_ = new.fit(Xs, Ys)
+        if isinstance(new, _GP):   # the weights solved once, as from_dict solves them (same BLAS threads):
+            out.model_ = _GP(1, None, new.kernel, new.groups).set_state(Xs, Ys, theta)   # shipped == reloaded
         out.noise_std_ = np.sqrt(out.model_.noise_var()) * out.y_scale_ * out.band_scale_
         return out
 
