@@ -82,7 +82,7 @@ def _fit_inputs(feats, r_um, fit_idx, groups, families, seed, columns, R=None, f
             for frame in frames:
                 key = frame_key(name, frame)
                 reg = ResidualRegressor(families=families, seed=seed, input_groups=input_set_groups(name, columns),
-                                        progress=lambda fam, key=key: bar.update(1, f"{key} {fam}")).fit(
+                                        progress=lambda fam, key=key: bar.update(1, f"{key} {fam}")).cross_validate(
                     f[fit_idx], to_frame(r_um, R, frame)[fit_idx], groups=groups)
                 reg.progress = None                  # the bar's hook is not part of the fitted model
                 regs[key] = reg
@@ -93,7 +93,7 @@ def _fit_inputs(feats, r_um, fit_idx, groups, families, seed, columns, R=None, f
                               "output_frame": frame}
     fitted = [n for n in regs if regs[n].chosen_ != "none"]
     best = min(fitted, key=lambda n: table[n]["cv_rms"]) if fitted else next(iter(regs))
-    return best, regs[best], table
+    return best, regs[best].fit_chosen(), table   # the candidates left are not fitted on all their data
 
 
 def condition_term_test(reg_static, f, r_static_um, c_um) -> dict:
