@@ -295,7 +295,12 @@ class _GP:
 
     def fit(self, Xs, Ys):
         """Xs (n, d) standardised, Ys (n, 3) scaled → self (theta_ (3, p) with p = :func:`_n_theta`,
-        alpha_ (3, n), L_ (3, n, n))."""
+        alpha_ (3, n), L_ (3, n, n)): :meth:`hyperparameters`, then :meth:`set_state`."""
+        return self.set_state(Xs, Ys, self.hyperparameters(Xs, Ys))
+
+    def hyperparameters(self, Xs, Ys):
+        """Xs (n, d) standardised, Ys (n, k) scaled → θ (k, p) of maximum marginal likelihood per output column
+        (the best of ``n_restarts`` L-BFGS-B starts), the weights not solved."""
         n, d = Xs.shape
         pairs = _Pairs(Xs)
         terms = self._terms(d)
@@ -312,8 +317,7 @@ class _GP:
                 if best is None or r.fun < best.fun:
                     best = r
             thetas.append(best.x)
-        self.set_state(Xs, Ys, np.array(thetas))
-        return self
+        return np.array(thetas)
 
     def set_state(self, Xs, Ys, theta):
         """Fix the hyper-parameters ``theta`` (3, p) and solve for the weights on (Xs, Ys)."""

@@ -183,7 +183,20 @@ class ResidualRegressor:
         one marginal-likelihood evaluation at n = 400 took 0.89 s CPU on the default threads of a
         loaded 2-core machine, 6 ms on one)."""
         with limit_threads(1, ("blas",)):
+            return self._fit(X, Y, groups)._fit_chosen()
+
+    def cross_validate(self, X, Y, groups=None):
+        """:meth:`fit` up to the choice: the cross-validation, ``chosen_`` and the standardisation, the chosen family
+        not yet fitted on all data (``model_`` None) → self; :meth:`fit_chosen` then completes it into :meth:`fit`'s
+        result, bit for bit. For a choice among several candidates of which one is kept: only its final fit runs."""
+        with limit_threads(1, ("blas",)):
             return self._fit(X, Y, groups)
+
+    def fit_chosen(self):
+        """The chosen family fitted on all the data :meth:`cross_validate` had (with the generator it drew for
+        this) → self, as :meth:`fit` leaves it."""
+        with limit_threads(1, ("blas",)):
+            return self._fit_chosen()
 
     def _fit(self, X, Y, groups):
         fams = self._check_settings()
@@ -237,9 +250,15 @@ class ResidualRegressor:
         self.model_ = None
         self.noise_std_ = np.zeros(3)
         self.band_scale_ = 1.0
+        self._final = (Xs, Ys, rng_final)   # what _fit_chosen fits on (rng_final: its own stream, drawn here)
+        return self
+
+    def _fit_chosen(self):
+        """The final fit of :meth:`_fit`'s choice on its standardised data (the ``_final`` it left) → self."""
+        Xs, Ys, rng_final = self.__dict__.pop("_final")
         if self.chosen_ != "none":
             self.model_ = self._new(self.chosen_, rng_final).fit(Xs, Ys)
-            self.band_scale_ = table[self.chosen_]["band_scale"]
+            self.band_scale_ = self.cv_table_[self.chosen_]["band_scale"]
             self.noise_std_ = np.sqrt(self.model_.noise_var()) * self.y_scale_ * self.band_scale_
         return self
 
@@ -338,9 +357,13 @@ class ResidualRegressor:
             out.y_scale_ = float(np.sqrt(np.mean(Y * Y))) or 1.0
             rng = spawn_rngs(self.seed if seed is None else seed, 4)[3]
             Xs, Ys = (X - out.x_mean_) / out.x_scale_, Y / out.y_scale_
-            out.model_ = self._new(out.chosen_, rng).fit(Xs, Ys)
-        if isinstance(out.model_, _GP):   # the weights solved as from_dict solves them (same BLAS threads):
-            out.model_ = _GP(1, None, out.model_.kernel, out.model_.groups).set_state(Xs, Ys, out.model_.theta_)   # shipped == reloaded
+            new = self._new(out.chosen_, rng)
+            if isinstance(new, _GP):
+                theta = new.hyperparameters(Xs, Ys)
+            else:
+                out.model_ = new.fit(Xs, Ys)
+        if isinstance(new, _GP):   # the weights solved once, as from_dict solves them (same BLAS threads):
+            out.model_ = _GP(1, None, new.kernel, new.groups).set_state(Xs, Ys, theta)   # shipped == reloaded
         out.noise_std_ = np.sqrt(out.model_.noise_var()) * out.y_scale_ * out.band_scale_
         return out
 

@@ -82,7 +82,7 @@ def _fit_inputs(feats, r_um, fit_idx, groups, families, seed, columns, R=None, f
             for frame in frames:
                 key = frame_key(name, frame)
                 reg = ResidualRegressor(families=families, seed=seed, input_groups=input_set_groups(name, columns),
-                                        progress=lambda fam, key=key: bar.update(1, f"{key} {fam}")).fit(
+                                        progress=lambda fam, key=key: bar.update(1, f"{key} {fam}")).cross_validate(
                     f[fit_idx], to_frame(r_um, R, frame)[fit_idx], groups=groups)
                 reg.progress = None                  # the bar's hook is not part of the fitted model
                 regs[key] = reg
@@ -93,7 +93,7 @@ def _fit_inputs(feats, r_um, fit_idx, groups, families, seed, columns, R=None, f
                               "output_frame": frame}
     fitted = [n for n in regs if regs[n].chosen_ != "none"]
     best = min(fitted, key=lambda n: table[n]["cv_rms"]) if fitted else next(iter(regs))
-    return best, regs[best], table
+    return best, regs[best].fit_chosen(), table   # the candidates left are not fitted on all their data
 
 
 def condition_term_test(reg_static, f, r_static_um, c_um) -> dict:
@@ -266,9 +266,10 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     backfit = None
     if base_update is not None and reg.chosen_ != "none":
         make = (lambda rg: LearnedResidual(rg, fit_lo, fit_hi, inp, rho0, columns, frame, rot))
-        r_seq = r_base - make(reg).predict(axes)
+        pred_seq = make(reg).predict(axes)   # the sequential hybrid's learned part: also the first round's start
+        r_seq = r_base - pred_seq
         reg, r_base, steps = _backfit(reg, f, make, axes, fit_idx, base_update, rep_arg, R_chk, frame,
-                                      lambda rg, X, Y: rg.refit(X, Y, seed=seed))
+                                      lambda rg, X, Y: rg.refit(X, Y, seed=seed), start=pred_seq)
         backfit = {"rounds": BACKFIT_ROUNDS, "step_rms_um": steps,
                    "held_out_sequential": residual_stats(r_seq[hold_idx], ("dx_um", "dy_um", "dz_um")),
                    "held_out_gain_z_sequential": _paired_z(r_prev_um[hold_idx], r_seq[hold_idx])[0],
@@ -335,7 +336,7 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     if refit_residual is not None and backfit is not None:   # backfitted again on all checks
         make_all = (lambda rg: LearnedResidual(rg, lo, hi, inp, rho0, columns, frame, rot))
         reg_all, _, steps_all = _backfit(reg, f, make_all, axes, np.arange(len(axes)), base_update, rep_arg, R_chk,
-                                         frame, estimate, start=fitted.predict(axes))
+                                         frame, estimate, start=pred)
         stage["learned"]["backfit"]["shipped_step_rms_um"] = steps_all
         base_refit = True
     else:
