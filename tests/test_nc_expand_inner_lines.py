@@ -2,7 +2,8 @@
 the tool call, the line after which the controller's state is unknown) named as every note and the refusal's leading
 location name a line (compensation/nc_expand.py ``source_line``; issue 47): the source file's line, with the expanded
 line where expansion shifts the lines ('8 (expanded line 5)'), ``'k of FILE'`` in a ``--subprograms`` file; a program
-read as it is keeps its int lines.
+read as it is keeps its int lines. The move-extent check's refusal (a likely unit typo) is named at the source line, as
+the reader's refusals are.
 
 Each program is written here so that its expansion shifts the lines: a LinuxCNC o-subroutine of 4 source lines (not
 written) whose call writes its 2 moves (source line 8 is flat line 5), a Fanuc M98 call writing 2 lines for its 1
@@ -113,3 +114,16 @@ def test_the_reader_of_a_pre_passes_flat_program_names_the_source_line(tmp_path)
     assert msg.startswith(f"{tmp_path / 'p.ngc'}: line 9, column 8: 'X5': G1 before")
     assert "; line 8 (expanded line 5) moved Y in machine coordinates (G53)" in msg
 
+
+def test_a_likely_unit_typo_after_a_call_is_refused_at_its_source_line(tmp_path, capsys, monkeypatch):
+    """The move-extent check before planning (compensation/pathio.py check_move_extent) names its move as the reader
+    does: at the source line (before: 'line 5', the flat line)."""
+    from compensation.app.cli import main
+    from test_chain_compensate import chain_elements
+    el = chain_elements(load_machine("mill-xyz"), 5).save(tmp_path / "el.json")
+    monkeypatch.chdir(tmp_path)  # a short path: the CLI shortens a long message in its middle
+    Path("p.ngc").write_text(SUB + "G1 X90000 F100\nM2\n")
+    assert main(["compensate", "p.ngc", "--machine", "mill-xyz", "--model", str(el), "--method", "exact",
+                 "--dialect", "linuxcnc", "--work-offsets", "machine", "--out", "o"]) != 0
+    assert "p.ngc: line 8, column 4: 'X90000': a move of 89980 mm, more than the machine's X/Y/Z stroke" in \
+        capsys.readouterr().err
