@@ -66,7 +66,7 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
         prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=words,
                              dialect=named, cycles=None if cycles is None else partial(cycle_pass, mode=cycles),
                              data=data, found=(dia, evidence) if named == "auto" and dia is not None else None,
-                             tables=tables, subprograms=subprograms)
+                             tables=tables, subprograms=subprograms, flat=flat)
     except InputError as exc:  # the flat program's lines named at the source
         raise (flat.relocate(exc) if flat is not None else exc) from None
     if data is not None:

@@ -43,7 +43,7 @@ BULK_MIN_RUN = 32
 def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None,
                   fast: bool = True, axis_words: AxisWords | None = None, dialect: str | None = None,
                   cycles=None, data: bytes | None = None, found: tuple | None = None, lathe_x: str | None = None,
-                  tables: tuple | None = None, subprograms=None) -> GProgram:
+                  tables: tuple | None = None, subprograms=None, flat=None) -> GProgram:
     """Read a G-code file into a :class:`GProgram` (see the module docstring).
 
     ``found``: ``(Dialect, evidence)`` already recognised from these bytes under ``dialect="auto"`` (a
@@ -72,6 +72,9 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     offset, ``G92`` and tool length), so the moves after it are known; None: the axes a ``G53`` moves are
     unknown until the program gives them. ``subprograms``: the :class:`compensation.nc_subfiles.SubprogramFiles` a
     call of a subprogram kept outside the file reads (``--subprograms``; None: such a call is refused).
+    ``flat``: the :class:`compensation.nc_expand.Expanded` whose flat program ``data`` is (a caller expanded it:
+    :func:`compensation.tcp.flat_prepass`), by which a refusal's text names the lines it refers to
+    (:func:`compensation.nc_expand.source_line`); None: ``data`` is the program's own text.
     """
     path = Path(path)
     if rapids not in RAPIDS_CHOICES:
@@ -90,7 +93,7 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     dia, evidence = found if found is not None and dialect == "auto" else _dialect_of(path, data, dialect)
     try:  # the allow-list refuses every mark of a subprogram, macro or parameter: a program without
         return _g80_noted(_parse_data(path, data, rapids, block_delete, fast, ax, dia, evidence, lathe_x,  # full speed
-                                      tables), line_end)
+                                      tables, name=int if flat is None else flat.name), line_end)
     except InputError as plain_refusal:
         from . import nc_expand
         from .gcode_classify import ProgramState
@@ -107,7 +110,7 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
             raise plain_refusal from None
     try:
         prog = _parse_data(path, expanded.text.encode("latin-1"), rapids, block_delete, fast, ax, dia, evidence,
-                           lathe_x, tables, dict(expanded.contours))
+                           lathe_x, tables, dict(expanded.contours), expanded.name)
     except InputError as exc:
         raise expanded.relocate(exc) from None
     prog.expanded = expanded
@@ -127,14 +130,17 @@ def _g80_noted(prog: GProgram, line_end: str = "\n") -> GProgram:
 
 
 def _parse_data(path: Path, data: bytes, rapids, block_delete, fast: bool, ax: AxisWords, dia,
-                evidence: str, lathe_x: str | None = None, tables: tuple | None = None, contours=None) -> GProgram:
+                evidence: str, lathe_x: str | None = None, tables: tuple | None = None, contours=None,
+                name=int) -> GProgram:
     """The reader of ``data`` (block-wise where it applies, else per line); ``contours`` the LinuxCNC G70-G72
-    contours by line (:attr:`compensation.nc_expand.Expanded.contours`; the per-line reader reads those cycles)."""
+    contours by line (:attr:`compensation.nc_expand.Expanded.contours`; the per-line reader reads those cycles);
+    ``name`` names a 1-based line of ``data`` inside a refusal's text (:func:`compensation.nc_expand.source_line`:
+    ``int`` for a program read as it is, :meth:`compensation.nc_expand.Expanded.name` for a flat one)."""
     replay = None if tables is None else (lambda: FrameReplay(path, ax.words, *tables))
-    prog = _parse_blockwise(path, rapids, block_delete, data, ax, dia, lathe_x, replay) if (
+    prog = _parse_blockwise(path, rapids, block_delete, data, ax, dia, lathe_x, replay, name) if (
         fast and _bulk_words(ax)) else None
     if prog is None or any(m.synced for m in prog.table.objects):  # a synchronised move (G33) makes the rapid before
-        prog = _parse_lines(path, rapids, block_delete, data, ax, dia, lathe_x, replay, contours)  # G33: per line
+        prog = _parse_lines(path, rapids, block_delete, data, ax, dia, lathe_x, replay, contours, name)  # G33: per line
     prog.dialect, prog.dialect_evidence = dia.name, evidence
     return prog
 
@@ -202,13 +208,14 @@ def _lathe_x(dia, lathe_x) -> tuple:
 
 
 def _parse_lines(path, rapids, block_delete, data: bytes, ax: AxisWords, dia, lathe_x=None, replay=None,
-                 contours=None) -> GProgram:
+                 contours=None, name=int) -> GProgram:
     """The per-line reader (the reference). ``replay``: None, or a maker of the
-    :class:`FrameReplay` that places a ``G53`` move's end (:func:`parse_program`'s ``tables``)."""
+    :class:`FrameReplay` that places a ``G53`` move's end (:func:`parse_program`'s ``tables``); ``name``:
+    :func:`_parse_data`'s."""
     lines = split_lines(data.decode("latin-1"))
     st = _State(len(ax.words))
     st.replay = replay() if replay is not None else None
-    st.g7x_contours = contours or {}
+    st.g7x_contours, st.name = contours or {}, name
     st.dialect, st.lathe_x, st.diameter = dia, *_lathe_x(dia, lathe_x)
     classes, moves = [], []
     for idx, line in enumerate(lines):
@@ -237,7 +244,7 @@ def _no_motion(path, ax: AxisWords) -> InputError:
 
 
 def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: AxisWords, dia=None,
-                     lathe_x: str | None = None, replay=None) -> GProgram:
+                     lathe_x: str | None = None, replay=None, name=int) -> GProgram:
     buf = np.frombuffer(data, np.uint8)
     starts, ends = gscan.line_bounds(buf)
     lines = _Lines(data.decode("latin-1"), starts, np.append(starts[1:], buf.size))
@@ -270,7 +277,7 @@ def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: Axi
 
     st = _State(len(ax.words))
     st.dialect, st.lathe_x, st.diameter = dia, *_lathe_x(dia, lathe_x)
-    st.replay = replay() if replay is not None else None
+    st.replay, st.name = (replay() if replay is not None else None), name
     classes = ["pass"] * n
     moved = []  # ordinals (k0, k1) of the bulk moves read
     pieces, objects = [], []

@@ -59,6 +59,7 @@ class _State:
         self.thread_lead = None    # (value, text) of the lead a G32 without F takes (compensation.nc_thread)
         self.last_move = None      # the last move read (a G32's start: compensation.nc_thread.g32_move)
         self.g7x_contours = {}     # LinuxCNC G70-G72 contours by line (compensation.nc_expand.Expanded.contours)
+        self.name = int            # a 1-based line as a refusal's text names it (compensation.nc_expand.source_line)
 
 
 def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=None,
@@ -561,15 +562,15 @@ def _unknown_since(st: _State, lacking) -> str:
     for idx, _col, kind, axes, _text in reversed(st.events):
         probed = kind == "probe" and ", ".join(a for a in lacking if a in axes and idx > st.last_given.get(a, -1))
         if probed:
-            return f"; line {idx + 1} probed {probed} ({_text}: it stops where the probe trips): give it in the " \
-                   "program (absolute) before this move"
+            return f"; line {st.name(idx + 1)} probed {probed} ({_text}: it stops where the probe trips): give it " \
+                   "in the program (absolute) before this move"
         moved = kind == "g53" and ", ".join(a for a in lacking if a in axes and idx > st.last_given.get(a, -1))
         if moved:
             tables = st.replay is not None and st.replay.offsets_given
             place = ("its work offset is not known (--work-offsets), or it ran under G91 or G41/G42:" if tables
                      else "give the work offsets (--work-offsets FILE) to place it in the part's frame, or")
-            return f"; line {idx + 1} moved {moved} in machine coordinates (G53): {place} give it in the program " \
-                   "before this move"
+            return f"; line {st.name(idx + 1)} moved {moved} in machine coordinates (G53): {place} give it in the " \
+                   "program before this move"
     return f"; give {', '.join(lacking)} in the program (absolute) before this move"
 
 
@@ -776,19 +777,19 @@ class ProgramState:
         self.ax = AxisWords("program", words, tuple(a for a in words if a in "ABC"))
         self.st = _State(len(self.ax.words))
         self.st.dialect = DIALECTS.get(dialect_name)
-        self.unknown_after = None  # 1-based line the state is unknown after
+        self.unknown_after = None  # the 0-based line of the lines run the state is unknown after (named: m.named)
 
     def line(self, i: int, text: str) -> None:
         if self.unknown_after is None:
             try:
                 classify_line(text.rstrip("\r\n"), self.st, "keep", "off", self.ax)
             except Exception:  # noqa: BLE001 - any line the classifier refuses: the state is unknown from here
-                self.unknown_after = i + 1
+                self.unknown_after = i
 
     def value(self, m, name: str, pc, col) -> float:
         if self.unknown_after is not None:
-            raise m._err(pc, col, f"#<{name}>: the controller's state is not known after line {self.unknown_after} "
-                                  "(a line the reader does not follow)")
+            raise m._err(pc, col, f"#<{name}>: the controller's state is not known after line "
+                                  f"{m.named(self.unknown_after)} (a line the reader does not follow)")
         st, axis = self.st, TRACKED_NAMES[name]
         if axis is None:
             return float({"_metric": not st.inch, "_imperial": st.inch, "_absolute": not st.incremental,

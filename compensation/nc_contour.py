@@ -103,13 +103,13 @@ def cycle_line(words, idx: int, st, ax) -> str | None:
     g = [w for w in words if w.letter == "G" and w.code in CYCLE_CODES]
     if not g or not applies(st, ax):
         if cs.pending is not None or cs.active is not None:
-            _contour_block(words, cs)
+            _contour_block(words, cs, st.name)
         return None
     w = g[0]
     if cs.pending is not None or cs.active is not None:
         c = cs.pending or cs.active
         raise _Refuse(w.start + 1, f"'{w.code}' inside the contour blocks N{c.ns}-N{c.nf} of the {c.code} on line "
-                                   f"{c.line + 1}: a cycle may not be nested; end the contour (N{c.nf}) first")
+                                   f"{st.name(c.line + 1)}: a cycle may not be nested; end the contour (N{c.nf}) first")
     by = {}
     for x in words:
         if x.letter not in CYCLE_LETTERS or (x.letter == "G" and x is not w):
@@ -151,16 +151,18 @@ def cycle_line(words, idx: int, st, ax) -> str | None:
     return "state"
 
 
-def _contour_block(words, cs: ContourState) -> None:
-    """A line while a cycle's contour is open: ``N(ns)`` must come first; contour words only."""
+def _contour_block(words, cs: ContourState, name) -> None:
+    """A line while a cycle's contour is open: ``N(ns)`` must come first; contour words only. ``name`` names the
+    cycle's 1-based line in a refusal (the reader's: :func:`compensation.nc_expand.source_line`)."""
     if not words:
         return  # a blank or comment line
     n = next((x for x in words if x.letter == "N"), None)
     if cs.pending is not None:
         c = cs.pending
         if n is None or n.value != c.ns:
-            raise _Refuse(words[0].start + 1, f"the {c.code} on line {c.line + 1} names its contour's first block "
-                                              f"N{c.ns}: that block must follow the cycle line; this line is not it")
+            raise _Refuse(words[0].start + 1, f"the {c.code} on line {name(c.line + 1)} names its contour's first "
+                                              f"block N{c.ns}: that block must follow the cycle line; this line is "
+                                              "not it")
         given = {x.letter for x in words} & set("XZUW")
         if not given:
             raise _Refuse(words[0].start + 1, f"N{c.ns}, the first block of the {c.code} contour, moves neither X "
@@ -176,7 +178,8 @@ def _contour_block(words, cs: ContourState) -> None:
         if x.letter not in CONTOUR_LETTERS or (x.letter == "G" and x.code not in CONTOUR_G):
             c = cs.active
             raise _Refuse(x.start + 1, f"'{x.letter}{x.text}' in the contour blocks N{c.ns}-N{c.nf} of the {c.code} "
-                                       f"on line {c.line + 1}: only G0-G3, G40-G42, axis, arc, F, S, N words there")
+                                       f"on line {name(c.line + 1)}: only G0-G3, G40-G42, axis, arc, F, S, N words "
+                                       "there")
 
 
 def after_line(words, idx: int, st, ax, move=None) -> None:

@@ -190,6 +190,7 @@ class _St:
         self.dwell_x = False  # 'G04 X' is a dwell time (compensation.dialects.Dialect.dwell_x)
         self.tapping = False  # G33.1 in force: each of its lines ends where it started (rigid tapping returns)
         self.probing = False  # G38.2-G38.5 in force: each of its lines stops where the probe trips (not known)
+        self.name = int  # a 1-based line of the text read as a refusal's text names it (expand_cycles)
 
 
 def expand_cycles(text: str, path, mode: str, dialect: str | None = None, inner=None,
@@ -201,6 +202,7 @@ def expand_cycles(text: str, path, mode: str, dialect: str | None = None, inner=
         raise ValueError(f"Expected mode keep or expand, got {mode!r}")
     lines = text.splitlines(keepends=True)
     st, out, origin, spans, holes = _St(), [], [], [], []
+    st.name = int if inner is None else inner.name  # the lines of inner's flat text: compensation.nc_expand.source_line
     st.keeps_g01 = g80_keeps or _keeps_motion(dialect)
     st.keeps_g01_unrecognised = g80_keeps
     from .dialects import DIALECTS
@@ -273,9 +275,9 @@ def _after_kept(by, gs, st: _St) -> None:
         return
     if st.inc:
         w = next(by[a] for a in "XYZ" if a in by)
-        raise _Refuse(w.start + 1, f"an incremental move after the kept canned cycle of line {st.kept_line}: the "
-                                   "controller is then at the cycle's compensated clear level, not the programmed one; "
-                                   "program an absolute Z (G90) first, or use --expand-cycles")
+        raise _Refuse(w.start + 1, f"an incremental move after the kept canned cycle of line {st.name(st.kept_line)}: "
+                                   "the controller is then at the cycle's compensated clear level, not the programmed "
+                                   "one; program an absolute Z (G90) first, or use --expand-cycles")
     if "Z" in by:
         st.kept_line = 0
 

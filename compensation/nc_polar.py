@@ -80,7 +80,7 @@ def polar_cuts(m, pc: int, body: str, words, value, fmt) -> tuple:
     motion, inch, incremental = _line_modes(m, pc, words, value, refuse)
     st = m.state
     if st is None or st.unknown_after is not None:
-        after = "" if st is None else f" after line {st.unknown_after} (a line the reader does not follow)"
+        after = "" if st is None else f" after line {m.named(st.unknown_after)} (a line the reader does not follow)"
         raise refuse(f"needs the current X Y, which is not known{after}: write the point as X Y")
     s, ax = st.st, st.ax
     if s.diameter:

@@ -414,7 +414,10 @@ def attach(prog, pre: TcpProgram, flat=None) -> None:
     if flat is not None:
         prog.expanded = flat
         prog.g80_line = flat.named(flat.origin[prog.g80_line - 1][0]) if prog.g80_line else prog.g80_line
-    check_mode_changes(prog, pre)
+    try:
+        check_mode_changes(prog, pre)
+    except InputError as exc:  # on the flat lines: named at the source, as the reader's refusals
+        raise (flat.relocate(exc) if flat is not None else exc) from None
     prog.lines = pre.lines
     prog.data = None
     if pre.tool_events:
@@ -426,7 +429,9 @@ def check_mode_changes(prog, pre: TcpProgram) -> None:
     """The first move after TCP switched on or off starts where the other mode left the machine, which the
     program's coordinates do not say: it must give every axis absolutely and be a kept rapid (``G0`` under
     ``--rapids keep``: run as written); otherwise refused (file, line, column). So must the first move after a
-    Heidenhain / Siemens tool call give Z absolutely (the tip's height changes with the tool's length)."""
+    Heidenhain / Siemens tool call give Z absolutely (the tip's height changes with the tool's length); the call's
+    line named as the source's (:func:`compensation.nc_expand.source_line`)."""
+    from .nc_expand import source_line
     words = prog.axis_words.words
     prev = None
     for m in prog.moves:
@@ -449,8 +454,9 @@ def check_mode_changes(prog, pre: TcpProgram) -> None:
         m = next((m for m in prog.moves if m.index > line), None)
         if m is not None and ("Z" not in m.words or m.incremental) and "Z" in words:
             w = min((w for a, w in m.words.items() if a in words), key=lambda w: w.start)
-            raise _refuse(prog.path, m.index, w.start + 1, f"the first move after the tool call on line {line + 1} "
-                          "gives no absolute Z: the tip's height under the new tool length is not the program's")
+            raise _refuse(prog.path, m.index, w.start + 1, "the first move after the tool call on line "
+                          f"{source_line(prog, line + 1)} gives no absolute Z: the tip's height under the new tool "
+                          "length is not the program's")
 
 
 def tcp_axes(pre: TcpProgram, machine, program, lines0, q_prog, offset, tool_mm, count: bool = True) -> np.ndarray:

@@ -93,17 +93,17 @@ def read_tool_path(path, machine, s, field_=None) -> ToolPath:
     else:
         prog = parse_chain_program(path, machine, rapids=s.rapids, block_delete=s.block_delete, dialect=s.dialect,
                                    cycles=s.cycles, tables=(s.work_offsets, s.tool_table), subprograms=s.subprograms)
+    k = len(machine.axes)
+    columns = tuple(machine.axis_words.index(w) for w in prog.axis_words.words)
     try:
         frames = program_frames(prog, s.work_offsets, s.tool_table)
         refuse_unknown_frames(prog, frames, s.work_offsets)
+        if columns == tuple(range(k)):  # a likely unit typo (a move longer than the strokes allow), before planning
+            check_move_extent(prog, machine, [j for j, a in enumerate(machine.axes) if a.kind == "linear"],
+                              ends=s.work_offsets is not None and s.work_offsets.source == MACHINE)
     except InputError as exc:  # an expanded program's flat lines named at the source, as the reader's refusals
         exp = getattr(prog, "expanded", None)
         raise (exp.relocate(exc) if exp is not None else exc) from None
-    k = len(machine.axes)
-    columns = tuple(machine.axis_words.index(w) for w in prog.axis_words.words)
-    if columns == tuple(range(k)):  # a likely unit typo (a move longer than the strokes allow), before planning
-        check_move_extent(prog, machine, [j for j, a in enumerate(machine.axes) if a.kind == "linear"],
-                          ends=s.work_offsets is not None and s.work_offsets.source == MACHINE)
     partial = len(columns) < k
 
     def nominal(a):  # the tool point of program-column axes (m, len(columns)): a lathe's C never commanded is 0
