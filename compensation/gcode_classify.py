@@ -715,7 +715,6 @@ def plane_arc(u0, v0, u1, v1, mode, arc_words, centre_words, arc_abs, scale, fir
     return {"uc": uc, "vc": vc, "r0": r0, "r1": r1, "theta0": t0, "sweep": sweep}
 
 
-
 # ---------------------------------------------------------------------------- geometry
 
 def move_points(move: GMove, t) -> np.ndarray:
