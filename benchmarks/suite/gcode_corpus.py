@@ -422,11 +422,13 @@ def run(quick: bool, seed: int) -> dict:
                   "value": sum(r["check"].startswith("WRONG") for r in checked), "unit": "", "residual": "true",
                   "anchor": "checked", "anchor_value": len(checked)}]
         figs += sample_figures(res)
+        per = []
         for key in SAMPLES:
             sample_why = Counter(r["reason"] for r in res if r.get("sample") == key and r["outcome"] != "accepted")
             if sample_why:
-                notes.append(f"{key.capitalize()} refusals by reason: "
-                             + "; ".join(f"{n} x {w}" for w, n in sample_why.most_common()))
+                per.append(f"{key}: " + "; ".join(f"{n} x {w}" for w, n in sample_why.most_common()))
+        if per:
+            notes.append("Blind samples' refusals by reason — " + " — ".join(per))
         why = Counter(r["reason"] for r in mill if r["outcome"] == "refused")
         notes.append("Public 3-axis mill refusals by reason: " + "; ".join(f"{n} x {w}" for w, n in why.most_common()))
         more_figs, more_notes = nc_files_figures(Path(corpus))
