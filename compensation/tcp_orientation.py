@@ -64,6 +64,8 @@ TIP_WEIGHT = 1e3
 """Weight of the tip's rows (μm) against the tool axis's (μrad) in the solve: where the tool axis cannot be
 reached the least squares would otherwise give up tip for axis (the linear axes' angular errors vary by about
 0.01 μrad per mm: unweighted, some 1e-4 μm of tip; weighted, 1e-10 μm)."""
+
+
 def _pose_residual(field_, machine, q, targets, directions) -> np.ndarray:
     """MODEL tool tip minus target (μm) and MODEL tool axis minus the programmed one (μrad), (n, 6)."""
     p = machine.nominal(q) + 1e-3 * field_.predict(q)
@@ -114,8 +116,7 @@ def solve_orientation(field_, machine, axes0, targets, directions) -> tuple:
     rot = np.array([a.kind != "linear" for a in machine.axes])
     axes0 = np.asarray(axes0, dtype=float)
     q, tip, axis_urad = _gauss_newton(field_, machine, axes0, targets, directions, ORIENT_MAX_ITER)
-    turn_deg = np.abs(q[:, rot] - axes0[:, rot]).max(axis=1)
-    ok = tip & (axis_urad <= ORIENT_TOL_URAD) & (turn_deg <= ORIENT_ROTARY_LIMIT_DEG)
+    ok = tip & (axis_urad <= ORIENT_TOL_URAD) & _within_limit(q, axes0, rot)
     q[~ok] = axes0[~ok]
     partly = np.zeros(len(q), bool)
     todo = np.flatnonzero(~ok)
@@ -128,10 +129,14 @@ def solve_orientation(field_, machine, axes0, targets, directions) -> tuple:
         i = todo[sing == j]
         qp, tip, axis_urad = _gauss_newton(field_, machine, axes0[i], targets[i], directions[i], ORIENT_MAX_ITER,
                                            [c for c in range(q.shape[1]) if c != j])
-        good = tip & (axis_urad < before[sing == j]) & (
-            np.abs(qp[:, rot] - axes0[i][:, rot]).max(axis=1) <= ORIENT_ROTARY_LIMIT_DEG)
+        good = tip & (axis_urad < before[sing == j]) & _within_limit(qp, axes0[i], rot)
         q[i[good]], partly[i[good]] = qp[good], True
     return q, ok, partly
+
+
+def _within_limit(q, axes0, rot) -> np.ndarray:
+    """(n,) bool: every rotary axis (mask ``rot``) of ``q`` within :data:`ORIENT_ROTARY_LIMIT_DEG` of ``axes0``."""
+    return np.abs(q[:, rot] - axes0[:, rot]).max(axis=1) <= ORIENT_ROTARY_LIMIT_DEG
 
 
 def _singular_axis(machine, q, rot_idx) -> np.ndarray:

@@ -135,16 +135,15 @@ def condition_term_test(reg_static, f, r_static_um, c_um) -> dict:
     return {"coefficient": gamma.tolist(), "coefficient_se": se.tolist(), "z": (gamma / se).tolist(), "family": fam}
 
 
-def _backfit(reg, f, make, axes, idx, base_update, replaced, R, frame, estimate, start=None):
+def _backfit(reg, f, make, axes, idx, base_update, replaced, R, frame, estimate, start):
     """:data:`BACKFIT_ROUNDS` rounds of backfitting (:func:`learned_stage`): per round the base is
     re-estimated on the checks ``idx`` with the learned part's prediction at every check taken off
     (``base_update(replaced, prediction (n, 3), idx)`` → the new base's residual (n, 3)), then the learned
     part is re-estimated on ``idx`` (``estimate(reg, X, Y)``, its family kept) on what that base leaves
     (turned into its output ``frame`` by ``R``). ``make(reg)`` → its :class:`LearnedResidual`; ``start``:
-    the prediction of the first round (default: ``make(reg)``'s). → ``(reg, base residual (n, 3), RMS
-    change of the prediction at the checks per round (μm))``."""
-    pred = make(reg).predict(axes) if start is None else start
-    steps, r_b = [], None
+    the prediction of the first round (``make(reg)``'s at ``axes``, which the caller has). → ``(reg, base
+    residual (n, 3), RMS change of the prediction at the checks per round (μm))``."""
+    pred, steps, r_b = start, [], None
     for _ in range(BACKFIT_ROUNDS):
         r_b = np.asarray(base_update(replaced, pred, idx), dtype=float)
         reg = estimate(reg, f[idx], to_frame(r_b, R, frame)[idx])
