@@ -229,7 +229,8 @@ def _by_length(max_segment_mm, nominal) -> bool:
 def _check_counts(program, counts, lines0, arc_tolerance_um: float, max_segment_mm) -> None:
     """Refuse, before any vertex is placed, a move of more than :data:`MAX_SEGMENTS_PER_MOVE` pieces or a file of
     more than :data:`MAX_PATH_POINTS` vertices, naming the option that sets them: ``counts`` (c,) pieces of the
-    compensated moves, ``lines0`` (c,) their 0-based lines."""
+    compensated moves, ``lines0`` (c,) their 0-based lines (of the flat program where it was expanded; the refusal
+    names the source line, :func:`compensation.nc_expand.source_line`)."""
     counts = np.asarray(counts, dtype=np.int64)
     if not counts.size:
         return
@@ -238,7 +239,7 @@ def _check_counts(program, counts, lines0, arc_tolerance_um: float, max_segment_
         (f"{arc_tolerance_um:g} μm", "raise --arc-tolerance-um")
     k = int(np.argmax(counts))
     if counts[k] > MAX_SEGMENTS_PER_MOVE:
-        raise InputError(f"{program.path}: line {int(lines0[k]) + 1}: the move needs {int(counts[k]):,} pieces for "
+        raise InputError(f"{program.path}: line {source_line(program, int(lines0[k]) + 1)}: the move needs {int(counts[k]):,} pieces for "
                          f"{why[0]} (more than {MAX_SEGMENTS_PER_MOVE:,}); {why[1]}")
     total = int(counts.sum())
     if total > MAX_PATH_POINTS:

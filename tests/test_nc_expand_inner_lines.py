@@ -13,13 +13,15 @@ from pathlib import Path
 
 import pytest
 
-from compensation.chain_gcode import parse_chain_program
+from compensation.chain_gcode import MAX_SEGMENTS_PER_MOVE, parse_chain_program
 from compensation.gcode import AxisWords, parse_program
 from compensation.nc_cycles import cycle_pass
+from compensation.nc_state import MACHINE, read_work_offsets
 from compensation.nc_subfiles import SubprogramFiles
 from compensation.turning import parse_lathe_program
 from errormap.io import InputError
 from errormap.machine import load_machine
+from path_files import read_as_compensate
 
 MILL = AxisWords.of(load_machine("mill-xyz"))
 SUB = "o100 sub\n  G1 X10 Y10 F100\n  G1 X20\no100 endsub\nG21 G90 G17 G54 G98\nG0 X0 Y0 Z5\no100 call\n"
@@ -127,3 +129,14 @@ def test_a_likely_unit_typo_after_a_call_is_refused_at_its_source_line(tmp_path,
                  "--dialect", "linuxcnc", "--work-offsets", "machine", "--out", "o"]) != 0
     assert "p.ngc: line 8, column 4: 'X90000': a move of 89980 mm, more than the machine's X/Y/Z stroke" in \
         capsys.readouterr().err
+
+
+def test_a_move_of_too_many_pieces_inside_a_call_is_refused_at_its_source_line(tmp_path):
+    """The piece-count limit (compensation/chain_gcode.py ``_check_counts``, checked before any vertex is placed) names
+    the move at the source, as the reader does: the subroutine's first move (14.1 mm at 1e-6 mm a piece, the longest)
+    is source line 2, flat line 3 (before: 'line 3', the flat line)."""
+    read = partial(read_as_compensate, machine=load_machine("mill-xyz"), dialect="linuxcnc", max_segment_mm=1e-6,
+                   work_offsets=read_work_offsets(MACHINE))
+    msg = _refusal(read, tmp_path / "p.ngc", SUB + "M2\n")
+    assert msg.startswith(f"{tmp_path / 'p.ngc'}: line 2 (expanded line 3, called from line 7): the move needs "
+                          f"14,142,136 pieces for no piece longer than 1e-06 mm (more than {MAX_SEGMENTS_PER_MOVE:,})")
