@@ -83,13 +83,21 @@ def test_learned_stage_backfits_the_learned_part_with_its_base(grinder):
 
 
 TILT_LOOP_FRACTION = 0.35
-"""On the user's path with an A-axis tilt growing with X (seed 0, 800 checks at 1 μm), the backfitted hybrid's
-model error over the volume against the hidden truth must be below 0.35 × the loop alone's (measured 0.621 /
-2.273 μm = 0.27 on this run; without backfitting the hybrid was 0.849 / 2.249 = 0.38 × the loop on the
-benchmark's machine of the same seed (its own sweep noise): the bound lies between the two)."""
+"""On the user's path with an A-axis tilt growing with X (seed 0, TILT_CHECKS checks at 1 μm), the backfitted
+hybrid's model error over the volume against the hidden truth must be below 0.35 × the loop alone's (measured
+0.586 / 2.299 μm = 0.25 on 500 checks, 0.601 / 2.303 = 0.26 on 600, 0.621 / 2.273 = 0.27 on 800; without
+backfitting the hybrid was 0.849 / 2.249 = 0.38 × the loop on the benchmark's machine of the same seed (its own
+sweep noise): the bound lies between the two)."""
+
+TILT_CHECKS = 500
+"""Checks of the tilt user's path (was 800): the bound's margin is no smaller on 500 (0.25 against 0.35; 0.27 on
+800), the stage kept at held-out z 9.5 (12.6 on 600); 18 CPU s instead of 32 (one BLAS thread). The same path with
+the base update not given the learned part's prediction (no backfitting in effect) measured 0.330 on 500, 0.333 on
+600 and 0.313 on 800: on this seed the bound alone does not separate the two on any of these sizes; the backfitting is shown by the
+stage's report, the rounds and the loop alone's own files this test also asserts."""
 
 
-@pytest.mark.slow  # the user's path (sweeps → simulate → identify → diagnose), ~3 CPU min
+@pytest.mark.slow  # the user's path (sweeps → simulate → identify → diagnose), ~20 CPU s on TILT_CHECKS
 def test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt(tmp_path):
     """The learned part and the element update are backfitted (the update no longer takes up, in its element
     profiles, part of the tilt that the learned part would then have to learn minus that part): the stage
@@ -97,7 +105,7 @@ def test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt(t
     model error against the hidden truth is a small fraction of the loop alone's."""
     from errormap.chain_truth import make_chain_truth
     m = load_machine()
-    s = _user_path(tmp_path, 0, "a_tilt")
+    s = _user_path(tmp_path, 0, "a_tilt", checks=TILT_CHECKS)
     lr = s["learned_residual"]
     assert s["kept_stage"] == "learned_residual" and lr["kept"]
     bf = lr["backfit"]

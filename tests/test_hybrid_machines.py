@@ -16,8 +16,11 @@ NOISE_UM = 1.0
 BUMP_UM = 8.0
 """Peak of the synthetic local bump (as tests/test_hybrid.py's): well above the 1 μm noise."""
 
-N_CHECKS, N_FIT = 600, 360
-"""Checks drawn uniformly over the strokes; the first 60 % fit the stage, the rest are held out (the loop's split)."""
+N_CHECKS, N_FIT = 400, 240
+"""Checks drawn uniformly over the strokes; the first 60 % fit the stage, the rest are held out (the loop's split).
+Was 600, 360: on 400 the stage is kept on both machines (held-out z 6.7 mill-xyz, 5.9 five-axis-ac; 7.8 and 7.8 on
+600) and the learned bump leaves 11 % of its RMS on both (11.5 % and 12.8 % on 600) against BUMP_RECOVERY_REL's
+50 %; 4 CPU s instead of 9 (one BLAS thread)."""
 
 FAMILIES = ("gp",)
 """One family keeps the test short: what is tested is the machine-generic plumbing, not the family choice."""
@@ -30,7 +33,7 @@ H = 1e-4
 """Central-difference step (mm or deg)."""
 
 BUMP_RECOVERY_REL = 0.5
-"""On 360 fitting checks at 1 μm noise in 3–5 axes the learned bump leaves < 50 % of its RMS over the
+"""On N_FIT fitting checks at 1 μm noise in 3–5 axes the learned bump leaves < 50 % of its RMS over the
 volume: a learned field, not zero (zero leaves 100 %); looser than the grinder's 35 % because the
 same number of checks spreads over more axes."""
 
