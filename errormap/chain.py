@@ -251,23 +251,14 @@ class Chain:
 
     def frames(self, q, errors=None) -> np.ndarray:
         """Cumulative frames before each ET and after the last, shape (n, n_et + 1, 4, 4)."""
+        from ._chain_frames import chain_frames   # numba: loaded with the first frames, not with the module
         v = self.et_values(q, errors)
         n, m = v.shape
-        G = np.empty((m + 1, 3, 4, n))   # the frames' top three rows, poses last: every column slice contiguous
-        G[0] = np.eye(4)[:3, :, None]
-        for k in range(m):
-            a, T, nxt = self.axis[k], G[k], G[k + 1]
-            nxt[...] = T
-            if self.kind_r[k]:
-                b, c = (a + 1) % 3, (a + 2) % 3
-                cs, sn = np.cos(v[:, k]), np.sin(v[:, k])
-                nxt[:, b] = T[:, b] * cs + T[:, c] * sn
-                nxt[:, c] = T[:, c] * cs - T[:, b] * sn
-            else:
-                nxt[:, 3] = T[:, 3] + T[:, a] * v[:, k]
+        cs, sn = np.zeros((n, m)), np.zeros((n, m))
+        for k in np.flatnonzero(self.kind_r):   # per column, as numpy gave them before the compiled pass
+            cs[:, k], sn[:, k] = np.cos(v[:, k]), np.sin(v[:, k])
         F = np.empty((n, m + 1, 4, 4))
-        F[:, :, :3] = np.moveaxis(G, 3, 0)
-        F[:, :, 3] = (0.0, 0.0, 0.0, 1.0)
+        chain_frames(v, cs, sn, self.kind_r, self.axis, F)
         return F
 
     def fk(self, q, errors=None) -> np.ndarray:
