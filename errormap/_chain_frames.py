@@ -41,3 +41,26 @@ def chain_frames(v, cs, sn, kind_r, axis, F):
             F[i, k, 3, 1] = 0.0
             F[i, k, 3, 2] = 0.0
             F[i, k, 3, 3] = 1.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def chain_columns(F, kind_r, axis, lin, ang):
+    """Fill lin, ang (n, m, 3) from the frames F (n, m + 1, 4, 4) (:meth:`errormap.chain.Chain._columns`): per ET its
+    axis in the world a (+ 0.0: a zero is +0), at a rotation a × (p − o) and a, at a translation a and 0; p the tool
+    point, o the ET's origin. The cross product's products and differences as ``np.cross`` forms them."""
+    n, m1 = F.shape[0], F.shape[1]
+    m = m1 - 1
+    for i in range(n):
+        p0, p1, p2 = F[i, m, 0, 3], F[i, m, 1, 3], F[i, m, 2, 3]
+        for k in range(m):
+            c = axis[k]
+            a0, a1, a2 = F[i, k, 0, c] + 0.0, F[i, k, 1, c] + 0.0, F[i, k, 2, c] + 0.0
+            if kind_r[k]:
+                b0, b1, b2 = p0 - F[i, k, 0, 3], p1 - F[i, k, 1, 3], p2 - F[i, k, 2, 3]
+                lin[i, k, 0] = a1 * b2 - a2 * b1
+                lin[i, k, 1] = a2 * b0 - a0 * b2
+                lin[i, k, 2] = a0 * b1 - a1 * b0
+                ang[i, k, 0], ang[i, k, 1], ang[i, k, 2] = a0, a1, a2
+            else:
+                lin[i, k, 0], lin[i, k, 1], lin[i, k, 2] = a0, a1, a2
+                ang[i, k, 0], ang[i, k, 1], ang[i, k, 2] = 0.0, 0.0, 0.0

@@ -271,13 +271,10 @@ class Chain:
 
     def _columns(self, F) -> tuple[np.ndarray, np.ndarray]:
         """Per ET the tool-point displacement and the rotation per unit value, each (n, 3, n_et)."""
-        p = F[:, -1, :3, 3]
-        m = len(self.ets)
-        # (n, m, 3): each ET's axis in the world (+ 0.0: a zero is +0, as the one-hot sum this replaced gave)
-        ax = np.take_along_axis(F[:, :m, :3, :3], self.axis[None, :, None, None], 3)[..., 0] + 0.0
-        org = F[:, :m, :3, 3]                              # (n, m, 3)
-        lin = np.where(self.kind_r[None, :, None], np.cross(ax, p[:, None, :] - org), ax)
-        ang = np.where(self.kind_r[None, :, None], ax, 0.0)
+        from ._chain_frames import chain_columns   # numba (as frames): the array expressions' bits, one pass
+        n, m = F.shape[0], len(self.ets)
+        lin, ang = np.empty((n, m, 3)), np.empty((n, m, 3))   # (n, m, 3), viewed as (n, 3, m) below
+        chain_columns(np.ascontiguousarray(F, dtype=float), self.kind_r, self.axis, lin, ang)
         return np.moveaxis(lin, 1, 2), np.moveaxis(ang, 1, 2)
 
     def error_jacobian(self, q, errors=None, frames=None, orientation: bool = False) -> np.ndarray:

@@ -250,3 +250,28 @@ def test_compiled_frames_of_a_machine_tools_body_chains_are_the_array_loops_bits
             vals = rng.normal(0, scale, (40, len(mt.slot_names)))
             want = _numpy_frames(bc.chain, axes[:, bc.joint_cols], vals[:, bc.slot_cols])
             assert bc.frames(axes, vals).tobytes() == want.tobytes(), word
+
+
+def _numpy_columns(chain, F):
+    """The array expressions :meth:`errormap.chain.Chain._columns` evaluated before its compiled pass (reference)."""
+    p = F[:, -1, :3, 3]
+    m = len(chain.ets)
+    ax = np.take_along_axis(F[:, :m, :3, :3], chain.axis[None, :, None, None], 3)[..., 0] + 0.0
+    org = F[:, :m, :3, 3]
+    lin = np.where(chain.kind_r[None, :, None], np.cross(ax, p[:, None, :] - org), ax)
+    ang = np.where(chain.kind_r[None, :, None], ax, 0.0)
+    return np.moveaxis(lin, 1, 2), np.moveaxis(ang, 1, 2)
+
+
+@pytest.mark.parametrize("name", ["ur5", "wam"])
+def test_compiled_jacobian_columns_are_the_array_expressions_bits(name):
+    """The Jacobians' per-ET columns (the cross products at the rotations, the axes at the translations) from the
+    compiled pass: the array expressions' bits and memory layout (so the products with them sum alike)."""
+    chain = load_machine(name)
+    lo, hi = np.array([j.lo for j in chain.joints]), np.array([j.hi for j in chain.joints])
+    rng = np.random.default_rng(3)
+    q = lo + (hi - lo) * rng.random((60, chain.n_joints))
+    for scale in (0.0, 1e-4, 10.0):
+        F = chain.frames(q, rng.normal(0, scale, (60, chain.n_params)))
+        for got, want in zip(chain._columns(F), _numpy_columns(chain, F)):
+            assert got.strides == want.strides and got.tobytes() == want.tobytes()
