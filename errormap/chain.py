@@ -251,23 +251,14 @@ class Chain:
 
     def frames(self, q, errors=None) -> np.ndarray:
         """Cumulative frames before each ET and after the last, shape (n, n_et + 1, 4, 4)."""
+        from ._chain_frames import chain_frames   # numba: loaded with the first frames, not with the module
         v = self.et_values(q, errors)
         n, m = v.shape
-        G = np.empty((m + 1, 3, 4, n))   # the frames' top three rows, poses last: every column slice contiguous
-        G[0] = np.eye(4)[:3, :, None]
-        for k in range(m):
-            a, T, nxt = self.axis[k], G[k], G[k + 1]
-            nxt[...] = T
-            if self.kind_r[k]:
-                b, c = (a + 1) % 3, (a + 2) % 3
-                cs, sn = np.cos(v[:, k]), np.sin(v[:, k])
-                nxt[:, b] = T[:, b] * cs + T[:, c] * sn
-                nxt[:, c] = T[:, c] * cs - T[:, b] * sn
-            else:
-                nxt[:, 3] = T[:, 3] + T[:, a] * v[:, k]
+        cs, sn = np.zeros((n, m)), np.zeros((n, m))
+        for k in np.flatnonzero(self.kind_r):   # per column, as numpy gave them before the compiled pass
+            cs[:, k], sn[:, k] = np.cos(v[:, k]), np.sin(v[:, k])
         F = np.empty((n, m + 1, 4, 4))
-        F[:, :, :3] = np.moveaxis(G, 3, 0)
-        F[:, :, 3] = (0.0, 0.0, 0.0, 1.0)
+        chain_frames(v, cs, sn, self.kind_r, self.axis, F)
         return F
 
     def fk(self, q, errors=None) -> np.ndarray:
@@ -280,13 +271,10 @@ class Chain:
 
     def _columns(self, F) -> tuple[np.ndarray, np.ndarray]:
         """Per ET the tool-point displacement and the rotation per unit value, each (n, 3, n_et)."""
-        p = F[:, -1, :3, 3]
-        m = len(self.ets)
-        # (n, m, 3): each ET's axis in the world (+ 0.0: a zero is +0, as the one-hot sum this replaced gave)
-        ax = np.take_along_axis(F[:, :m, :3, :3], self.axis[None, :, None, None], 3)[..., 0] + 0.0
-        org = F[:, :m, :3, 3]                              # (n, m, 3)
-        lin = np.where(self.kind_r[None, :, None], np.cross(ax, p[:, None, :] - org), ax)
-        ang = np.where(self.kind_r[None, :, None], ax, 0.0)
+        from ._chain_frames import chain_columns   # numba (as frames): the array expressions' bits, one pass
+        n, m = F.shape[0], len(self.ets)
+        lin, ang = np.empty((n, m, 3)), np.empty((n, m, 3))   # (n, m, 3), viewed as (n, 3, m) below
+        chain_columns(np.ascontiguousarray(F, dtype=float), self.kind_r, self.axis, lin, ang)
         return np.moveaxis(lin, 1, 2), np.moveaxis(ang, 1, 2)
 
     def error_jacobian(self, q, errors=None, frames=None, orientation: bool = False) -> np.ndarray:

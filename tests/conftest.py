@@ -181,6 +181,13 @@ MLFLOW_STARTUP_LIMIT_S = 120.0
 """Bounded poll for a test's ``mlflow server`` to answer /health."""
 
 
+MLFLOW_SERVER_ENV = {"MLFLOW_SERVER_ENABLE_JOB_EXECUTION": "false"}
+"""The test server's environment: MLflow's job execution off. On by default (mlflow 3), it starts a job runner and
+seven Huey consumer processes beside the web server (GenAI scorer jobs; nothing a tracked run or an artifact uses):
+~25 of the server's ~31 CPU s over the Ray/MLflow unit (measured 2026-12-04 in a cpuacct cgroup), and they made
+its SIGTERM take ~10 s."""
+
+
 def free_port() -> int:
     import socket
     with socket.socket() as s:
@@ -205,7 +212,7 @@ def mlflow_server(tmp_path_factory):
            "--artifacts-destination", str(tmp / "art"), "--serve-artifacts",
            "--host", "127.0.0.1", "--port", str(port), "--workers", "1"]
     proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
-                            env={**os.environ, "MLFLOW_TRACKING_URI": ""})
+                            env={**os.environ, "MLFLOW_TRACKING_URI": "", **MLFLOW_SERVER_ENV})
     url = f"http://127.0.0.1:{port}"
     try:
         wait_until_serving(proc, url + "/health", MLFLOW_STARTUP_LIMIT_S, tmp / "server.log", "mlflow server")

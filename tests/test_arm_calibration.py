@@ -130,17 +130,20 @@ def test_predict_reads_the_tracker_grid_layout_as_calibrate_does(tmp_path, ur5):
     assert none is None and np.allclose(q2, poses.q[:20], rtol=CSV_REL, atol=0)
 
 @pytest.mark.slow
-def test_simulated_arm_cli_learned_stage_and_compensation(tmp_path, ur5):
+def test_simulated_arm_cli_learned_stage_and_compensation(tmp_path, ur5, capsys):
     """Link errors + joint-stiffness sag + noise: calibrate through the CLI, then compensate a joint
-    program and judge the commands against the TRUE arm."""
+    program and judge the commands against the TRUE arm. The two commands run in-process (``main``, as the real
+    grid's test below): a fresh interpreter would import numpy, scipy, torch and matplotlib again for each (the
+    ``python -m`` entry point is the refusal tests' above)."""
+    from compensation.app.cli import main
     t, fit = _sim(ur5, 400, 7)
     qc = random_joints(UR5_LO, UR5_HI, 100, [7, 5])
     check = measure(ur5, t, qc, NOISE_MM, [7, 6])
     write_arm_poses(tmp_path / "fit.csv", ur5, fit)
     write_arm_poses(tmp_path / "check.csv", ur5, check)
-    r = cli("calibrate", tmp_path / "fit.csv", "--check", tmp_path / "check.csv", "--machine", "ur5", "--out",
-            tmp_path / "cal")
-    assert r.returncode == 0, r.stderr
+    rc = main(["calibrate", str(tmp_path / "fit.csv"), "--check", str(tmp_path / "check.csv"), "--machine", "ur5",
+               "--out", str(tmp_path / "cal")])
+    assert rc == 0, capsys.readouterr().err
     doc = calibration_section(tmp_path / "cal" / "model.json", "arm")[0]
     st = {s["name"]: s for s in doc["stages"]}
     base = {s["name"]: s for s in doc["baselines"]}
@@ -166,9 +169,9 @@ def test_simulated_arm_cli_learned_stage_and_compensation(tmp_path, ur5):
     qp = random_joints(UR5_LO + 5, UR5_HI - 5, 50, [7, 9])
     prog = tmp_path / "prog.csv"
     prog.write_text(",".join(ur5.joint_columns) + "\n" + "\n".join(",".join(f"{v:.10g}" for v in row) for row in qp))
-    r = cli("compensate", prog, "--machine", "ur5", "--model", tmp_path / "cal" / "model.json", "--out",
-            tmp_path / "comp")
-    assert r.returncode == 0, r.stdout + r.stderr
+    rc = main(["compensate", str(prog), "--machine", "ur5", "--model", str(tmp_path / "cal" / "model.json"), "--out",
+               str(tmp_path / "comp")])
+    assert rc == 0, "".join(capsys.readouterr())
     out = read_table(tmp_path / "comp" / "prog.csv")
     qn = np.stack([out.float(c) for c in ur5.joint_columns], 1)
     # the program and its targets are in the robot's base frame: the truth there (its base with link 1's offsets)

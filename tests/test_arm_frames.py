@@ -198,3 +198,80 @@ def test_a_learned_stage_that_does_not_beat_its_geometric_stage_on_later_blocks_
     cal["blockings"]["order"]["cv_mean_mm"] = 0.10
     assert across_blocks(cal, "learned", True)["learned_carried"] is True
     assert across_blocks(cal, "geometric", False)["learned_carried"] is None
+
+
+def _numpy_frames(chain, q, errors=None):
+    """The array loop :meth:`errormap.chain.Chain.frames` ran before its compiled pass (kept here as the reference)."""
+    v = chain.et_values(q, errors)
+    n, m = v.shape
+    G = np.empty((m + 1, 3, 4, n))
+    G[0] = np.eye(4)[:3, :, None]
+    for k in range(m):
+        a, T, nxt = chain.axis[k], G[k], G[k + 1]
+        nxt[...] = T
+        if chain.kind_r[k]:
+            b, c = (a + 1) % 3, (a + 2) % 3
+            cs, sn = np.cos(v[:, k]), np.sin(v[:, k])
+            nxt[:, b] = T[:, b] * cs + T[:, c] * sn
+            nxt[:, c] = T[:, c] * cs - T[:, b] * sn
+        else:
+            nxt[:, 3] = T[:, 3] + T[:, a] * v[:, k]
+    F = np.empty((n, m + 1, 4, 4))
+    F[:, :, :3] = np.moveaxis(G, 3, 0)
+    F[:, :, 3] = (0.0, 0.0, 0.0, 1.0)
+    return F
+
+
+@pytest.mark.parametrize("name", ["ur5", "ur10", "wam"])
+def test_compiled_frames_are_the_array_loops_bits(name):
+    """Chain.frames' compiled pass gives the array loop's frames bit for bit (the same roundings, no fused
+    multiply-add), with no errors, one error vector and one per pose, at a slot's size and far beyond it."""
+    chain = load_machine(name)
+    lo, hi = np.array([j.lo for j in chain.joints]), np.array([j.hi for j in chain.joints])
+    rng = np.random.default_rng(7)
+    for n in (1, 60):
+        q = lo + (hi - lo) * rng.random((n, chain.n_joints))
+        for scale in (1e-4, 10.0):
+            for errors in (None, rng.normal(0, scale, chain.n_params), rng.normal(0, scale, (n, chain.n_params))):
+                got, want = chain.frames(q, errors), _numpy_frames(chain, q, errors)
+                assert got.shape == want.shape and got.tobytes() == want.tobytes()
+
+
+@pytest.mark.parametrize("name", ["five-axis-ac", "lathe-xzc"])
+def test_compiled_frames_of_a_machine_tools_body_chains_are_the_array_loops_bits(name):
+    """The sweeps' body chains (errormap/chain_sweeps.py) go through the same frames: the same bits there too."""
+    from errormap.chain_sweeps import body_chain
+    mt = load_machine(name)
+    rng = np.random.default_rng(11)
+    axes = mt.stroke_lo + (mt.stroke_hi - mt.stroke_lo) * rng.random((40, len(mt.axes)))
+    for word in mt.body_index:
+        bc = body_chain(mt, word)
+        for scale in (1.0, 100.0):
+            vals = rng.normal(0, scale, (40, len(mt.slot_names)))
+            want = _numpy_frames(bc.chain, axes[:, bc.joint_cols], vals[:, bc.slot_cols])
+            assert bc.frames(axes, vals).tobytes() == want.tobytes(), word
+
+
+def _numpy_columns(chain, F):
+    """The array expressions :meth:`errormap.chain.Chain._columns` evaluated before its compiled pass (reference)."""
+    p = F[:, -1, :3, 3]
+    m = len(chain.ets)
+    ax = np.take_along_axis(F[:, :m, :3, :3], chain.axis[None, :, None, None], 3)[..., 0] + 0.0
+    org = F[:, :m, :3, 3]
+    lin = np.where(chain.kind_r[None, :, None], np.cross(ax, p[:, None, :] - org), ax)
+    ang = np.where(chain.kind_r[None, :, None], ax, 0.0)
+    return np.moveaxis(lin, 1, 2), np.moveaxis(ang, 1, 2)
+
+
+@pytest.mark.parametrize("name", ["ur5", "wam"])
+def test_compiled_jacobian_columns_are_the_array_expressions_bits(name):
+    """The Jacobians' per-ET columns (the cross products at the rotations, the axes at the translations) from the
+    compiled pass: the array expressions' bits and memory layout (so the products with them sum alike)."""
+    chain = load_machine(name)
+    lo, hi = np.array([j.lo for j in chain.joints]), np.array([j.hi for j in chain.joints])
+    rng = np.random.default_rng(3)
+    q = lo + (hi - lo) * rng.random((60, chain.n_joints))
+    for scale in (0.0, 1e-4, 10.0):
+        F = chain.frames(q, rng.normal(0, scale, (60, chain.n_params)))
+        for got, want in zip(chain._columns(F), _numpy_columns(chain, F)):
+            assert got.strides == want.strides and got.tobytes() == want.tobytes()
