@@ -1,5 +1,6 @@
-"""Compile numba's cached kernels (``@njit(cache=True)``: errormap.chain_kernel, compensation.solvers.exact and
-_ga_kernels, compensation.gcode_kernels, the GP marginal likelihood's training._gp_kernels) once, before the tests:
+"""Compile numba's cached kernels (``@njit(cache=True)``: errormap.chain_kernel and _chain_frames,
+compensation.solvers.exact and _ga_kernels, compensation.gcode_kernels, the GP marginal likelihood's
+training._gp_kernels) once, before the tests:
 ``.ci/run`` starts this in the background after the install, while Chromium's install ends, so that the fast tier's two
 workers find the kernels in numba's cache instead of each compiling them (tens of CPU seconds a worker on a fresh
 clone). It runs the public API on the built-in machines the tests use; a kernel it misses is compiled by the tests as

@@ -76,22 +76,23 @@ data): each test is its own unit of ``--dist loadscope``, so a file of long test
 while the other idles."""
 
 UNIT_WALL_S = {
-    "Ray, MLflow tracking server": 256.0,   # mostly waiting on Ray's processes and the server: ~20 CPU s of its own
-    "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark": 198.0,
-    "tests/test_benchmarks_suite.py": 99.0,
-    "tests/test_arm_calibration.py": 85.0,
-    "tests/test_hybrid.py": 71.0,
-    "bump user path": 71.0,
-    "tests/test_tutorials.py": 71.0,
-    "tests/test_hybrid_chain.py": 61.0,
-    "tests/test_hybrid_backfit.py::test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt": 47.0,
-    "tests/test_drift_models.py": 33.0,
-    "tests/test_arm_plain_lsq.py": 30.0,
+    "tiny demo, mill-xyz reversal:Z diagnosis, mill-xyz quick benchmark": 117.0,
+    "Ray, MLflow tracking server": 84.0,   # mostly waiting on Ray's processes and the server
+    "tests/test_benchmarks_suite.py": 55.0,
+    "bump user path": 54.0,
+    "tests/test_tutorials.py": 38.0,
+    "tests/test_hybrid_chain.py": 30.0,
+    "tests/test_hybrid.py": 26.0,
+    "tests/test_arm_calibration.py": 24.0,
+    "tests/test_drift_models.py": 20.0,
+    "tests/test_hybrid_backfit.py::test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt": 17.0,
+    "tests/test_new_machine_is_a_file.py": 17.0,
+    "tests/test_cli_robust.py": 16.0,
 }
 """The slow tier's longest units of work, handed out first (longest first: with a long unit last, one worker would
 run it alone at the end while the other idles). Their wall seconds in the last full slow-tier run (`-n 2 --dist
-loadscope`, one BLAS thread, 2026-12-04, 251 tests in 903 s; the units' walls summed 1,676 s): the sizes, not CPU
-seconds — the Ray unit's tests wait on Ray's processes. Units not named follow, most tests first."""
+loadscope`, one BLAS thread, quiet machine, 2026-12-04, 252 tests in 419 s; the units' walls summed 794 s): the
+sizes, not CPU seconds — the Ray unit's tests wait on Ray's processes. Units not named follow, most tests first."""
 
 
 def _unit(nodeid: str) -> str:
