@@ -448,6 +448,7 @@ def test_default_tracking_uri(monkeypatch, tmp_path):
 
 
 # -- CLI ------------------------------------------------------------------------------------
+@pytest.mark.slow  # 5.9-6.1 CPU s measured on 2026-12-04 (training, MLflow store, plots): over the fast tier's 5
 def test_cli_train_writes_metrics_and_run(tmp_path, monkeypatch, capsys):
     from compensation.app.cli import main
     store_uri = f"sqlite:///{tmp_path / 'store' / 'mlflow.db'}"
