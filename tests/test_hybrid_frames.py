@@ -7,7 +7,6 @@ import pytest
 
 from errormap.field import GRINDER_AXES
 
-from compensation.hybrid.stage import _fit_inputs
 from compensation.hybrid import (LEARNED_FRAMES, LearnedResidual, frame_key, input_features,
                                  learned_stage, split_frame_key, to_frame)
 from errormap.chain_kernel import error_jacobian
