@@ -141,7 +141,7 @@ def test_fleet_refuses_a_file_store_for_several_writers(tmp_path, grinder, capsy
     rc = main(["fleet", str(fleet), "--out", str(tmp_path / "out"), "--cluster", "ray",
                "--tracking-uri", f"sqlite:///{tmp_path / 'm.db'}"])
     assert rc == 2 and "tracking server" in capsys.readouterr().err
-    assert not (tmp_path / "out").exists()
+    assert not (tmp_path / "out").exists() and not (tmp_path / "m.db").exists()   # refused before the store is opened
 
 
 def test_fleet_on_ray_tracked_on_a_server(ray_session, mlflow_server, grinder, capsys):

@@ -351,7 +351,9 @@ def check_args(command: str, args, parser=None) -> None:
             outs.append((flag, value, rule))   # paths after the numbers: cheap checks first
             continue
         rule.check(flag, value)
-    if getattr(args, "tracking_uri", None) and not getattr(args, "no_track", False):
+    # (fleet opens its store itself, after refusing a file store that several machines would write at once:
+    # opening a SQLite URI creates its file)
+    if getattr(args, "tracking_uri", None) and not getattr(args, "no_track", False) and command != "fleet":
         from training.tracking import check_tracking_uri   # a store MLflow cannot open: refused before the work
         check_tracking_uri(args.tracking_uri)
     if command in ("report", "demo"):

@@ -43,7 +43,7 @@ def register(sub):
 
 
 def run(args) -> int:
-    from training.tracking import default_tracking_uri
+    from training.tracking import check_tracking_uri as open_store, default_tracking_uri
 
     from ..workflows.cluster import RayExecutor
     from ..workflows.fleet import (SUMMARY_NAME, check_tracking_uri, fleet_counts, read_fleet, run_fleet,
@@ -53,6 +53,7 @@ def run(args) -> int:
     machines = read_fleet(args.fleet)
     uri = args.tracking_uri or default_tracking_uri()
     check_tracking_uri(uri, len(machines), args.cluster == "ray")
+    open_store(args.tracking_uri)   # a store MLflow cannot open, refused before the work (validate: not for fleet)
     out = Path(args.out)   # a folder (a file there is refused before run: validate.OUT_DIR)
     if out.is_dir() and any(not is_lock(p) for p in out.iterdir()) and not args.force:
         raise UsageError(f"--out {out} already holds files; choose an empty folder or pass --force")
