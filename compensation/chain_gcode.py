@@ -239,8 +239,8 @@ def _check_counts(program, counts, lines0, arc_tolerance_um: float, max_segment_
         (f"{arc_tolerance_um:g} μm", "raise --arc-tolerance-um")
     k = int(np.argmax(counts))
     if counts[k] > MAX_SEGMENTS_PER_MOVE:
-        raise InputError(f"{program.path}: line {source_line(program, int(lines0[k]) + 1)}: the move needs {int(counts[k]):,} pieces for "
-                         f"{why[0]} (more than {MAX_SEGMENTS_PER_MOVE:,}); {why[1]}")
+        raise InputError(f"{program.path}: line {source_line(program, int(lines0[k]) + 1)}: the move needs "
+                         f"{int(counts[k]):,} pieces for {why[0]} (more than {MAX_SEGMENTS_PER_MOVE:,}); {why[1]}")
     total = int(counts.sum())
     if total > MAX_PATH_POINTS:
         raise InputError(f"{program.path}: the program needs {total:,} vertices for {why[0]}, more than the limit of "

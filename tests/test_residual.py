@@ -118,3 +118,19 @@ def test_validation():
         ResidualRegressor().fit(Xb, Y)
     with pytest.raises(RuntimeError, match="not fitted"):
         ResidualRegressor().predict(X)
+
+
+def test_fit_chosen_completes_a_cross_validation_once_as_fit_does():
+    """cross_validate then fit_chosen gives fit's model bit for bit; a second fit_chosen returns the same fitted
+    regressor without fitting again (the learned stage calls it where a candidate is used, which may be twice);
+    before any cross-validation it is refused."""
+    X, Y = _data(6, n=40)
+    full = ResidualRegressor(families=("basis",), seed=0).fit(X, Y)
+    cv = ResidualRegressor(families=("basis",), seed=0).cross_validate(X, Y)
+    assert cv.chosen_ == "basis" and cv.model_ is None
+    model = cv.fit_chosen().model_
+    assert model is not None
+    assert cv.fit_chosen().model_ is model
+    assert cv.predict(X).tobytes() == full.predict(X).tobytes()
+    with pytest.raises(RuntimeError, match="before cross_validate"):
+        ResidualRegressor().fit_chosen()

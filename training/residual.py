@@ -194,7 +194,11 @@ class ResidualRegressor:
 
     def fit_chosen(self):
         """The chosen family fitted on all the data :meth:`cross_validate` had (with the generator it drew for
-        this) → self, as :meth:`fit` leaves it."""
+        this) → self, as :meth:`fit` leaves it; once: a regressor so fitted already is returned as it is."""
+        if "_final" not in vars(self):
+            if not hasattr(self, "chosen_"):
+                raise RuntimeError("fit_chosen before cross_validate: nothing chosen to fit")
+            return self
         with limit_threads(1, ("blas",)):
             return self._fit_chosen()
 

@@ -77,7 +77,7 @@ def _fit_inputs(feats, r_um, fit_idx, groups, families, seed, columns, R=None, f
     the ``zero`` CV RMS, per family ``cv_rms_by_family``, and ``output_frame``. ``R`` (n, 3, 3) the
     work frame's rotation at the checks (base <- work), needed for a frame other than ``work``. ``final``
     False: the key's regressor is returned cross-validated only, its chosen family not yet fitted on all its
-    data (:func:`_final_fit` completes it, bit for bit as ``final`` True: the fit draws on its own generator)."""
+    data (``fit_chosen`` completes it, bit for bit as ``final`` True: the fit draws on its own generator)."""
     regs, table = {}, {}
     with Progress(len(feats) * len(frames) * len(families), "learned residual: blocked CV") as bar:
         for name, f in feats.items():
@@ -96,13 +96,6 @@ def _fit_inputs(feats, r_um, fit_idx, groups, families, seed, columns, R=None, f
     fitted = [n for n in regs if regs[n].chosen_ != "none"]
     best = min(fitted, key=lambda n: table[n]["cv_rms"]) if fitted else next(iter(regs))
     return best, (regs[best].fit_chosen() if final else regs[best]), table   # the others are not fitted on all data
-
-
-def _final_fit(reg):
-    """``reg`` (of :func:`_fit_inputs` with ``final`` False) with its chosen family fitted on all its data, once:
-    :func:`learned_stage` fits a candidate's final model only where it is used (the condition-term test, the
-    stage's learned part), not the one a replacement discards."""
-    return reg.fit_chosen() if "_final" in vars(reg) else reg
 
 
 def condition_term_test(reg_static, f, r_static_um, c_um) -> dict:
@@ -212,7 +205,7 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     feats = {name: input_features(axes, name, rho0, columns)[0] for name in inputs}
     groups = np.repeat(np.arange(CV_BLOCKS), int(np.ceil(len(fit_idx) / CV_BLOCKS)))[:len(fit_idx)]
     fit_cands = (lambda r: _fit_inputs(feats, r, fit_idx, groups, families, seed, columns, R_chk, frames,
-                                       final=False))   # each final fit where it is used (_final_fit)
+                                       final=False))   # each final fit where it is used (fit_chosen, once)
     key, reg, inputs_table = fit_cands(r_prev_um)
     r_base, replaces, alt, per_term, replaced_k = r_prev_um, False, None, None, ()
     if r_static_um is not None:
@@ -223,7 +216,7 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
         z_s, g_s, se_s = _paired_z(np.sqrt(e_with)[:, None], np.sqrt(e_static)[:, None])
         term = {"coefficient": None, "coefficient_se": None, "z": None, "family": None}
         c_sum = r_static_um - np.asarray(r_prev_um, dtype=float)
-        reg_s = _final_fit(reg_s)   # the condition-term test reads its fitted model
+        reg_s = reg_s.fit_chosen()   # the condition-term test reads its fitted model
         if reg_s.chosen_ != "none":
             term = condition_term_test(reg_s, feats[inp_s][fit_idx], to_frame(r_static_um, R_chk, frame_s)[fit_idx],
                                        to_frame(c_sum, R_chk, frame_s)[fit_idx])
@@ -266,7 +259,7 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
             reg, r_base, key, inputs_table = reg_p, r_part, key_p, inputs_table_p
         elif replaces:
             reg, r_base, key, inputs_table = reg_s, r_static_um, key_s, inputs_table_s
-    reg = _final_fit(reg)   # the learned part's candidate: fitted on all the fitting checks
+    reg = reg.fit_chosen()   # the learned part's candidate: fitted on all the fitting checks (a no-op if it was)
     inp, frame = split_frame_key(key)
     f = feats[inp]
     lo = axes[:, lin].min(0)
