@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -418,6 +419,18 @@ def test_load_field_by_registered_model_uri(tracked_fit, store):
     f = load_field(uri, tracking_uri=store)
     axes = np.array([[50.0, 20.0, 90.0]])
     assert np.array_equal(f.predict(axes), tracked_fit.field.predict(axes))
+
+
+def test_load_field_writes_no_progress_bar_and_keeps_the_users_setting(tracked_fit, store, capsys, monkeypatch):
+    """MLflow's artifact download bar (13 lines of 'Downloading artifacts' in a compensate log) is off for
+    volcomp's own downloads, the environment as it was after; a user who set MLflow's switch keeps it."""
+    from training.tracking import PROGRESS_BAR_ENV, load_field
+    monkeypatch.delenv(PROGRESS_BAR_ENV, raising=False)
+    load_field(tracked_fit.run_id, tracking_uri=store)
+    assert "Downloading" not in capsys.readouterr().err and PROGRESS_BAR_ENV not in os.environ
+    monkeypatch.setenv(PROGRESS_BAR_ENV, "true")
+    load_field(tracked_fit.run_id, tracking_uri=store)
+    assert "Downloading artifacts" in capsys.readouterr().err and os.environ[PROGRESS_BAR_ENV] == "true"
 
 
 def test_load_field_unknown_run_is_a_clear_error(store):

@@ -182,16 +182,33 @@ def log_learned_residual(stage: dict, learned_doc: dict, *, model_doc: dict | No
     return rid
 
 
+PROGRESS_BAR_ENV = "MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR"
+"""MLflow's switch for its artifact download bar: off for volcomp's downloads unless the user set it (a model of a
+few kB downloads at once; its bar wrote 13 lines of ``Downloading artifacts`` into a compensate's log)."""
+
+
+def _download(artifact_uri: str, dst_path: str, tracking_uri: str) -> Path:
+    """``mlflow.artifacts.download_artifacts`` without MLflow's progress bar (:data:`PROGRESS_BAR_ENV`; a value the
+    user set is kept), the environment as it was after."""
+    from mlflow.artifacts import download_artifacts
+    user_set = PROGRESS_BAR_ENV in os.environ
+    if not user_set:
+        os.environ[PROGRESS_BAR_ENV] = "false"
+    try:
+        return Path(download_artifacts(artifact_uri=artifact_uri, dst_path=dst_path, tracking_uri=tracking_uri))
+    finally:
+        if not user_set:
+            os.environ.pop(PROGRESS_BAR_ENV, None)
+
+
 def load_learned_residual_doc(run_id: str, tracking_uri: str | None = None) -> dict:
     """The ``learned_residual.json`` a :func:`log_learned_residual` run holds (a dict)."""
     import json
 
-    from mlflow.artifacts import download_artifacts
     uri_store = tracking_uri or default_tracking_uri()
     with tempfile.TemporaryDirectory(prefix="volcomp-learned-") as tmp:
         try:
-            p = Path(download_artifacts(artifact_uri=f"runs:/{run_id}/{LEARNED_RESIDUAL_FILE}", dst_path=tmp,
-                                        tracking_uri=uri_store))
+            p = _download(f"runs:/{run_id}/{LEARNED_RESIDUAL_FILE}", tmp, uri_store)
         except Exception as exc:
             raise InputError(f"{run_id}: no learned residual in MLflow store {uri_store}: "
                              f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
@@ -250,14 +267,13 @@ def load_field(spec: str, tracking_uri: str | None = None, loader=None):
         uri = spec
     else:
         raise InputError(f"{spec}: not a model directory, MLflow run id (32 hex digits), runs:/ or models:/ URI")
-    from mlflow.artifacts import download_artifacts
     uri_store = tracking_uri or default_tracking_uri()
     tmp = tempfile.mkdtemp(prefix="volcomp-model-")
     try:
         try:
             if uri.startswith("models:/"):
                 uri = _model_version_source(uri, uri_store)
-            local = Path(download_artifacts(artifact_uri=uri, dst_path=tmp, tracking_uri=uri_store))
+            local = _download(uri, tmp, uri_store)
         except Exception as exc:  # MlflowException, OSError: report in one line
             raise InputError(f"{spec}: cannot load a trained model from MLflow store {uri_store}: "
                              f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
