@@ -280,19 +280,27 @@ def detect_dialect(text: str) -> tuple:
     marker: ``(RS274, "")``; markers of two other dialects: ``ValueError`` naming them (give
     ``--dialect``)."""
     head = text[:DETECT_BYTES]
-    found = {}
+    found = {}  # name: (what, offset of its first marker)
     for name, pats in MARKERS.items():
         for pat, what in pats:
-            if re.search(pat, head):
-                found.setdefault(name, what)
+            m = re.search(pat, head)
+            if m and (name not in found or m.start() < found[name][1]):
+                found[name] = (what, m.start() + len(m.group()) - len(m.group().lstrip()))
     if "haas" in found or "siemens-iso" in found:  # Fanuc-compatible controllers that add their own words
         found.pop("fanuc", None)
     if not found:
         return RS274, ""
-    if len(found) > 1:
-        raise ValueError("the program holds words of several dialects (" +
-                         ", ".join(f"{n}: {w}" for n, w in found.items()) + "): name it with --dialect")
-    name, what = next(iter(found.items()))
+    if len(found) > 1:  # named at the later of the dialects' first markers, the others' lines beside
+        def at(pos):
+            line = head.count("\n", 0, pos) + 1
+            return line, pos - (head.rfind("\n", 0, pos) + 1) + 1
+        order = sorted(found.items(), key=lambda kv: kv[1][1])
+        (name, (what, pos)), first = order[-1], order[:-1]
+        line, col = at(pos)
+        raise ValueError(f"line {line}, column {col}: {what} ({name}) in a program that holds words of another "
+                         "dialect too (" + ", ".join(f"{n}: {w}, line {at(p)[0]}" for n, (w, p) in first)
+                         + "): the program holds words of several dialects; name its dialect with --dialect")
+    name, (what, _) = next(iter(found.items()))
     return name, what
 
 

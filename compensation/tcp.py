@@ -404,13 +404,29 @@ def _check_inverse_time(path, i, toks, codes, state):
                       "move needs its time (F = 1/minutes) on its line")
 
 
+G93_RE = re.compile(r"G0*93(?![\d.])", re.IGNORECASE)
+
+
+def _first_word(pre: TcpProgram) -> str:
+    """``"line L, column C: 'WORD'"`` of the program's first TCP switch or ``G93`` (from the pre-pass)."""
+    on = [k for k, sw in enumerate(pre.switch) if sw is not None]
+    inv = np.flatnonzero(pre.inverse_time)
+    if on and (not inv.size or on[0] <= inv[0]):
+        i, col, word = pre.switch[on[0]]
+        return f"line {i + 1}, column {col}: '{word}'"
+    i = int(inv[0])
+    m = G93_RE.search(pre.lines[i])
+    return f"line {i + 1}" + (f", column {m.start() + 1}: '{m.group()}'" if m else "")
+
+
 def attach(prog, pre: TcpProgram, flat=None) -> None:
     """After the reader: the program's original lines back (its TCP / G93 words written as they were), the
     tool calls among its events, and the pre-pass kept on the program (``prog.tcp``). ``flat``: the expansion the
     pre-pass ran on (:func:`flat_prepass`; the program read is its flat text), recorded as the program's."""
     if prog.expanded is not None:
-        raise InputError(f"{prog.path}: tool-centre-point or G93 words in a program whose canned cycles (or, with "
-                         "TCP, subprograms or macros) were expanded: not supported (post the 5-axis path flat)")
+        raise InputError(f"{prog.path}: {_first_word(pre)}: tool-centre-point or G93 words in a program whose canned "
+                         "cycles (or, with TCP, subprograms or macros) were expanded: not supported (post the 5-axis "
+                         "path flat)")
     if flat is not None:
         prog.expanded = flat
         prog.g80_line = flat.named(flat.origin[prog.g80_line - 1][0]) if prog.g80_line else prog.g80_line

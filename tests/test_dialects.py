@@ -127,8 +127,15 @@ def test_detection_reads_content_not_names(tmp_path):
     assert detect_dialect((DIALECTS / "siemens_iso.nc").read_text())[0] == "siemens-iso"
     assert detect_dialect((DIALECTS / "fanuc.nc").read_text()) == ("fanuc", "G05.1 Q look-ahead")
     assert detect_dialect((DIALECTS / "mach3.tap").read_text()) == (RS274, "")
-    with pytest.raises(ValueError, match="several dialects .*linuxcnc.*haas|several dialects .*haas.*linuxcnc"):
+    with pytest.raises(ValueError, match="linuxcnc.*haas.*several dialects|haas.*linuxcnc.*several dialects"):
         detect_dialect("o<sub> sub\nG187 P1\n")
+    p = tmp_path / "two.nc"  # the refusal names the later marker's line and column, and the other's line
+    p.write_text("G21 G90\no<sub> sub\nG0 X1\n  N20 G187 P1\nM2\n")
+    with pytest.raises(InputError) as err:
+        parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyz")), dialect="auto")
+    assert str(err.value).startswith(f"{p}: line 4, column 7: G187 smoothness (haas) in a program that holds words "
+                                     "of another dialect too (linuxcnc: o<name> subroutine, line 2)"), str(err.value)
+    assert str(err.value).endswith("name its dialect with --dialect")
     p = tmp_path / "haas.ngc"  # a Haas program named like a LinuxCNC file: still Haas
     p.write_bytes((DIALECTS / "haas.nc").read_bytes())
     assert parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyz")), dialect="auto").dialect == "haas"
