@@ -12,8 +12,9 @@ from __future__ import annotations
 def read_sweeps(paths, machine):
     """Tracker sweeps of one set-up (:class:`errormap.sweeps.Sweeps`) of a machine-tool chain or the grinder
     file's chain: one sweep file, or several naming the same ``# setup:`` (axis words from the machine)."""
+    from .estimators import machine_tool
     from .sweeps import read_sweeps as read_machine_sweeps
-    return read_machine_sweeps(paths, _chain(machine, "read_sweeps(machine=...)"))
+    return read_machine_sweeps(paths, machine_tool(machine, "read_sweeps(machine=...)"))
 
 
 def read_checks(path, machine, units: str = "check"):

@@ -237,3 +237,23 @@ def test_read_poses_follows_the_machine(tmp_path):
     assert isinstance(got, PoseData) and got.rotation is None
     np.testing.assert_allclose(got.q, sim.data.q, rtol=POSE_CSV_REL, atol=0)
     np.testing.assert_allclose(got.tip_mm, sim.data.tip_mm, rtol=POSE_CSV_REL, atol=0)
+
+
+def test_read_sweeps_is_the_commands_reader(tmp_path):
+    """``errormap.read_sweeps`` (the reference's example with measured sweeps) reads a sweep file as ``volcomp
+    identify`` does, for a machine tool and the grinder file; an arm is refused by name. It raised NameError before
+    (found by mutating input files, 2026-12-04: no test called it)."""
+    from errormap import read_sweeps
+    from errormap.sweeps import read_sweeps as command_reader
+    from compensation.app.cli import main
+    for name in ("mill-xyz", None):
+        p = tmp_path / f"sw-{name}.csv"
+        assert main(["sweeps", "--seed", "1", "--out", str(p)] + (["--machine", name] if name else [])) == 0
+        m = load_machine(name)
+        got, ref = read_sweeps(p, m), command_reader(p, m)
+        assert sorted(got.axes) == sorted(ref.axes) and got.axes
+        for w in ref.axes:
+            np.testing.assert_array_equal(got.axes[w].balls_mm, ref.axes[w].balls_mm)
+            np.testing.assert_array_equal(got.axes[w].command, ref.axes[w].command)
+    with pytest.raises(TypeError, match="read_sweeps"):
+        read_sweeps(tmp_path / "sw-mill-xyz.csv", load_machine("ur5"))
