@@ -5,10 +5,10 @@ the same chain and error slots a DH machine file gives (:func:`errormap.chain.dh
 zero configuration in the base link's frame, DH frame k on axis k by the common normal (:func:`dh_from_axes`;
 nearly parallel axes within :data:`NEARLY_PARALLEL_RAD` get a Hayati β); the frame conventions:
 ``docs/reference/arm-calibration.md``. URDF metres and radians become mm and deg; a ``continuous`` joint gets
-[-360, 360] deg. Refused, naming the element and its line: a floating, planar or mimic joint on the path, an
-axis of zero or non-unit length, joint origins adding up to over 100 m (a URDF in mm), a revolute/prismatic
-joint without limits, a base link that is not an ancestor of the tip, an unknown link, a file that is no
-``<robot>`` XML."""
+[-360, 360] deg. Refused, naming the element and its line: a floating, planar or mimic joint on the path, a
+value that is not a finite number (nan, inf), an axis of zero or non-unit length, joint origins adding up to
+over 100 m (a URDF in mm), a revolute/prismatic joint without limits, a base link that is not an ancestor of the
+tip, an unknown link, a file that is no ``<robot>`` XML."""
 from __future__ import annotations
 
 import hashlib
@@ -127,6 +127,12 @@ def _check_joint(j, where) -> None:
     if j.mimic is not None and j.type != "fixed":
         raise URDFChainError(f"{where}: joint {j.name!r} mimics joint {j.mimic.joint!r}: a chain's joints are "
                              "independent (model the coupled joint as one joint)")
+    for what, v in (("<origin xyz>", getattr(j.origin, "xyz", None)), ("<origin rpy>", getattr(j.origin, "rpy", None)),
+                    ("<axis xyz>", j.axis), ("<limit lower>", getattr(j.limit, "lower", None)),
+                    ("<limit upper>", getattr(j.limit, "upper", None))):
+        if v is not None and not np.all(np.isfinite(np.asarray(v, float))):
+            raise URDFChainError(f"{where}: joint {j.name!r}: {what} {np.asarray(v, float).tolist()} is not a finite "
+                                 "number")
     if j.type == "fixed":
         return
     ax = np.asarray(j.axis if j.axis is not None else (1.0, 0.0, 0.0), float)
@@ -143,6 +149,8 @@ def axes_at_zero(joints, path, lines):
     unit directions (m, 3); the tip link's frame (4, 4); the moving joints."""
     T = np.eye(4)
     pts, dirs, moving = [], [], []
+    for j in joints:
+        _check_joint(j, f"{path}: line {lines.get(('joint', j.name))}")
     reach = [np.linalg.norm(_origin(j)[:3, 3]) for j in joints]
     if sum(reach) > MM_AS_M_REACH_MM:
         j = joints[int(np.argmax(reach))]
@@ -150,7 +158,6 @@ def axes_at_zero(joints, path, lines):
                              f"{list(j.origin.xyz)} — the chain's origins add up to {sum(reach) / M_TO_MM:.4g} m: "
                              "millimetres rather than metres? (URDF lengths are metres)")
     for j in joints:
-        _check_joint(j, f"{path}: line {lines.get(('joint', j.name))}")
         T = T @ _origin(j)
         if j.type != "fixed":
             ax = np.asarray(j.axis if j.axis is not None else (1.0, 0.0, 0.0), float)

@@ -146,6 +146,8 @@ def _refused(tmp_path, text, *words):
     ('<axis xyz="0.6 0 0.8"/>', '<axis xyz="0.6 0 0.8"/><mimic joint="j1"/>', ("line 15", "'slide'", "mimics")),
     ('<axis xyz="0 1 0"/>', '<axis xyz="0 2 0"/>', ("line 7", "'j1'", "unit vector")),
     ('<limit lower="-2" upper="2"', '<limit lower="2" upper="-2"', ("line 10", "'j2'", "upper > lower")),
+    ('<axis xyz="0 1 0"/>', '<axis xyz="nan 1 0"/>', ("line 7", "'j1'", "<axis xyz> [nan, 1.0, 0.0] is not a finite")),
+    ('<limit lower="-2" upper="2"', '<limit lower="-inf" upper="2"', ("line 10", "'j2'", "<limit lower> -inf")),
     ('<link name="e"/>', '<link name="e"/><link name="spare"/>', ("line 3", "2 root links", "'spare'")),
     ('</robot>', '<link name="spare"/><joint name="s" type="fixed"><parent link="a"/><child link="spare"/></joint>'
      '</robot>', ("leaf links", "'spare'", "tip_link")),
