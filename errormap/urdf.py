@@ -97,7 +97,16 @@ def chain_path(robot, lines, path, base_link=None, tip_link=None) -> list:
     for key, link in (("base_link", base_link), ("tip_link", tip_link)):
         if link is not None and link not in names:
             raise URDFChainError(f"{path}: {key} {link!r} is no link of robot {robot.name!r}; links: {names}")
+    undefined = [j for j in robot.joints if j.parent not in names or j.child not in names]
+    if undefined:
+        j = undefined[0]
+        link = j.parent if j.parent not in names else j.child
+        raise URDFChainError(f"{path}: line {lines.get(('joint', j.name))}: joint {j.name!r} names link {link!r}, which "
+                             f"the file does not define (<link name=...>); links: {names}")
     roots = [n for n in names if n not in {j.child for j in robot.joints}]
+    if not roots:
+        raise URDFChainError(f"{path}: no root link: every link is a joint's child (the joints form a loop); a URDF "
+                             "is one tree")
     if len(roots) != 1:
         raise URDFChainError(f"{path}: line {lines.get(('link', roots[-1]))}: {len(roots)} root links {roots}; a URDF "
                              "is one tree")

@@ -149,6 +149,9 @@ def _refused(tmp_path, text, *words):
     ('<axis xyz="0 1 0"/>', '<axis xyz="nan 1 0"/>', ("line 7", "'j1'", "<axis xyz> [nan, 1.0, 0.0] is not a finite")),
     ('<limit lower="-2" upper="2"', '<limit lower="-inf" upper="2"', ("line 10", "'j2'", "<limit lower> -inf")),
     ('<link name="e"/>', '<link name="e"/><link name="spare"/>', ("line 3", "2 root links", "'spare'")),
+    ('<link name="e"/>', '', ("line 15", "joint 'slide' names link 'e', which the file does not define")),
+    ('</robot>', '<joint name="loop" type="fixed"><parent link="tip"/><child link="world"/></joint></robot>',
+     ("no root link", "loop")),
     ('</robot>', '<link name="spare"/><joint name="s" type="fixed"><parent link="a"/><child link="spare"/></joint>'
      '</robot>', ("leaf links", "'spare'", "tip_link")),
 ])
