@@ -64,6 +64,8 @@ class TcpProgram:
     off_at_end: list = field(default_factory=list)
     """0-based lines whose TCP-off word acts at the end of the block (Heidenhain ``M129``): written on the last
     piece of a split move (:func:`render_tcp`)."""
+    first_line: int | None = None
+    """The 0-based line of the first word the pre-pass read (a refusal's line where no switch or G93 names one)."""
 
     def active(self, lines0) -> np.ndarray:
         return self.on[np.asarray(lines0, dtype=np.int64)]
@@ -135,7 +137,7 @@ def tcp_prepass(path, data: bytes, dialect_name: str, machine):
     words, tool_events, out = [], [], []
     state = {"tcp": None, "g93": False, "tool": None, "t": None, "edge": False, "incremental": False,
              "ori": ORI_DEFAULT, "rot": {}}
-    found = False
+    found, first = False, None
     for i, line in enumerate(lines):
         body = line.rstrip("\r\n")
         ending = line[len(body):]
@@ -145,6 +147,7 @@ def tcp_prepass(path, data: bytes, dialect_name: str, machine):
             body = framed
         new, hit = _prepass_line(path, i, body, dialect_name, machine, rotary, state, words, tool_events)
         found |= hit
+        first = i if hit and first is None else first
         out.append(line if new is None else new + ending)  # None: the reader refuses it with its own words
         on[i], g93[i], switch[i] = state["tcp"] is not None, state["g93"], state["tcp"]
         if state.pop("off_at_end", False):  # Heidenhain's M129 acts at the end of its block
@@ -152,7 +155,7 @@ def tcp_prepass(path, data: bytes, dialect_name: str, machine):
     if not found:
         return data, None
     return "".join(out).encode("latin-1"), TcpProgram(on, g93, switch, words, tool_events, lines,
-                                                     off_at_end=state.get("off_lines", []))
+                                                     off_at_end=state.get("off_lines", []), first_line=first)
 
 
 def prepass_applies(data: bytes, dialect_name: str, machine) -> bool:
@@ -408,15 +411,18 @@ G93_RE = re.compile(r"G0*93(?![\d.])", re.IGNORECASE)
 
 
 def _first_word(pre: TcpProgram) -> str:
-    """``"line L, column C: 'WORD'"`` of the program's first TCP switch or ``G93`` (from the pre-pass)."""
+    """``"line L, column C: 'WORD'"`` of the program's first TCP switch or ``G93`` (from the pre-pass); else
+    ``"line L"`` of the first word it read (a TCP-off word alone, say)."""
     on = [k for k, sw in enumerate(pre.switch) if sw is not None]
     inv = np.flatnonzero(pre.inverse_time)
     if on and (not inv.size or on[0] <= inv[0]):
         i, col, word = pre.switch[on[0]]
         return f"line {i + 1}, column {col}: '{word}'"
-    i = int(inv[0])
-    m = G93_RE.search(pre.lines[i])
-    return f"line {i + 1}" + (f", column {m.start() + 1}: '{m.group()}'" if m else "")
+    if inv.size:
+        i = int(inv[0])
+        m = G93_RE.search(pre.lines[i])
+        return f"line {i + 1}" + (f", column {m.start() + 1}: '{m.group()}'" if m else "")
+    return f"line {pre.first_line + 1}" if pre.first_line is not None else "the program"
 
 
 def attach(prog, pre: TcpProgram, flat=None) -> None:

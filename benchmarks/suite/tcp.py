@@ -27,7 +27,7 @@ are counted apart ("partly"). At those points :func:`vertical_floor` gives what 
 machine solved exactly: the least tool-axis error with C held, and with C turned anywhere (with the C turn that
 needs, against the issue's 5 μrad).
 
-    python -m benchmarks.run tcp          # about a minute with the demos, 20 s without
+    python -m benchmarks.run tcp          # about 35 CPU s with the demos (the floor's C turns: 28), 25 without
     python -m benchmarks.run tcp --quick  # the LinuxCNC helix post and the demo-shaped program
 """
 from __future__ import annotations
@@ -148,16 +148,16 @@ def vertical_floor(prog: Path, tables: tuple, truth, model, step_deg: float) -> 
     reads them (its moves split by the ``model``'s curvature). None: no such point."""
     from compensation.app.workflows.compensate import CompensateSettings
     from compensation.app.workflows.compensate_paths import read_tool_path
-    from compensation.nc_state import machine_with_tool, read_tool_table, read_work_offsets
+    from compensation.nc_state import read_tool_table, read_work_offsets
     from compensation.tcp_orientation import ORIENT_MAX_ITER, _gauss_newton, tool_axis
     mt = load_machine(MACHINE)
     s = CompensateSettings("exact", "", prog.parent, dialect="linuxcnc", work_offsets=read_work_offsets(tables[0]),
                            tool_table=read_tool_table(tables[1]))
     tp = read_tool_path(prog, mt, s, ChainField(mt, model))
-    a, c = (mt.axis_columns.index(k) for k in ("a_deg", "c_deg"))
-    vert = tp.axes[:, a] == 0.0
     if tp.tool_mm is not None and np.isfinite(tp.tool_mm).any():
         raise ValueError(f"{prog.name}: the floor is computed at the machine file's tool point only")
+    a, c = (mt.axis_columns.index(k) for k in ("a_deg", "c_deg"))
+    vert = tp.axes[:, a] == 0.0
     if not vert.any():
         return None
     q0 = tp.axes[vert]
