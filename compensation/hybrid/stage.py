@@ -69,15 +69,15 @@ def _cv_key(reg) -> str:
     return reg.chosen_ if reg.chosen_ != "none" else "zero"
 
 
-def _fit_inputs(feats, r_um, fit_idx, groups, families, seed, columns, R=None, frames=("work",), final=True):
+def _fit_inputs(feats, r_um, fit_idx, groups, families, seed, columns, R=None, frames=("work",)):
     """Cross-validate every family on every input set and output frame (same blocked folds: they
-    depend on ``groups`` only) → (key, its fitted :class:`ResidualRegressor`, table): the
+    depend on ``groups`` only) → (key, its cross-validated :class:`ResidualRegressor`, table): the
     (input set, frame) candidate (:func:`frame_key`) whose chosen family has the lowest CV RMS (the
     first when every one declines); table per candidate: ``family`` chosen there, its ``cv_rms``,
     the ``zero`` CV RMS, per family ``cv_rms_by_family``, and ``output_frame``. ``R`` (n, 3, 3) the
-    work frame's rotation at the checks (base <- work), needed for a frame other than ``work``. ``final``
-    False: the key's regressor is returned cross-validated only, its chosen family not yet fitted on all its
-    data (``fit_chosen`` completes it, bit for bit as ``final`` True: the fit draws on its own generator)."""
+    work frame's rotation at the checks (base <- work), needed for a frame other than ``work``. The key's
+    regressor is not yet fitted on all its data: its ``fit_chosen`` does that where it is used (the fit draws on
+    its own generator, so when it runs changes no bit)."""
     regs, table = {}, {}
     with Progress(len(feats) * len(frames) * len(families), "learned residual: blocked CV") as bar:
         for name, f in feats.items():
@@ -95,7 +95,7 @@ def _fit_inputs(feats, r_um, fit_idx, groups, families, seed, columns, R=None, f
                               "output_frame": frame}
     fitted = [n for n in regs if regs[n].chosen_ != "none"]
     best = min(fitted, key=lambda n: table[n]["cv_rms"]) if fitted else next(iter(regs))
-    return best, (regs[best].fit_chosen() if final else regs[best]), table   # the others are not fitted on all data
+    return best, regs[best], table
 
 
 def condition_term_test(reg_static, f, r_static_um, c_um) -> dict:
@@ -204,8 +204,7 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     rho0 = work_radius(machine) if any(i != "axes" for i in inputs) else None
     feats = {name: input_features(axes, name, rho0, columns)[0] for name in inputs}
     groups = np.repeat(np.arange(CV_BLOCKS), int(np.ceil(len(fit_idx) / CV_BLOCKS)))[:len(fit_idx)]
-    fit_cands = (lambda r: _fit_inputs(feats, r, fit_idx, groups, families, seed, columns, R_chk, frames,
-                                       final=False))   # each final fit where it is used (fit_chosen, once)
+    fit_cands = (lambda r: _fit_inputs(feats, r, fit_idx, groups, families, seed, columns, R_chk, frames))
     key, reg, inputs_table = fit_cands(r_prev_um)
     r_base, replaces, alt, per_term, replaced_k = r_prev_um, False, None, None, ()
     if r_static_um is not None:
